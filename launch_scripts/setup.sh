@@ -1,0 +1,33 @@
+#!/usr/bin/env bash
+# Idempotent set-up: system library for open3d, a virtual environment at .venv with the
+# pinned dependencies, and this package installed in editable mode.
+# Fast when nothing changed (a stamp file records the hash of the inputs).
+set -euo pipefail
+repo="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
+cd "$repo"
+venv="$repo/.venv"
+stamp="$venv/.nbv_setup_stamp"
+want="$(cat requirements.txt setup.py launch_scripts/setup.sh | sha256sum | cut -d' ' -f1)"
+
+if [ -f "$stamp" ] && [ "$(cat "$stamp")" = "$want" ]; then
+  exit 0
+fi
+
+# open3d-cpu links against libusb-1.0 (Debian package libusb-1.0-0).
+if ! ldconfig -p 2>/dev/null | grep -q 'libusb-1.0.so.0'; then
+  echo "[setup] installing libusb-1.0-0 (needed by open3d)"
+  SUDO=""
+  [ "$(id -u)" -ne 0 ] && SUDO="sudo"
+  $SUDO apt-get update -qq
+  DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq libusb-1.0-0 >/dev/null
+fi
+
+if [ ! -x "$venv/bin/python" ]; then
+  echo "[setup] creating virtual environment $venv"
+  python3 -m venv "$venv"
+fi
+echo "[setup] installing pinned dependencies (requirements.txt)"
+"$venv/bin/python" -m pip install -q --disable-pip-version-check -r requirements.txt
+"$venv/bin/python" -m pip install -q --disable-pip-version-check --no-deps -e .
+echo "$want" > "$stamp"
+echo "[setup] done"

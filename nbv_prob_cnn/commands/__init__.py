@@ -1,0 +1,1 @@
+"""Sub-commands of the ``nbv`` command line, one module each."""

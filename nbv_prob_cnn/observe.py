@@ -1,0 +1,145 @@
+"""Simulated depth observation against a ground-truth grid (SPEC §2).
+
+Rays leave the centre of the camera cell through a pinhole pixel grid dense enough that
+neighbouring rays are at most half a cell apart at ``R_max``. Each ray is traversed exactly,
+cell by cell (Amanatides–Woo), all rays at once: a traversed cell becomes known if the ray
+enters it at a distance ``<= R_max`` (so no point of a newly known cell lies beyond
+``R_max``); the first ground-truth-occupied cell becomes occupied and stops the ray; leaving
+the grid stops the ray.
+
+Positions are in grid index coordinates: the centre of cell ``i`` is at ``i``.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from nbv_prob_cnn.camera import Sensor, matrix_from_quaternion
+from nbv_prob_cnn.grid import check_ground_truth, check_state
+
+#: Largest spacing (cells) between neighbouring simulated rays at ``R_max``.
+RAY_SPACING_CELLS = 0.5
+
+
+def camera_rays(sensor: Sensor, dims: int) -> np.ndarray:
+    """Unit ray directions in the camera frame (2D: +x forward; 3D: optical, +z forward).
+
+    The pixel pitch is chosen so that the angular step is at most ``0.5 / R_max`` rad.
+    """
+    focal = max(sensor.focal_px, sensor.r_max / RAY_SPACING_CELLS)
+    half_w = math.tan(math.radians(sensor.hfov_deg) / 2.0)
+    nx = max(2, math.ceil(2.0 * half_w * focal) + 1)
+    xs = np.linspace(-half_w, half_w, nx)
+    if dims == 2:
+        rays = np.stack([np.ones_like(xs), xs], axis=1)
+    else:
+        if sensor.vfov_deg is None:
+            raise ValueError("sensor: a 3D sensor needs vfov_deg")
+        half_h = math.tan(math.radians(sensor.vfov_deg) / 2.0)
+        ny = max(2, math.ceil(2.0 * half_h * focal) + 1)
+        ys = np.linspace(-half_h, half_h, ny)
+        gx, gy = np.meshgrid(xs, ys, indexing="xy")
+        rays = np.stack([gx.ravel(), gy.ravel(), np.ones(gx.size)], axis=1)
+    return rays / np.linalg.norm(rays, axis=1, keepdims=True)
+
+
+def world_rays(orientation: np.ndarray | float, sensor: Sensor, dims: int) -> np.ndarray:
+    """Camera rays rotated into grid axes for one orientation (yaw in 2D, quaternion in 3D)."""
+    rays = camera_rays(sensor, dims)
+    if dims == 2:
+        yaw = float(orientation)
+        if not math.isfinite(yaw):
+            raise ValueError(f"orientation: expected a finite yaw angle, got {orientation}")
+        c, s = math.cos(yaw), math.sin(yaw)
+        rot = np.array([[c, -s], [s, c]])
+    else:
+        rot = matrix_from_quaternion(orientation)
+    return rays @ rot.T
+
+
+def traverse(
+    shape: tuple[int, ...], origin: np.ndarray, directions: np.ndarray, r_max: float, stop: np.ndarray | None
+) -> np.ndarray:
+    """Flat indices of the cells the rays traverse (Amanatides–Woo), with repeats.
+
+    Args:
+        shape: grid shape.
+        origin: ray origin in index coordinates (cell ``i`` spans ``[i-0.5, i+0.5]``).
+        directions: ``(K, dims)`` unit vectors.
+        r_max: a cell is included if the ray enters it at distance ``<= r_max``.
+        stop: flat boolean grid; a ray includes the first ``True`` cell and stops there.
+    """
+    dims = len(shape)
+    shape_arr = np.array(shape, dtype=np.int64)
+    strides = np.array([int(np.prod(shape[i + 1 :])) for i in range(dims)], dtype=np.int64)
+    p = np.asarray(origin, dtype=np.float64) + 0.5
+    d = np.asarray(directions, dtype=np.float64)
+    k = d.shape[0]
+    cell = np.broadcast_to(np.floor(p).astype(np.int64), (k, dims)).copy()
+    step = np.where(d > 0, 1, -1).astype(np.int64)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        inv = np.where(d != 0, 1.0 / d, np.inf)
+        t_max = np.where(d != 0, ((cell + (step > 0)) - p) * inv, np.inf)
+    t_delta = np.abs(inv)
+    t_enter = np.zeros(k)
+    rows = np.arange(k)
+    visited = []
+    while rows.size:
+        inside = np.all((cell >= 0) & (cell < shape_arr), axis=1) & (t_enter <= r_max)
+        rows, cell, t_max, t_delta, t_enter, step = (
+            rows[inside], cell[inside], t_max[inside], t_delta[inside], t_enter[inside], step[inside]
+        )
+        if not rows.size:
+            break
+        flat = cell @ strides
+        visited.append(flat)
+        if stop is not None:
+            go = ~stop[flat]
+            rows, cell, t_max, t_delta, t_enter, step = (
+                rows[go], cell[go], t_max[go], t_delta[go], t_enter[go], step[go]
+            )
+        axis = np.argmin(t_max, axis=1)
+        idx = np.arange(rows.size)
+        t_enter = t_max[idx, axis]
+        cell[idx, axis] += step[idx, axis]
+        t_max[idx, axis] += t_delta[idx, axis]
+    return np.concatenate(visited) if visited else np.zeros(0, dtype=np.int64)
+
+
+def observe(
+    state: np.ndarray,
+    ground_truth: np.ndarray,
+    position: np.ndarray,
+    orientation: np.ndarray | float,
+    sensor: Sensor,
+) -> int:
+    """Simulate one depth view and merge it into ``state`` in place.
+
+    Args:
+        state: ternary ``int8`` grid, updated in place (must be C-contiguous ``int8``).
+        ground_truth: binary grid ``D`` of the same shape.
+        position: camera position in index coordinates, inside the grid.
+        orientation: yaw (2D, radians) or quaternion ``(x, y, z, w)`` (3D).
+        sensor: field of view and range (cells).
+
+    Returns:
+        The number of cells that were unknown and are now known.
+    """
+    checked = check_state(state)
+    if checked is not state:
+        raise ValueError("state: must be a C-contiguous int8 array (it is updated in place)")
+    truth = check_ground_truth(ground_truth, state.shape)
+    pos = np.asarray(position, dtype=np.float64).reshape(-1)
+    if pos.shape[0] != state.ndim or not np.all(np.isfinite(pos)):
+        raise ValueError(f"position: expected {state.ndim} finite coordinates, got {pos.tolist()}")
+    if np.any(pos < -0.5) or np.any(pos >= np.array(state.shape) - 0.5):
+        raise ValueError(f"position: {pos.tolist()} lies outside the grid of shape {state.shape}")
+    rays = world_rays(orientation, sensor, state.ndim)
+    flat_truth = truth.reshape(-1)
+    cells = np.unique(traverse(state.shape, pos, rays, sensor.r_max, flat_truth.astype(bool)))
+    flat_state = state.reshape(-1)
+    newly = int(np.count_nonzero(flat_state[cells] == -1))
+    flat_state[cells] = flat_truth[cells].astype(np.int8)
+    return newly

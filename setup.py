@@ -1,0 +1,28 @@
+"""Install script for nbv_prob_cnn (ament_python layout, also a plain pip package)."""
+
+from setuptools import find_packages, setup
+
+PACKAGE = "nbv_prob_cnn"
+
+setup(
+    name=PACKAGE,
+    version="0.1.0",
+    packages=find_packages(exclude=["test", "test.*"]),
+    package_data={PACKAGE: ["gain/*.cl", "weights/*.pt", "weights/*.md"]},
+    data_files=[
+        ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
+        (f"share/{PACKAGE}", ["package.xml"]),
+    ],
+    python_requires=">=3.10",
+    install_requires=["numpy", "scipy", "matplotlib", "tqdm"],
+    zip_safe=False,
+    maintainer="nbv_prob_cnn maintainers",
+    maintainer_email="maintainers@nbv-prob-cnn.dev",
+    description="Probabilistic next best view planning with a completion CNN (ROS 2 + core library)",
+    license="BSD-3-Clause",
+    entry_points={
+        "console_scripts": [
+            "nbv = nbv_prob_cnn.cli:main",
+        ],
+    },
+)
