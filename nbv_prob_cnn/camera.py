@@ -161,9 +161,7 @@ def orientations(dims: int) -> np.ndarray:
     if dims == 2:
         return np.deg2rad(np.arange(0, 360, 6, dtype=np.float64))
     if dims == 3:
-        quats = [
-            quaternion_from_matrix(look_rotation(d, roll)) for d in view_directions_3d() for roll in (0.0, 90.0)
-        ]
+        quats = [quaternion_from_matrix(look_rotation(d, roll)) for d in view_directions_3d() for roll in (0.0, 90.0)]
         return np.array(quats)
     raise ValueError(f"dims: expected 2 or 3, got {dims}")
 

@@ -54,7 +54,9 @@ def check_probability(prob: np.ndarray, shape: tuple[int, ...], name: str = "pro
     return np.ascontiguousarray(prob, dtype=np.float32)
 
 
-def check_ground_truth(truth: np.ndarray, shape: tuple[int, ...] | None = None, name: str = "ground_truth") -> np.ndarray:
+def check_ground_truth(
+    truth: np.ndarray, shape: tuple[int, ...] | None = None, name: str = "ground_truth"
+) -> np.ndarray:
     """Validate a binary ground-truth grid (1 occupied, 0 empty); return it as ``uint8``."""
     if not isinstance(truth, np.ndarray):
         raise ValueError(f"{name}: expected a numpy array, got {type(truth).__name__}")

@@ -89,7 +89,12 @@ def traverse(
     while rows.size:
         inside = np.all((cell >= 0) & (cell < shape_arr), axis=1) & (t_enter <= r_max)
         rows, cell, t_max, t_delta, t_enter, step = (
-            rows[inside], cell[inside], t_max[inside], t_delta[inside], t_enter[inside], step[inside]
+            rows[inside],
+            cell[inside],
+            t_max[inside],
+            t_delta[inside],
+            t_enter[inside],
+            step[inside],
         )
         if not rows.size:
             break
@@ -98,7 +103,12 @@ def traverse(
         if stop is not None:
             go = ~stop[flat]
             rows, cell, t_max, t_delta, t_enter, step = (
-                rows[go], cell[go], t_max[go], t_delta[go], t_enter[go], step[go]
+                rows[go],
+                cell[go],
+                t_max[go],
+                t_delta[go],
+                t_enter[go],
+                step[go],
             )
         axis = np.argmin(t_max, axis=1)
         idx = np.arange(rows.size)

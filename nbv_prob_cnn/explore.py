@@ -1,0 +1,141 @@
+"""The exploration protocol of SPEC §9: start all-unknown, a random first view, then the
+planner's views, each simulated and merged, logged per iteration."""
+
+from __future__ import annotations
+
+import csv
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from tqdm import tqdm
+
+from nbv_prob_cnn.camera import yaw_quaternion
+from nbv_prob_cnn.grid import unknown_fraction, unknown_fraction_all
+from nbv_prob_cnn.observe import observe
+from nbv_prob_cnn.planners import Planner, PlanningContext, ViewChoice
+from nbv_prob_cnn.worlds.world import World
+
+CSV_COLUMNS = (
+    "iteration,unknown_fraction,unknown_fraction_all,gain,time_total_s,time_cnn_s,time_raycast_s,"
+    "time_views_s,x,y,z,qx,qy,qz,qw"
+).split(",")
+
+
+@dataclass
+class IterationRecord:
+    """One view of a run: state after merging it, the planner's gain and stage times."""
+
+    iteration: int
+    unknown_fraction: float
+    unknown_fraction_all: float
+    gain: float
+    time_total_s: float
+    time_cnn_s: float
+    time_raycast_s: float
+    time_views_s: float
+    cell: np.ndarray
+    position_m: np.ndarray
+    quaternion: np.ndarray
+
+    def csv_row(self) -> list:
+        return [
+            self.iteration,
+            f"{self.unknown_fraction:.6f}",
+            f"{self.unknown_fraction_all:.6f}",
+            f"{self.gain:.6g}",
+            f"{self.time_total_s:.6f}",
+            f"{self.time_cnn_s:.6f}",
+            f"{self.time_raycast_s:.6f}",
+            f"{self.time_views_s:.6f}",
+            *(f"{v:.6f}" for v in self.position_m),
+            *(f"{v:.6f}" for v in self.quaternion),
+        ]
+
+
+@dataclass
+class ExplorationResult:
+    """The per-view log, the final grid and why the run stopped."""
+
+    records: list[IterationRecord]
+    state: np.ndarray
+    stop_reason: str
+
+
+def cell_to_metres(world: World, cell: np.ndarray) -> np.ndarray:
+    """Centre of a cell in world metres, always 3 components (z = 0 in 2D)."""
+    xyz = np.zeros(3)
+    xyz[: world.dims] = np.asarray(world.origin, dtype=np.float64)[: world.dims] + (cell + 0.5) * world.resolution
+    return xyz
+
+
+def view_quaternion(context: PlanningContext, view_index: int) -> np.ndarray:
+    """Quaternion (x, y, z, w) of a candidate orientation (2D: the yaw about +z)."""
+    orientation = context.orientations[view_index]
+    return yaw_quaternion(float(orientation)) if context.defaults.dims == 2 else np.asarray(orientation, dtype=float)
+
+
+def first_view(world: World, context: PlanningContext) -> ViewChoice:
+    """A random ground-truth-empty cell and a random candidate orientation."""
+    free = np.argwhere(world.ground_truth == 0)
+    if free.shape[0] == 0:
+        raise ValueError("world: has no empty cell to place the first view")
+    cell = free[context.rng.integers(free.shape[0])]
+    return ViewChoice(cell, int(context.rng.integers(context.orientations.shape[0])), float("nan"))
+
+
+def explore(
+    world: World, planner: Planner, context: PlanningContext, views: int, progress: bool = True
+) -> ExplorationResult:
+    """Run one exploration of ``world`` with ``planner`` for at most ``views`` views.
+
+    The first view is random (SPEC §9); the run stops early when the planner finds no view
+    with positive gain.
+    """
+    if views < 1:
+        raise ValueError(f"views: expected at least 1 view, got {views}")
+    state = np.full(world.shape, -1, dtype=np.int8)
+    records: list[IterationRecord] = []
+    stop_reason = f"reached {views} views"
+    bar = tqdm(total=views, desc=f"{world.dataset} {planner.name}", unit="view", disable=not progress)
+    choice: ViewChoice | None = first_view(world, context)
+    elapsed = 0.0
+    for iteration in range(views):
+        if iteration > 0:
+            start = time.perf_counter()
+            choice = planner.plan(state, context)
+            elapsed = time.perf_counter() - start
+            if choice is None:
+                stop_reason = f"no view with positive gain after {iteration} views"
+                break
+        orientation = context.orientations[choice.view_index]
+        observe(state, world.ground_truth, choice.cell, orientation, context.active_sensor)
+        records.append(
+            IterationRecord(
+                iteration=iteration,
+                unknown_fraction=unknown_fraction(state, world.ground_truth),
+                unknown_fraction_all=unknown_fraction_all(state),
+                gain=choice.gain,
+                time_total_s=elapsed,
+                time_cnn_s=choice.times["cnn"],
+                time_raycast_s=choice.times["raycast"],
+                time_views_s=choice.times["views"],
+                cell=np.asarray(choice.cell).copy(),
+                position_m=cell_to_metres(world, choice.cell),
+                quaternion=view_quaternion(context, choice.view_index),
+            )
+        )
+        bar.update(1)
+        bar.set_postfix(unknown=f"{records[-1].unknown_fraction:.3f}", plan_s=f"{elapsed:.2f}")
+    bar.close()
+    return ExplorationResult(records, state, stop_reason)
+
+
+def write_csv(records: list[IterationRecord], path: str | Path) -> None:
+    """Write the per-iteration log with the columns of :data:`CSV_COLUMNS`."""
+    with open(path, "w", newline="") as handle:
+        writer = csv.writer(handle)
+        writer.writerow(CSV_COLUMNS)
+        for record in records:
+            writer.writerow(record.csv_row())

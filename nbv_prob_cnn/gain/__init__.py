@@ -1,0 +1,153 @@
+"""Probabilistic ray-casting gain (SPEC §4) and view evaluation (SPEC §5).
+
+Public API:
+    * :func:`ray_directions` — the ``H_r`` unit vectors.
+    * :func:`ray_gains` — ``G_r(v, h)`` for every origin and ray, on the ``"opencl"`` kernel or
+      the ``"numpy"`` reference.
+    * :func:`view_gains` — ``G_W(v, W)`` as one (origins × rays) @ (rays × views) product.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from nbv_prob_cnn.camera import in_frustum
+from nbv_prob_cnn.gain.directions import check_directions, distance_weights, ray_directions, sample_offsets
+from nbv_prob_cnn.gain.reference import ig_gains_reference, ray_gains_reference
+from nbv_prob_cnn.grid import check_probability, check_state
+
+BACKENDS = ("auto", "opencl", "numpy")
+
+__all__ = ["BACKENDS", "ray_directions", "ray_gains", "view_gains", "view_membership", "empty_origins"]
+
+
+def empty_origins(state: np.ndarray, stride: int = 1) -> np.ndarray:
+    """Empty cells of ``state`` in ``np.argwhere`` order; with ``stride > 1`` only cells whose
+    every coordinate is a multiple of ``stride`` (3DT uses 2: one cell in 8)."""
+    empty = state == 0
+    if stride > 1:
+        sub = np.zeros_like(empty)
+        keep = tuple(slice(None, None, stride) for _ in range(state.ndim))
+        sub[keep] = empty[keep]
+        empty = sub
+    return np.argwhere(empty)
+
+
+def _check_origins(origins: np.ndarray | None, state: np.ndarray) -> np.ndarray:
+    if origins is None:
+        return empty_origins(state)
+    arr = np.asarray(origins)
+    if arr.ndim != 2 or arr.shape[1] != state.ndim:
+        raise ValueError(f"origins: expected an (N, {state.ndim}) integer array, got shape {arr.shape}")
+    if arr.size and not np.issubdtype(arr.dtype, np.integer):
+        raise ValueError(f"origins: expected integer cell indices, got dtype {arr.dtype}")
+    arr = arr.astype(np.int64)
+    if arr.size and (np.any(arr < 0) or np.any(arr >= np.array(state.shape))):
+        raise ValueError(f"origins: cell indices outside the grid of shape {state.shape}")
+    return arr
+
+
+def ray_gains(
+    state: np.ndarray,
+    prob: np.ndarray | None,
+    directions: np.ndarray,
+    r_max: int,
+    origins: np.ndarray | None = None,
+    backend: str = "auto",
+    *,
+    mode: str = "prob",
+    eps: float = 0.0,
+    min_range: float = 0.0,
+) -> np.ndarray:
+    """Normalised ray gain ``G_r(v, h) = H / (H + M)`` of SPEC §4.
+
+    Args:
+        state: ternary ``int8`` grid ``C`` (2D or 3D).
+        prob: probabilistic map ``P`` (float32, same shape, in [0, 1]); only read in unknown
+            cells. Ignored (may be None) with ``mode="ig"``.
+        directions: ``(R, dims)`` unit vectors, e.g. from :func:`ray_directions`.
+        r_max: maximum range ``N`` in cells; samples ``t = 0..r_max``.
+        origins: ``(N, dims)`` integer cell indices; default: every empty cell
+            (``np.argwhere`` order).
+        backend: ``"opencl"``, ``"numpy"`` (reference) or ``"auto"`` (OpenCL if a device works).
+        mode: ``"prob"`` (equations (2)–(6)) or ``"ig"`` (non-probabilistic information gain:
+            the first non-empty sample, weighted ``t^nu / sum t^nu``, if unknown and
+            ``t >= min_range``).
+        eps: OpenCL only: stop a ray once ``Pr(r_t) <= eps``. ``0`` is exact (a ray stops only
+            when ``Pr`` is exactly 0: occupied cell or grid border). With ``eps > 0`` each
+            ``G_r`` is under-estimated by less than ``eps`` (the remaining terms sum to at
+            most ``Pr * sum_t t^nu``).
+        min_range: ``mode="ig"`` only, minimum sensor range in cells.
+
+    Returns:
+        ``(N, R)`` float32 in [0, 1].
+
+    Raises:
+        ValueError: bad grid, probability map, directions, origins, range, mode or backend.
+    """
+    state = check_state(state)
+    if mode not in ("prob", "ig"):
+        raise ValueError(f"mode: expected 'prob' or 'ig', got {mode!r}")
+    if backend not in BACKENDS:
+        raise ValueError(f"backend: expected one of {BACKENDS}, got {backend!r}")
+    if not isinstance(r_max, (int, np.integer)) or not 1 <= r_max <= 4096:
+        raise ValueError(f"r_max: expected an integer range in cells in [1, 4096], got {r_max!r}")
+    if not (np.isfinite(eps) and 0.0 <= eps < 1.0):
+        raise ValueError(f"eps: expected a tolerance in [0, 1), got {eps!r}")
+    if mode == "prob":
+        if prob is None:
+            raise ValueError("prob: a probability map is required for mode='prob'")
+        prob = check_probability(prob, state.shape)
+    directions = check_directions(directions, state.ndim)
+    origins = _check_origins(origins, state)
+
+    if backend == "auto":
+        from nbv_prob_cnn.gain.opencl import opencl_available
+
+        backend = "opencl" if opencl_available() else "numpy"
+    if backend == "numpy":
+        if mode == "ig":
+            return ig_gains_reference(state, directions, r_max, origins, min_range)
+        return ray_gains_reference(state, prob, directions, r_max, origins)
+
+    from nbv_prob_cnn.gain.opencl import encode_grid, get_ray_caster
+
+    code = encode_grid(state, prob if mode == "prob" else None)
+    offsets = sample_offsets(directions, r_max)
+    total = float(distance_weights(r_max, state.ndim).sum())
+    return get_ray_caster().run(code, origins, offsets, total, mode, eps, min_range)
+
+
+def view_membership(
+    directions: np.ndarray, orientations: np.ndarray, hfov_deg: float, vfov_deg: float | None = None
+) -> np.ndarray:
+    """``(R, V)`` float32 0/1 matrix: ray ``h`` lies in the frustum of view ``W``."""
+    return in_frustum(directions, orientations, hfov_deg, vfov_deg).astype(np.float32)
+
+
+def view_gains(
+    ray_gains: np.ndarray,
+    directions: np.ndarray,
+    orientations: np.ndarray,
+    hfov_deg: float,
+    vfov_deg: float | None = None,
+) -> np.ndarray:
+    """``G_W(v, W) = sum of G_r(v, h) over the rays h inside the view W`` (equation (7)).
+
+    Args:
+        ray_gains: ``(N, R)`` from :func:`ray_gains`.
+        directions: the ``(R, dims)`` directions used for ``ray_gains``.
+        orientations: ``(V,)`` yaws (2D) or ``(V, 4)`` quaternions (3D).
+
+    Returns:
+        ``(N, V)`` float32.
+    """
+    gains = np.asarray(ray_gains)
+    dims = np.asarray(directions).shape[-1] if np.ndim(directions) == 2 else 0
+    directions = check_directions(directions, dims if dims in (2, 3) else 3)
+    if gains.ndim != 2 or gains.shape[1] != directions.shape[0]:
+        raise ValueError(f"ray_gains: expected shape (N, {directions.shape[0]}), got {gains.shape}")
+    if not np.all(np.isfinite(gains)):
+        raise ValueError("ray_gains: contains NaN or infinite values")
+    membership = view_membership(directions, orientations, hfov_deg, vfov_deg)
+    return gains.astype(np.float32, copy=False) @ membership

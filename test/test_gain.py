@@ -1,0 +1,173 @@
+"""Ray gain (SPEC §4) on hand-worked grids, backend agreement, and validation."""
+
+import numpy as np
+import pytest
+
+from nbv_prob_cnn.gain import ray_directions, ray_gains, view_gains
+from nbv_prob_cnn.gain.directions import distance_weights
+from nbv_prob_cnn.gain.reference import ray_terms
+
+BACKENDS = ["numpy", "opencl"]
+E, O, U = 0, 1, -1  # noqa: E741
+
+
+def _row_world(values, probs, height=3):
+    """A 2D grid whose middle row y=1 holds ``values``/``probs`` (other rows occupied)."""
+    state = np.full((len(values), height), O, dtype=np.int8)
+    prob = np.ones(state.shape, dtype=np.float32)
+    state[:, 1] = values
+    prob[:, 1] = probs
+    prob[state == E] = 0.0
+    return state, prob
+
+
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_single_ray_through_empty_unknown_occupied_2d(backend):
+    # x:      0  1    2  3    4  5
+    state, prob = _row_world([E, U, E, U, O, U, E, E], [0, 0.5, 0, 0.2, 1, 0.9, 0, 0])
+    gains = ray_gains(state, prob, np.array([[1.0, 0.0]]), 5, origins=np.array([[0, 1]]), backend=backend)
+    # weights t = 0..5, sum 15; H = 1*1 (t1) + 0.5*3 (t3, after p=0.5) ; occupied at t4 hides t5
+    assert gains.shape == (1, 1) and gains.dtype == np.float32
+    assert gains[0, 0] == pytest.approx(2.5 / 15, abs=1e-6)
+
+
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_grid_border_counts_as_occupied(backend):
+    state, prob = _row_world([E, E, E, E, U, U], [0, 0, 0, 0, 0.15, 0.15])
+    gains = ray_gains(state, prob, np.array([[1.0, 0.0]]), 5, origins=np.array([[3, 1]]), backend=backend)
+    # t1: x4 (Pr 1), t2: x5 (Pr 0.85), t3..5 outside the grid -> nothing
+    assert gains[0, 0] == pytest.approx((1 * 1 + 0.85 * 2) / 15, abs=1e-6)
+
+
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_diagonal_ray_with_occluder_samples_rounded_cells(backend):
+    state = np.full((8, 8), U, dtype=np.int8)
+    prob = np.full(state.shape, 0.5, dtype=np.float32)
+    state[0, 0] = E
+    prob[0, 0] = 0
+    state[2, 2] = O  # occluder
+    prob[2, 2] = 1
+    direction = np.array([[1.0, 1.0]]) / np.sqrt(2)
+    gains = ray_gains(state, prob, direction, 5, origins=np.array([[0, 0]]), backend=backend)
+    # round(t/sqrt2) = 0, 1, 1, 2, 3, 4: cell (1,1) is sampled twice (t=1 Pr=1, t=2 Pr=0.5),
+    # then (2,2) is occupied and hides the rest.
+    assert gains[0, 0] == pytest.approx((1 * 1 + 0.5 * 2) / 15, abs=1e-6)
+
+
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_single_ray_3d_uses_squared_distance(backend):
+    state = np.full((3, 3, 6), O, dtype=np.int8)
+    prob = np.ones(state.shape, dtype=np.float32)
+    state[1, 1, :] = [E, U, U, U, O, U]
+    prob[1, 1, :] = [0, 0.5, 0.5, 0.5, 1, 0.3]
+    gains = ray_gains(state, prob, np.array([[0.0, 0.0, 1.0]]), 4, origins=np.array([[1, 1, 0]]), backend=backend)
+    # weights t^2 = 0, 1, 4, 9, 16 (sum 30); H = 1 + 0.5*4 + 0.25*9
+    assert gains[0, 0] == pytest.approx(5.25 / 30, abs=1e-6)
+
+
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_information_gain_stops_at_first_non_empty(backend):
+    state, _ = _row_world([E, E, U, U, E, E], [0] * 6)
+    gains = ray_gains(state, None, np.array([[1.0, 0.0]]), 5, np.array([[0, 1]]), backend, mode="ig")
+    assert gains[0, 0] == pytest.approx(2 / 15, abs=1e-6)  # first non-empty: unknown at t=2
+    gains = ray_gains(state, None, np.array([[1.0, 0.0]]), 5, np.array([[0, 1]]), backend, mode="ig", min_range=3)
+    assert gains[0, 0] == 0.0  # the unknown cell is closer than the minimum range
+    occluded, _ = _row_world([E, O, U, U, U, U], [0] * 6)
+    assert ray_gains(occluded, None, np.array([[1.0, 0.0]]), 5, np.array([[0, 1]]), backend, mode="ig")[0, 0] == 0
+
+
+def test_ray_counts_and_unit_length():
+    for dims, n, count in [(2, 16, 60), (3, 4, 56), (3, 16, 1352), (2, 4, 12)]:
+        d = ray_directions(dims, n)
+        assert d.shape == (count, dims)
+        np.testing.assert_allclose(np.linalg.norm(d, axis=1), 1.0)
+        np.testing.assert_allclose(d.sum(axis=0), 0.0, atol=1e-9)  # symmetric set
+        assert len({tuple(np.round(v, 9)) for v in d}) == count  # all distinct
+    # 3D, 4 per side: a face sub-cell centre (1.5, 0.5, 0.5) in sub-cell units from the cube centre
+    assert any(
+        np.allclose(v, np.array([1.5, 0.5, 0.5]) / np.linalg.norm([1.5, 0.5, 0.5])) for v in ray_directions(3, 4)
+    )
+
+
+def _random_world(rng, shape):
+    state = rng.choice(np.array([U, E, O], dtype=np.int8), size=shape, p=[0.45, 0.45, 0.1])
+    prob = rng.random(shape).astype(np.float32)
+    prob[state == E] = 0
+    prob[state == O] = 1
+    return state, prob
+
+
+@pytest.mark.parametrize("shape,n_rays,r_max", [((37, 29), 16, 24), ((17, 15, 13), 4, 9), ((12, 11, 10), 16, 7)])
+def test_backends_agree_on_random_grids(rng, shape, n_rays, r_max):
+    state, prob = _random_world(rng, shape)
+    d = ray_directions(len(shape), n_rays)
+    a = ray_gains(state, prob, d, r_max, backend="numpy")
+    b = ray_gains(state, prob, d, r_max, backend="opencl")
+    assert a.shape == (np.count_nonzero(state == E), d.shape[0])
+    assert a.max() > 0.05  # a meaningful comparison, not all zeros
+    np.testing.assert_allclose(a, b, atol=1e-5)
+    ig_a = ray_gains(state, None, d, r_max, backend="numpy", mode="ig")
+    ig_b = ray_gains(state, None, d, r_max, backend="opencl", mode="ig")
+    np.testing.assert_allclose(ig_a, ig_b, atol=1e-6)
+
+
+def test_hit_plus_miss_is_constant(rng):
+    for shape, dims_rays in [((30, 30), 16), ((12, 12, 12), 4)]:
+        state, prob = _random_world(rng, shape)
+        d = ray_directions(len(shape), dims_rays)
+        hit, miss = ray_terms(state, prob, d, 10, np.argwhere(state == E))
+        np.testing.assert_allclose(hit + miss, distance_weights(10, len(shape)).sum(), rtol=1e-12)
+
+
+def test_tolerance_bound_holds(rng):
+    state, prob = _random_world(rng, (20, 20, 20))
+    prob[state == U] = 0.02  # long rays, Pr decays slowly
+    d = ray_directions(3, 4)
+    exact = ray_gains(state, prob, d, 12, backend="opencl")
+    approx = ray_gains(state, prob, d, 12, backend="opencl", eps=0.3)
+    assert np.all(approx <= exact + 1e-6)
+    assert np.all(exact - approx <= 0.3 + 1e-6)
+
+
+def test_view_gains_sum_rays_in_frustum():
+    d = ray_directions(2, 16)
+    g = np.zeros((1, d.shape[0]), dtype=np.float32)
+    angles = np.degrees(np.arctan2(d[:, 1], d[:, 0]))
+    g[0, np.argmin(np.abs(angles - 3.0))] = 1.0  # the ray nearest to +3 deg
+    yaws = np.deg2rad(np.arange(0, 360, 6))
+    w = view_gains(g, d, yaws, 60.0)
+    assert w.shape == (1, 60)
+    ray_angle = angles[np.argmin(np.abs(angles - 3.0))]
+    expected = [abs((ray_angle - y + 180) % 360 - 180) <= 30 for y in np.arange(0, 360, 6)]
+    np.testing.assert_array_equal(w[0] > 0, expected)
+    assert 9 <= sum(expected) <= 11
+
+
+@pytest.mark.parametrize(
+    "kwargs,match",
+    [
+        ({"state": np.zeros((4, 4), dtype=np.float32)}, "state"),
+        ({"state": np.full((4, 4), 2, dtype=np.int8)}, "state"),
+        ({"state": np.zeros(16, dtype=np.int8)}, "state"),
+        ({"prob": np.zeros((4, 5), dtype=np.float32)}, "prob"),
+        ({"prob": np.full((4, 4), np.nan, dtype=np.float32)}, "prob"),
+        ({"prob": np.full((4, 4), 1.5, dtype=np.float32)}, "prob"),
+        ({"directions": np.ones((3, 3))}, "directions"),
+        ({"r_max": 0}, "r_max"),
+        ({"origins": np.array([[9, 9]])}, "origins"),
+        ({"origins": np.array([[0.5, 1.0]])}, "origins"),
+        ({"backend": "cuda"}, "backend"),
+    ],
+)
+def test_bad_inputs_raise_value_error(kwargs, match):
+    args = {
+        "state": np.zeros((4, 4), dtype=np.int8),
+        "prob": np.zeros((4, 4), dtype=np.float32),
+        "directions": ray_directions(2, 4),
+        "r_max": 3,
+        "origins": None,
+        "backend": "numpy",
+    }
+    args.update(kwargs)
+    with pytest.raises(ValueError, match=match):
+        ray_gains(**args)
