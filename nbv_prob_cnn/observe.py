@@ -8,11 +8,17 @@ enters it at a distance ``<= R_max`` (so no point of a newly known cell lies bey
 the grid stops the ray.
 
 Positions are in grid index coordinates: the centre of cell ``i`` is at ``i``.
+
+Two backends trace the rays: :func:`traverse` (numpy, the reference) and the OpenCL kernel
+``traverse.cl``, which repeats the same operations in the same precision (double where the
+device has it) and is used by default when an OpenCL device exists.
 """
 
 from __future__ import annotations
 
+import functools
 import math
+from pathlib import Path
 
 import numpy as np
 
@@ -118,12 +124,50 @@ def traverse(
     return np.concatenate(visited) if visited else np.zeros(0, dtype=np.int64)
 
 
+@functools.lru_cache(maxsize=1)
+def _traverse_kernel():
+    from nbv_prob_cnn.cl_device import cl_runtime
+
+    runtime = cl_runtime()
+    options = ("-DUSE_DOUBLE",) if runtime.has_fp64 else ()
+    program = runtime.build(Path(__file__).with_name("traverse.cl"), options)
+    return runtime, runtime.cl.Kernel(program, "traverse"), np.float64 if runtime.has_fp64 else np.float32
+
+
+def traverse_opencl(
+    shape: tuple[int, ...], origin: np.ndarray, directions: np.ndarray, r_max: float, stop: np.ndarray
+) -> np.ndarray:
+    """Same as :func:`traverse` on the OpenCL device; returns the unique flat indices."""
+    runtime, kernel, real = _traverse_kernel()
+    cl = runtime.cl
+    mf = cl.mem_flags
+    shape3 = tuple(shape) + (1,) * (3 - len(shape))
+    p = np.zeros(3)
+    p[: len(shape)] = np.asarray(origin, dtype=np.float64) + 0.5
+    p[len(shape) :] = 0.5
+    dirs = np.zeros((directions.shape[0], 3), dtype=real)
+    dirs[:, : directions.shape[1]] = directions
+    stop_buf = cl.Buffer(runtime.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=np.ascontiguousarray(stop, np.uint8))
+    dir_buf = cl.Buffer(runtime.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=dirs)
+    seen = np.zeros(int(np.prod(shape)), dtype=np.uint8)
+    seen_buf = cl.Buffer(runtime.context, mf.READ_WRITE | mf.COPY_HOST_PTR, hostbuf=seen)
+    kernel.set_args(
+        stop_buf, *(np.int32(n) for n in shape3), *(real(v) for v in p), dir_buf,
+        np.int32(dirs.shape[0]), real(r_max), seen_buf,
+    )  # fmt: skip
+    cl.enqueue_nd_range_kernel(runtime.queue, kernel, (dirs.shape[0],), None)
+    cl.enqueue_copy(runtime.queue, seen, seen_buf)
+    runtime.queue.finish()
+    return np.flatnonzero(seen)
+
+
 def observe(
     state: np.ndarray,
     ground_truth: np.ndarray,
     position: np.ndarray,
     orientation: np.ndarray | float,
     sensor: Sensor,
+    backend: str = "auto",
 ) -> int:
     """Simulate one depth view and merge it into ``state`` in place.
 
@@ -133,6 +177,7 @@ def observe(
         position: camera position in index coordinates, inside the grid.
         orientation: yaw (2D, radians) or quaternion ``(x, y, z, w)`` (3D).
         sensor: field of view and range (cells).
+        backend: ``"opencl"``, ``"numpy"`` or ``"auto"`` (OpenCL if a device works).
 
     Returns:
         The number of cells that were unknown and are now known.
@@ -146,9 +191,18 @@ def observe(
         raise ValueError(f"position: expected {state.ndim} finite coordinates, got {pos.tolist()}")
     if np.any(pos < -0.5) or np.any(pos >= np.array(state.shape) - 0.5):
         raise ValueError(f"position: {pos.tolist()} lies outside the grid of shape {state.shape}")
+    if backend not in ("auto", "opencl", "numpy"):
+        raise ValueError(f"backend: expected 'auto', 'opencl' or 'numpy', got {backend!r}")
+    if backend == "auto":
+        from nbv_prob_cnn.cl_device import opencl_available
+
+        backend = "opencl" if opencl_available() else "numpy"
     rays = world_rays(orientation, sensor, state.ndim)
     flat_truth = truth.reshape(-1)
-    cells = np.unique(traverse(state.shape, pos, rays, sensor.r_max, flat_truth.astype(bool)))
+    if backend == "opencl":
+        cells = traverse_opencl(state.shape, pos, rays, sensor.r_max, flat_truth)
+    else:
+        cells = np.unique(traverse(state.shape, pos, rays, sensor.r_max, flat_truth.astype(bool)))
     flat_state = state.reshape(-1)
     newly = int(np.count_nonzero(flat_state[cells] == -1))
     flat_state[cells] = flat_truth[cells].astype(np.int8)

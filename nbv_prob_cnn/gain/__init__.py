@@ -102,7 +102,7 @@ def ray_gains(
     origins = _check_origins(origins, state)
 
     if backend == "auto":
-        from nbv_prob_cnn.gain.opencl import opencl_available
+        from nbv_prob_cnn.cl_device import opencl_available
 
         backend = "opencl" if opencl_available() else "numpy"
     if backend == "numpy":

@@ -1,17 +1,14 @@
-"""OpenCL backend of the ray gain: one kernel (``raycast.cl``) for every method.
-
-Runs on a GPU when one is present, otherwise on the CPU through pocl. Select a device with
-the environment variable ``NBV_OPENCL_DEVICE`` (a substring of the device name) if needed.
-"""
+"""OpenCL backend of the ray gain: one kernel (``raycast.cl``) for every method, on the
+device of :mod:`nbv_prob_cnn.cl_device` (a GPU if present, else the CPU through pocl)."""
 
 from __future__ import annotations
 
 import functools
-import os
-import warnings
 from pathlib import Path
 
 import numpy as np
+
+from nbv_prob_cnn.cl_device import cl_runtime
 
 KERNEL_SOURCE = Path(__file__).with_name("raycast.cl")
 MODES = {"prob": 0, "ig": 1}
@@ -29,32 +26,14 @@ def encode_grid(state: np.ndarray, prob: np.ndarray | None) -> np.ndarray:
     return np.where(state == -1, prob, code).astype(np.float32)
 
 
-def _pick_device(cl):
-    wanted = os.environ.get("NBV_OPENCL_DEVICE", "").lower()
-    devices = [d for p in cl.get_platforms() for d in p.get_devices()]
-    if not devices:
-        raise RuntimeError("no OpenCL device found (install pyopencl[pocl] for the CPU)")
-    if wanted:
-        matching = [d for d in devices if wanted in d.name.lower()]
-        if not matching:
-            raise RuntimeError(f"NBV_OPENCL_DEVICE={wanted!r} matches none of {[d.name for d in devices]}")
-        return matching[0]
-    gpus = [d for d in devices if d.type & cl.device_type.GPU]
-    return (gpus or devices)[0]
-
-
 class OpenCLRayCaster:
     """Compiled kernel plus cached buffers for one OpenCL device."""
 
     def __init__(self) -> None:
-        import pyopencl as cl
-
-        self._cl = cl
-        self.device = _pick_device(cl)
-        self.context = cl.Context([self.device])
-        self.queue = cl.CommandQueue(self.context)
-        self.program = cl.Program(self.context, KERNEL_SOURCE.read_text()).build()
-        self._kernel = cl.Kernel(self.program, "ray_gain")
+        runtime = cl_runtime()
+        cl = self._cl = runtime.cl
+        self.device, self.context, self.queue = runtime.device, runtime.context, runtime.queue
+        self._kernel = cl.Kernel(runtime.build(KERNEL_SOURCE), "ray_gain")
         self._offset_cache: dict[tuple, object] = {}
 
     def _offsets_buffer(self, offsets: np.ndarray):
@@ -121,14 +100,3 @@ class OpenCLRayCaster:
 def get_ray_caster() -> OpenCLRayCaster:
     """The process-wide OpenCL ray caster (built on first use)."""
     return OpenCLRayCaster()
-
-
-@functools.lru_cache(maxsize=1)
-def opencl_available() -> bool:
-    """True if pyopencl imports and a device can run the kernel."""
-    try:
-        get_ray_caster()
-    except Exception as exc:  # noqa: BLE001 - any failure means "not available"
-        warnings.warn(f"OpenCL unavailable, falling back to the numpy backend: {exc}", stacklevel=2)
-        return False
-    return True
