@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
 # Idempotent set-up: system library for open3d, a virtual environment at .venv with the
-# pinned dependencies, and this package installed in editable mode.
+# pinned dependencies, this package installed in editable mode, and the interface package
+# msg_defs/ built into the environment.
 # Fast when nothing changed (a stamp file records the hash of the inputs).
 set -euo pipefail
 repo="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
@@ -10,6 +11,7 @@ stamp="$venv/.nbv_setup_stamp"
 want="$(cat requirements.txt setup.py launch_scripts/setup.sh | sha256sum | cut -d' ' -f1)"
 
 if [ -f "$stamp" ] && [ "$(cat "$stamp")" = "$want" ]; then
+  VIRTUAL_ENV="$venv" bash "$repo/launch_scripts/build_interfaces.sh"
   exit 0
 fi
 
@@ -29,5 +31,6 @@ fi
 echo "[setup] installing pinned dependencies (requirements.txt)"
 "$venv/bin/python" -m pip install -q --disable-pip-version-check -r requirements.txt
 "$venv/bin/python" -m pip install -q --disable-pip-version-check --no-deps -e .
+VIRTUAL_ENV="$venv" bash "$repo/launch_scripts/build_interfaces.sh"
 echo "$want" > "$stamp"
 echo "[setup] done"
