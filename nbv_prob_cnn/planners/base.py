@@ -75,6 +75,52 @@ class Planner(Protocol):
     def plan(self, state: np.ndarray, context: PlanningContext) -> ViewChoice | None: ...
 
 
+def search_views(
+    state: np.ndarray,
+    prob: np.ndarray | None,
+    origins: np.ndarray,
+    context: PlanningContext,
+    mode: str = "prob",
+    top_k: int = 1,
+) -> list[ViewChoice]:
+    """The ``top_k`` (origin, orientation) pairs with the largest ``G_W``, best first (SPEC §5).
+
+    Ray gains are computed in blocks of origins (bounded memory) and each block is turned into
+    view gains with one matrix product. Ties go to the first origin, then the first view.
+    Views with zero gain are never returned.
+    """
+    sensor = context.active_sensor
+    n_rays = context.directions.shape[0]
+    n_views = context.membership.shape[1]
+    block = max(1, MAX_RAYS_PER_CALL // n_rays)
+    kept_gain = np.zeros(0, dtype=np.float32)
+    kept_index = np.zeros(0, dtype=np.int64)  # flat index origin * n_views + view
+    t_ray = t_view = 0.0
+    for start in range(0, origins.shape[0], block):
+        chunk = origins[start : start + block]
+        t0 = time.perf_counter()
+        gains = ray_gains(
+            state, prob, context.directions, sensor.r_max, chunk, context.backend,
+            mode=mode, eps=context.eps, min_range=sensor.min_range,
+        )  # fmt: skip
+        t1 = time.perf_counter()
+        views = (gains @ context.membership).ravel()
+        k = min(top_k, views.size)
+        best = np.argpartition(-views, k - 1)[:k] if k < views.size else np.arange(views.size)
+        kept_gain = np.concatenate([kept_gain, views[best]])
+        kept_index = np.concatenate([kept_index, best + start * n_views])
+        order = np.lexsort((kept_index, -kept_gain))[:top_k]  # gain descending, then index
+        kept_gain, kept_index = kept_gain[order], kept_index[order]
+        t_view += time.perf_counter() - t1
+        t_ray += t1 - t0
+    times = {"cnn": 0.0, "raycast": t_ray, "views": t_view}
+    return [
+        ViewChoice(origins[i // n_views].copy(), int(i % n_views), float(g), dict(times))
+        for g, i in zip(kept_gain, kept_index, strict=True)
+        if g > 0.0
+    ]
+
+
 def search_best_view(
     state: np.ndarray,
     prob: np.ndarray | None,
@@ -82,38 +128,6 @@ def search_best_view(
     context: PlanningContext,
     mode: str = "prob",
 ) -> ViewChoice | None:
-    """Argmax of ``G_W`` over ``origins`` × the context's orientations (SPEC §5).
-
-    Ray gains are computed in blocks of origins (bounded memory) and each block is turned into
-    view gains with one matrix product. Ties go to the first origin, then the first view.
-    """
-    sensor = context.active_sensor
-    n_rays = context.directions.shape[0]
-    block = max(1, MAX_RAYS_PER_CALL // n_rays)
-    best = (-1.0, -1, -1)
-    t_ray = t_view = 0.0
-    for start in range(0, origins.shape[0], block):
-        chunk = origins[start : start + block]
-        t0 = time.perf_counter()
-        gains = ray_gains(
-            state,
-            prob,
-            context.directions,
-            sensor.r_max,
-            chunk,
-            context.backend,
-            mode=mode,
-            eps=context.eps,
-            min_range=sensor.min_range,
-        )
-        t1 = time.perf_counter()
-        views = gains @ context.membership
-        flat = int(np.argmax(views))
-        value = float(views.flat[flat])
-        if value > best[0]:
-            best = (value, start + flat // views.shape[1], flat % views.shape[1])
-        t_view += time.perf_counter() - t1
-        t_ray += t1 - t0
-    if best[0] <= 0.0:
-        return None
-    return ViewChoice(origins[best[1]].copy(), int(best[2]), best[0], {"cnn": 0.0, "raycast": t_ray, "views": t_view})
+    """The argmax of ``G_W`` over ``origins`` × orientations, or None if every gain is 0."""
+    found = search_views(state, prob, origins, context, mode, top_k=1)
+    return found[0] if found else None

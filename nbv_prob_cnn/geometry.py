@@ -1,0 +1,51 @@
+"""Grid geometry: conversions between world metres and cell indices (no ROS).
+
+A grid is axis-aligned in its frame; cell ``i`` spans ``origin + [i, i+1) * resolution`` and
+its centre is at ``origin + (i + 0.5) * resolution``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class GridGeometry:
+    """Placement of a grid in its frame: ``origin`` (metres, corner of cell 0), cell edge
+    ``resolution`` (metres) and ``shape`` (cells)."""
+
+    origin: tuple[float, float, float]
+    resolution: float
+    shape: tuple[int, ...]
+
+    def __post_init__(self) -> None:
+        if not (np.isfinite(self.resolution) and self.resolution > 0):
+            raise ValueError(f"resolution: expected a positive cell size in metres, got {self.resolution}")
+        if not np.all(np.isfinite(self.origin)):
+            raise ValueError(f"origin: expected finite coordinates, got {self.origin}")
+        if len(self.shape) not in (2, 3) or min(self.shape) < 1:
+            raise ValueError(f"shape: expected 2 or 3 positive sizes, got {self.shape}")
+
+    @property
+    def dims(self) -> int:
+        return len(self.shape)
+
+    def cell_centre(self, cell: np.ndarray) -> np.ndarray:
+        """World position (3 components, z = origin z in 2D) of cell centres ``(..., dims)``."""
+        cell = np.asarray(cell, dtype=np.float64)
+        xyz = np.broadcast_to(np.asarray(self.origin, dtype=np.float64), cell.shape[:-1] + (3,)).copy()
+        xyz[..., : self.dims] += (cell + 0.5) * self.resolution
+        return xyz
+
+    def to_index(self, xyz: np.ndarray) -> np.ndarray:
+        """Continuous index coordinates (centre of cell ``i`` at ``i``) of positions ``(..., 3)``."""
+        xyz = np.asarray(xyz, dtype=np.float64)
+        return (xyz[..., : self.dims] - np.asarray(self.origin)[: self.dims]) / self.resolution - 0.5
+
+    def containing_cell(self, xyz: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Cell index containing each position, and whether it lies inside the grid."""
+        cell = np.floor(self.to_index(xyz) + 0.5).astype(np.int64)
+        inside = np.all((cell >= 0) & (cell < np.array(self.shape)), axis=-1)
+        return cell, inside
