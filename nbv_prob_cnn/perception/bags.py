@@ -1,0 +1,437 @@
+"""Depth-camera rosbag2 files (mcap storage) written and read with ``rosbags`` — no ROS needed.
+
+Topics (SPEC §10 defaults):
+    * ``/camera/depth/image``        ``sensor_msgs/msg/Image``, ``32FC1`` metres or ``16UC1`` millimetres
+    * ``/camera/depth/camera_info``  ``sensor_msgs/msg/CameraInfo`` (pinhole ``K``; rectified images assumed)
+    * ``/camera/pose``               ``geometry_msgs/msg/TransformStamped``, ``world`` -> ``camera_optical``
+
+Messages are CDR-serialized with the ROS 2 Jazzy type store: ``rclpy.serialization`` reads them,
+and its bytes read back here (checked field by field; only the alignment padding bytes, which
+rclpy leaves uninitialised, can differ). A frame is the triple of messages sharing one header stamp.
+
+Reading validates the whole bag before yielding the first frame (every message is read,
+deserialized and converted, message counts are checked against the bag's own index), so a
+corrupt or truncated bag raises :class:`BagError` up front instead of giving a silent partial read.
+"""
+
+from __future__ import annotations
+
+import warnings
+from collections.abc import Iterator
+from dataclasses import dataclass
+from functools import lru_cache
+from pathlib import Path
+from types import TracebackType
+from typing import Any
+
+import numpy as np
+
+from nbv_prob_cnn.camera import matrix_from_quaternion, quaternion_from_matrix
+from nbv_prob_cnn.perception.depth_camera import Intrinsics, check_pose
+
+__all__ = [
+    "BagError",
+    "BagWarning",
+    "BagWriter",
+    "Frame",
+    "TOPIC_CAMERA_INFO",
+    "TOPIC_IMAGE",
+    "TOPIC_POSE",
+    "camera_info_to_intrinsics",
+    "depth_to_image_msg",
+    "image_msg_to_depth",
+    "intrinsics_to_camera_info",
+    "pose_to_transform_msg",
+    "read_frames",
+    "transform_msg_to_pose",
+]
+
+TOPIC_IMAGE = "/camera/depth/image"
+TOPIC_CAMERA_INFO = "/camera/depth/camera_info"
+TOPIC_POSE = "/camera/pose"
+WORLD_FRAME = "world"
+OPTICAL_FRAME = "camera_optical"
+
+MSG_IMAGE = "sensor_msgs/msg/Image"
+MSG_CAMERA_INFO = "sensor_msgs/msg/CameraInfo"
+MSG_TRANSFORM = "geometry_msgs/msg/TransformStamped"
+
+_TOPICS = {TOPIC_IMAGE: MSG_IMAGE, TOPIC_CAMERA_INFO: MSG_CAMERA_INFO, TOPIC_POSE: MSG_TRANSFORM}
+_ENCODINGS = {"32FC1": ("f4", 4), "16UC1": ("u2", 2)}
+
+
+class BagError(ValueError):
+    """A bag that cannot be read: missing, corrupt, truncated or not a depth-camera bag."""
+
+
+class BagWarning(UserWarning):
+    """Messages of a bag that do not form complete frames (skipped)."""
+
+
+@dataclass
+class Frame:
+    """One posed depth image."""
+
+    stamp_ns: int
+    depth_m: np.ndarray  # float32 (H, W) metres, 0 or NaN = no return
+    intrinsics: Intrinsics
+    pose_4x4: np.ndarray  # float64 world_from_optical
+
+
+@lru_cache(maxsize=1)
+def typestore() -> Any:
+    """The ROS 2 Jazzy message type store."""
+    from rosbags.typesys import Stores, get_typestore
+
+    return get_typestore(Stores.ROS2_JAZZY)
+
+
+# ----------------------------------------------------------------------------- conversions
+def _header(stamp_ns: int, frame_id: str) -> Any:
+    stamp_ns = int(stamp_ns)
+    if stamp_ns < 0:
+        raise ValueError(f"stamp_ns: must be >= 0, got {stamp_ns}")
+    types = typestore().types
+    stamp = types["builtin_interfaces/msg/Time"](sec=stamp_ns // 1_000_000_000, nanosec=stamp_ns % 1_000_000_000)
+    return types["std_msgs/msg/Header"](stamp=stamp, frame_id=frame_id)
+
+
+def stamp_of(msg: Any) -> int:
+    """Header stamp of a message in nanoseconds."""
+    return int(msg.header.stamp.sec) * 1_000_000_000 + int(msg.header.stamp.nanosec)
+
+
+def depth_to_image_msg(
+    depth_m: np.ndarray, stamp_ns: int, encoding: str = "32FC1", frame_id: str = OPTICAL_FRAME
+) -> Any:
+    """A ``sensor_msgs/msg/Image`` of a depth image.
+
+    Args:
+        depth_m: ``(H, W)`` depth in metres (0/NaN = no return), or ``uint16`` millimetres when
+            ``encoding`` is ``16UC1``.
+        encoding: ``32FC1`` (float metres, written as given, NaN kept) or ``16UC1`` (millimetres,
+            rounded; no return, negative and > 65.535 m become 0).
+
+    Raises:
+        ValueError: another encoding, or not a 2D image.
+    """
+    depth = np.asarray(depth_m)
+    if depth.ndim != 2:
+        raise ValueError(f"depth: expected a 2D (H, W) image, got shape {depth.shape}")
+    if encoding == "32FC1":
+        data = depth.astype("<f4")
+    elif encoding == "16UC1":
+        if depth.dtype == np.uint16:
+            data = depth.astype("<u2")
+        else:
+            mm = np.round(np.asarray(depth, dtype=np.float64) * 1000.0)
+            mm[~np.isfinite(mm) | (mm <= 0) | (mm > 65535)] = 0
+            data = mm.astype("<u2")
+    else:
+        raise ValueError(f"depth image encoding {encoding!r} is not supported; use '32FC1' (m) or '16UC1' (mm)")
+    height, width = depth.shape
+    return typestore().types[MSG_IMAGE](
+        header=_header(stamp_ns, frame_id),
+        height=height,
+        width=width,
+        encoding=encoding,
+        is_bigendian=0,
+        step=width * data.itemsize,
+        data=np.frombuffer(np.ascontiguousarray(data).tobytes(), dtype=np.uint8),
+    )
+
+
+def image_msg_to_depth(msg: Any) -> np.ndarray:
+    """Depth in ``float32`` metres of a ``sensor_msgs/msg/Image`` (32FC1 metres or 16UC1 mm).
+
+    Handles row padding (``step`` > width × pixel size) and big-endian data. 16UC1 value 0
+    stays 0 (no return); 32FC1 values are returned as stored (NaN kept).
+
+    Raises:
+        ValueError: an unsupported encoding (named in the message), or inconsistent sizes.
+    """
+    encoding = str(msg.encoding)
+    if encoding not in _ENCODINGS:
+        raise ValueError(
+            f"depth image encoding {encoding!r} is not supported; expected '32FC1' (metres) or '16UC1' (millimetres)"
+        )
+    kind, size = _ENCODINGS[encoding]
+    height, width, step = int(msg.height), int(msg.width), int(msg.step)
+    if step < width * size:
+        raise ValueError(f"depth image: step {step} is smaller than width {width} x {size} bytes")
+    raw = np.asarray(msg.data, dtype=np.uint8)
+    if raw.size < step * height:
+        raise ValueError(f"depth image: {raw.size} data bytes, expected step x height = {step * height}")
+    rows = raw[: step * height].reshape(height, step)[:, : width * size]
+    dtype = np.dtype((">" if msg.is_bigendian else "<") + kind)
+    values = np.ascontiguousarray(rows).view(dtype).reshape(height, width)
+    if encoding == "16UC1":
+        return values.astype(np.float32) / np.float32(1000.0)
+    return values.astype(np.float32)
+
+
+def intrinsics_to_camera_info(intrinsics: Intrinsics, stamp_ns: int, frame_id: str = OPTICAL_FRAME) -> Any:
+    """A ``sensor_msgs/msg/CameraInfo`` (plumb_bob, zero distortion) of pinhole intrinsics."""
+    types = typestore().types
+    fx, fy, cx, cy = (float(v) for v in (intrinsics.fx, intrinsics.fy, intrinsics.cx, intrinsics.cy))
+    return types[MSG_CAMERA_INFO](
+        header=_header(stamp_ns, frame_id),
+        height=int(intrinsics.height),
+        width=int(intrinsics.width),
+        distortion_model="plumb_bob",
+        d=np.zeros(5, dtype=np.float64),
+        k=np.array([fx, 0.0, cx, 0.0, fy, cy, 0.0, 0.0, 1.0]),
+        r=np.eye(3).reshape(9),
+        p=np.array([fx, 0.0, cx, 0.0, 0.0, fy, cy, 0.0, 0.0, 0.0, 1.0, 0.0]),
+        binning_x=0,
+        binning_y=0,
+        roi=types["sensor_msgs/msg/RegionOfInterest"](x_offset=0, y_offset=0, height=0, width=0, do_rectify=False),
+    )
+
+
+def camera_info_to_intrinsics(msg: Any) -> Intrinsics:
+    """Pinhole intrinsics (from ``K``) of a ``sensor_msgs/msg/CameraInfo``.
+
+    Raises:
+        ValueError: ``K`` missing or not a valid pinhole matrix.
+    """
+    k = np.asarray(msg.k, dtype=np.float64).reshape(-1)
+    if k.size != 9:
+        raise ValueError(f"camera_info: K must have 9 values, got {k.size}")
+    return Intrinsics(int(msg.width), int(msg.height), float(k[0]), float(k[4]), float(k[2]), float(k[5]))
+
+
+def pose_to_transform_msg(
+    pose_4x4: np.ndarray, stamp_ns: int, parent: str = WORLD_FRAME, child: str = OPTICAL_FRAME
+) -> Any:
+    """A ``geometry_msgs/msg/TransformStamped`` (parent -> child) of a 4×4 ``parent_from_child`` pose."""
+    pose = check_pose(pose_4x4, "pose_4x4")
+    types = typestore().types
+    qx, qy, qz, qw = (float(v) for v in quaternion_from_matrix(pose[:3, :3]))
+    tx, ty, tz = (float(v) for v in pose[:3, 3])
+    transform = types["geometry_msgs/msg/Transform"](
+        translation=types["geometry_msgs/msg/Vector3"](x=tx, y=ty, z=tz),
+        rotation=types["geometry_msgs/msg/Quaternion"](x=qx, y=qy, z=qz, w=qw),
+    )
+    return types[MSG_TRANSFORM](header=_header(stamp_ns, parent), child_frame_id=child, transform=transform)
+
+
+def transform_msg_to_pose(msg: Any) -> np.ndarray:
+    """4×4 ``parent_from_child`` matrix of a ``geometry_msgs/msg/TransformStamped``."""
+    t, q = msg.transform.translation, msg.transform.rotation
+    pose = np.eye(4)
+    pose[:3, :3] = matrix_from_quaternion(np.array([q.x, q.y, q.z, q.w]))
+    pose[:3, 3] = [t.x, t.y, t.z]
+    return pose
+
+
+# ----------------------------------------------------------------------------------- writing
+class BagWriter:
+    """Context manager writing posed depth frames to a new rosbag2 directory (mcap storage).
+
+    Example::
+
+        with BagWriter("run1") as bag:
+            bag.write_frame(stamp_ns, depth, intrinsics, pose)
+
+    Raises:
+        BagError: the path exists already or the bag cannot be created.
+    """
+
+    def __init__(self, path: str | Path) -> None:
+        self.path = Path(path)
+        self.frames = 0
+        self._writer: Any = None
+        self._conns: dict[str, Any] = {}
+
+    def open(self) -> BagWriter:
+        """Create the bag and its three connections."""
+        from rosbags.rosbag2 import StoragePlugin, Writer, WriterError
+
+        if self.path.exists():
+            raise BagError(f"{self.path}: exists already; a bag is never overwritten")
+        try:
+            self._writer = Writer(self.path, version=Writer.VERSION_LATEST, storage_plugin=StoragePlugin.MCAP)
+            self._writer.open()
+            store = typestore()
+            for topic, msgtype in _TOPICS.items():
+                self._conns[topic] = self._writer.add_connection(topic, msgtype, typestore=store)
+        except (WriterError, OSError) as exc:
+            raise BagError(f"{self.path}: cannot create the bag ({exc})") from exc
+        return self
+
+    def write_frame(
+        self,
+        stamp_ns: int,
+        depth: np.ndarray,
+        intrinsics: Intrinsics,
+        pose_4x4: np.ndarray,
+        encoding: str = "32FC1",
+    ) -> None:
+        """Write one frame: image, camera info and pose, all stamped ``stamp_ns``.
+
+        Raises:
+            ValueError: unsupported encoding, bad pose, or image shape not matching the intrinsics.
+        """
+        if self._writer is None:
+            raise BagError(f"{self.path}: bag is not open (use it as a context manager)")
+        if np.asarray(depth).shape != intrinsics.shape:
+            raise ValueError(f"depth: shape {np.asarray(depth).shape} does not match the intrinsics {intrinsics.shape}")
+        store = typestore()
+        msgs = (
+            (TOPIC_IMAGE, MSG_IMAGE, depth_to_image_msg(depth, stamp_ns, encoding)),
+            (TOPIC_CAMERA_INFO, MSG_CAMERA_INFO, intrinsics_to_camera_info(intrinsics, stamp_ns)),
+            (TOPIC_POSE, MSG_TRANSFORM, pose_to_transform_msg(pose_4x4, stamp_ns)),
+        )
+        for topic, msgtype, msg in msgs:
+            self._writer.write(self._conns[topic], int(stamp_ns), store.serialize_cdr(msg, msgtype))
+        self.frames += 1
+
+    def close(self) -> None:
+        """Finish the bag (index, metadata.yaml)."""
+        if self._writer is not None:
+            self._writer.close()
+            self._writer = None
+
+    def __enter__(self) -> BagWriter:
+        return self.open()
+
+    def __exit__(
+        self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
+    ) -> None:
+        self.close()
+
+
+# ----------------------------------------------------------------------------------- reading
+def _open_reader(path: Path) -> Any:
+    from rosbags.rosbag2 import Reader
+
+    if not path.exists():
+        raise FileNotFoundError(f"{path}: no such bag")
+    try:
+        reader = Reader(path)
+        reader.open()
+    except Exception as exc:  # rosbags raises ReaderError, but also struct/yaml/zstd errors on garbage
+        raise BagError(f"{path}: not a readable rosbag2 bag ({type(exc).__name__}: {exc})") from exc
+    return reader
+
+
+def _connections(reader: Any, path: Path) -> dict[str, Any]:
+    by_topic: dict[str, Any] = {}
+    for conn in reader.connections:
+        if conn.topic in _TOPICS:
+            if conn.msgtype != _TOPICS[conn.topic]:
+                raise BagError(f"{path}: topic {conn.topic} has type {conn.msgtype}, expected {_TOPICS[conn.topic]}")
+            if conn.topic in by_topic:
+                raise BagError(f"{path}: topic {conn.topic} is recorded on more than one connection")
+            by_topic[conn.topic] = conn
+    missing = sorted(set(_TOPICS) - set(by_topic))
+    if missing:
+        present = sorted({c.topic for c in reader.connections})
+        raise BagError(f"{path}: missing topic(s) {missing}; the bag has {present}")
+    return by_topic
+
+
+def _decode(topic: str, msg: Any) -> Any:
+    if topic == TOPIC_IMAGE:
+        return image_msg_to_depth(msg)
+    if topic == TOPIC_CAMERA_INFO:
+        return camera_info_to_intrinsics(msg)
+    return transform_msg_to_pose(msg)
+
+
+def _frames(path: Path, conns: dict[str, Any], unpaired: str, counts: dict[str, int] | None = None) -> Iterator[Frame]:
+    """One pass over the bag, yielding complete frames; errors become :class:`BagError`.
+
+    ``unpaired``: what to do at the end with messages that never formed a frame:
+    ``"warn"`` (:class:`BagWarning`), ``"error"`` (:class:`BagError`) or ``"ignore"``.
+    """
+    store = typestore()
+    reader = _open_reader(path)
+    topic_of = {conn.id: topic for topic, conn in conns.items()}
+    pending: dict[str, dict[int, Any]] = {topic: {} for topic in _TOPICS}
+    frames = 0
+    try:
+        stream = reader.messages(connections=list(conns.values()))
+        while True:
+            where = f"{path}: after {frames} complete frame(s)"
+            try:
+                item = next(stream)
+            except StopIteration:
+                break
+            except Exception as exc:
+                raise BagError(f"{where}: corrupt or truncated bag ({type(exc).__name__}: {exc})") from exc
+            conn, _, raw = item
+            topic = topic_of[conn.id]
+            if counts is not None:
+                counts[topic] = counts.get(topic, 0) + 1
+            try:
+                msg = store.deserialize_cdr(raw, conn.msgtype)
+            except Exception as exc:
+                raise BagError(f"{where}: cannot deserialize a {conn.msgtype} message on {topic} ({exc})") from exc
+            stamp = stamp_of(msg)
+            try:
+                value = _decode(topic, msg)
+            except ValueError as exc:
+                raise BagError(f"{where}: {topic} at stamp {stamp}: {exc}") from exc
+            if stamp in pending[topic]:
+                raise BagError(f"{where}: two {topic} messages with the same stamp {stamp}")
+            pending[topic][stamp] = value
+            if all(stamp in pending[t] for t in _TOPICS):
+                depth = pending[TOPIC_IMAGE].pop(stamp)
+                intrinsics = pending[TOPIC_CAMERA_INFO].pop(stamp)
+                pose = pending[TOPIC_POSE].pop(stamp)
+                if depth.shape != intrinsics.shape:
+                    raise BagError(
+                        f"{where}: image {depth.shape} and camera_info {intrinsics.shape} disagree at {stamp}"
+                    )
+                frames += 1
+                yield Frame(stamp, depth, intrinsics, pose)
+    finally:
+        reader.close()
+    leftovers = {t: len(v) for t, v in pending.items() if v}
+    if leftovers and unpaired != "ignore":
+        text = f"{path}: message(s) without a matching stamp on the other topics: {leftovers}"
+        if unpaired == "error":
+            raise BagError(text)
+        warnings.warn(text + "; skipped", BagWarning, stacklevel=2)
+
+
+def read_frames(path: str | Path, validate: bool = True, strict: bool = False) -> Iterator[Frame]:
+    """Posed depth frames of a bag (a rosbag2 directory or a single ``.mcap`` file), in bag order.
+
+    Messages are paired by header stamp; a frame is yielded when its image, camera info and
+    pose have all been read. Messages without partners are skipped with a :class:`BagWarning`
+    (or a :class:`BagError` when ``strict``).
+
+    Args:
+        validate: read and convert the whole bag once before returning, so that a corrupt,
+            truncated or unsupported bag raises here, before any frame is used (the bag is read
+            twice). Without it a corruption raises when reached, naming the number of frames
+            already read.
+        strict: unpaired messages are an error.
+
+    Raises:
+        FileNotFoundError: no such path.
+        BagError: unreadable, corrupt or truncated bag, missing topics, wrong message types,
+            unsupported image encoding (named), duplicate stamps.
+    """
+    path = Path(path)
+    reader = _open_reader(path)
+    try:
+        conns = _connections(reader, path)
+        expected = {topic: int(conn.msgcount) for topic, conn in conns.items()}
+    finally:
+        reader.close()
+    unpaired = "error" if strict else "warn"
+    if validate:
+        counts: dict[str, int] = {}
+        n_frames = sum(1 for _ in _frames(path, conns, unpaired, counts))
+        for topic, n_expected in expected.items():
+            if n_expected and counts.get(topic, 0) != n_expected:
+                raise BagError(
+                    f"{path}: truncated bag: {counts.get(topic, 0)} {topic} message(s) readable, "
+                    f"the bag index lists {n_expected} ({n_frames} complete frame(s) before the damage)"
+                )
+        unpaired = "ignore"  # already reported
+    return _frames(path, conns, unpaired)

@@ -1,0 +1,203 @@
+"""Simulated pinhole depth camera: ray casting of triangle meshes with open3d.
+
+Conventions (SPEC §2, §10):
+    * Poses are ``world_from_optical`` 4×4 matrices; the optical frame is REP-103
+      (x right, y down, z forward).
+    * Pixel ``(u, v)`` (column, row) has its centre at image coordinates ``(u, v)``
+      (the ROS ``CameraInfo`` / OpenCV convention): a point ``(x, y, z)`` of the optical
+      frame projects to ``(fx·x/z + cx, fy·y/z + cy)``.
+    * Depth images are ``float32`` metres, **z-depth** along the optical axis (not the
+      ray length); ``0`` means "no return".
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+__all__ = ["DepthCamera", "DepthNoise", "Intrinsics", "check_pose"]
+
+
+@dataclass(frozen=True)
+class Intrinsics:
+    """Pinhole intrinsics of a depth image (pixels)."""
+
+    width: int
+    height: int
+    fx: float
+    fy: float
+    cx: float
+    cy: float
+
+    def __post_init__(self) -> None:
+        if int(self.width) <= 0 or int(self.height) <= 0:
+            raise ValueError(f"intrinsics: image size must be positive, got {self.width}x{self.height}")
+        values = (self.fx, self.fy, self.cx, self.cy)
+        if not all(math.isfinite(float(v)) for v in values) or self.fx <= 0 or self.fy <= 0:
+            raise ValueError(f"intrinsics: focal lengths must be finite and positive, got fx={self.fx} fy={self.fy}")
+
+    @classmethod
+    def from_hfov(cls, width: int = 640, height: int = 480, hfov_deg: float = 60.0) -> Intrinsics:
+        """Square pixels, principal point at the image centre, given horizontal field of view."""
+        if not 0.0 < hfov_deg < 180.0:
+            raise ValueError(f"intrinsics: hfov_deg must lie in (0, 180), got {hfov_deg}")
+        focal = (width / 2.0) / math.tan(math.radians(hfov_deg) / 2.0)
+        return cls(int(width), int(height), focal, focal, (width - 1) / 2.0, (height - 1) / 2.0)
+
+    @property
+    def matrix(self) -> np.ndarray:
+        """The 3×3 camera matrix ``K`` (float64)."""
+        return np.array([[self.fx, 0.0, self.cx], [0.0, self.fy, self.cy], [0.0, 0.0, 1.0]])
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        """Image shape ``(height, width)``."""
+        return (int(self.height), int(self.width))
+
+    def pixel_rays(self) -> np.ndarray:
+        """``(H, W, 3)`` float64 ray directions in the optical frame with unit z component, so a
+        ray parameter equals the z-depth."""
+        u = (np.arange(self.width, dtype=np.float64) - self.cx) / self.fx
+        v = (np.arange(self.height, dtype=np.float64) - self.cy) / self.fy
+        uu, vv = np.meshgrid(u, v)
+        return np.stack([uu, vv, np.ones_like(uu)], axis=-1)
+
+    def backproject(self, depth_m: np.ndarray) -> np.ndarray:
+        """``(N, 3)`` optical-frame points of the valid (finite, > 0) pixels of a depth image."""
+        depth = np.asarray(depth_m, dtype=np.float64)
+        if depth.shape != self.shape:
+            raise ValueError(f"depth: shape {depth.shape} does not match the intrinsics {self.shape}")
+        valid = np.isfinite(depth) & (depth > 0)
+        return self.pixel_rays()[valid] * depth[valid][:, None]
+
+
+def check_pose(pose: np.ndarray, name: str = "pose") -> np.ndarray:
+    """Validate a rigid 4×4 transform; return it as float64.
+
+    Raises:
+        ValueError: wrong shape, non-finite values, or a rotation block that is not orthonormal.
+    """
+    mat = np.asarray(pose, dtype=np.float64)
+    if mat.shape != (4, 4):
+        raise ValueError(f"{name}: expected a 4x4 matrix, got shape {mat.shape}")
+    if not np.all(np.isfinite(mat)):
+        raise ValueError(f"{name}: contains NaN or infinite values")
+    rot = mat[:3, :3]
+    if not np.allclose(rot @ rot.T, np.eye(3), atol=1e-5) or np.linalg.det(rot) < 0:
+        raise ValueError(f"{name}: the rotation block is not a proper rotation")
+    if not np.allclose(mat[3], [0.0, 0.0, 0.0, 1.0]):
+        raise ValueError(f"{name}: last row must be [0, 0, 0, 1], got {mat[3].tolist()}")
+    return mat
+
+
+@dataclass
+class DepthNoise:
+    """Depth-proportional Gaussian noise and random pixel dropouts.
+
+    Attributes:
+        sigma_per_m: standard deviation of the additive noise per metre of depth
+            (``sigma = sigma_per_m * z``).
+        dropout: probability that a pixel with a return becomes "no return" (0).
+        seed: seed of the generator; the same seed gives the same sequence of noisy images.
+    """
+
+    sigma_per_m: float = 0.0
+    dropout: float = 0.0
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        if not (self.sigma_per_m >= 0.0 and math.isfinite(self.sigma_per_m)):
+            raise ValueError(f"noise: sigma_per_m must be finite and >= 0, got {self.sigma_per_m}")
+        if not 0.0 <= self.dropout <= 1.0:
+            raise ValueError(f"noise: dropout must lie in [0, 1], got {self.dropout}")
+        self._rng = np.random.default_rng(self.seed)
+
+    def apply(self, depth_m: np.ndarray) -> np.ndarray:
+        """Return a noisy copy of a ``float32`` depth image (0 stays 0; negatives become 0)."""
+        depth = np.array(depth_m, dtype=np.float32, copy=True)
+        valid = depth > 0
+        if self.sigma_per_m > 0:
+            noise = self._rng.standard_normal(depth.shape).astype(np.float32)
+            depth = np.where(valid, depth + noise * np.float32(self.sigma_per_m) * depth, np.float32(0))
+        if self.dropout > 0:
+            drop = self._rng.random(depth.shape) < self.dropout
+            depth[drop] = 0.0
+        depth[~(depth > 0)] = 0.0
+        return depth.astype(np.float32, copy=False)
+
+
+class DepthCamera:
+    """Ray-casting depth camera over a fixed set of triangle meshes.
+
+    Args:
+        meshes: triangle meshes in world metres (``trimesh.Trimesh``, ``open3d.geometry.TriangleMesh``,
+            ``open3d.t.geometry.TriangleMesh`` or ``(vertices, faces)`` pairs).
+        intrinsics: image size and pinhole parameters (default 640×480, 60° HFOV).
+        noise: optional :class:`DepthNoise`; off by default (exact depth).
+        depth_min, depth_max: returns outside ``[depth_min, depth_max]`` (z-depth, metres)
+            become 0 (no return).
+    """
+
+    def __init__(
+        self,
+        meshes: Sequence[object],
+        intrinsics: Intrinsics | None = None,
+        noise: DepthNoise | None = None,
+        depth_min: float = 0.0,
+        depth_max: float = math.inf,
+    ) -> None:
+        import open3d as o3d  # heavy import, only when a camera is built
+
+        self.intrinsics = intrinsics if intrinsics is not None else Intrinsics.from_hfov()
+        self.noise = noise
+        self.depth_min = float(depth_min)
+        self.depth_max = float(depth_max)
+        self._scene = o3d.t.geometry.RaycastingScene()
+        self.n_meshes = 0
+        for mesh in meshes:
+            vertices, faces = _mesh_arrays(mesh)
+            if len(faces) == 0:
+                continue
+            self._scene.add_triangles(
+                o3d.core.Tensor(np.ascontiguousarray(vertices, dtype=np.float32)),
+                o3d.core.Tensor(np.ascontiguousarray(faces, dtype=np.uint32)),
+            )
+            self.n_meshes += 1
+        self._rays_optical = self.intrinsics.pixel_rays()
+
+    def render(self, pose_world_from_optical: np.ndarray) -> np.ndarray:
+        """Depth image ``float32 (H, W)`` in metres (z-depth; 0 = no return) seen from a pose."""
+        import open3d as o3d
+
+        pose = check_pose(pose_world_from_optical, "pose_world_from_optical")
+        directions = self._rays_optical @ pose[:3, :3].T
+        origins = np.broadcast_to(pose[:3, 3], directions.shape)
+        rays = np.concatenate([origins, directions], axis=-1).astype(np.float32)
+        hit = self._scene.cast_rays(o3d.core.Tensor(rays))["t_hit"].numpy()
+        depth = np.where(np.isfinite(hit), hit, 0.0).astype(np.float32)
+        depth[(depth < self.depth_min) | (depth > self.depth_max)] = 0.0
+        if self.noise is not None:
+            depth = self.noise.apply(depth)
+        return depth
+
+
+def _mesh_arrays(mesh: object) -> tuple[np.ndarray, np.ndarray]:
+    """``(vertices (V,3), faces (F,3))`` of a supported mesh object."""
+    if isinstance(mesh, tuple) and len(mesh) == 2:
+        vertices, faces = mesh
+    elif hasattr(mesh, "vertices") and hasattr(mesh, "faces"):  # trimesh
+        vertices, faces = mesh.vertices, mesh.faces
+    elif hasattr(mesh, "vertex") and hasattr(mesh, "triangle"):  # open3d tensor mesh
+        vertices, faces = mesh.vertex.positions.numpy(), mesh.triangle.indices.numpy()
+    elif hasattr(mesh, "vertices") and hasattr(mesh, "triangles"):  # open3d legacy mesh
+        vertices, faces = mesh.vertices, mesh.triangles
+    else:
+        raise ValueError(f"meshes: unsupported mesh type {type(mesh).__name__}")
+    vertices = np.asarray(vertices, dtype=np.float64).reshape(-1, 3)
+    faces = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
+    if faces.size and (faces.min() < 0 or faces.max() >= len(vertices)):
+        raise ValueError("meshes: face indices out of range")
+    return vertices, faces
