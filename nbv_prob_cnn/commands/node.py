@@ -1,0 +1,33 @@
+"""``nbv node NAME``: run one of our ROS 2 nodes (as ``ros2 run nbv_prob_cnn NAME`` would)."""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import pkgutil
+import sys
+
+NAME = "node"
+HELP = "Run a ROS 2 node of this package, e.g. `nbv node nbv_planner --ros-args -p method:=cnn_prob`."
+
+
+def available_nodes() -> list[str]:
+    import nbv_prob_cnn.ros as ros
+
+    skip = {"conversions", "graph"}
+    return sorted(
+        m.name for m in pkgutil.iter_modules(ros.__path__) if m.name not in skip and not m.name.startswith("_")
+    )
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("name", help="node name (module under nbv_prob_cnn.ros)")
+    parser.add_argument("ros_args", nargs=argparse.REMAINDER, help="arguments passed to the node (--ros-args ...)")
+
+
+def run(args: argparse.Namespace) -> int:
+    nodes = available_nodes()
+    if args.name not in nodes:
+        raise ValueError(f"unknown node {args.name!r}; available: {', '.join(nodes)}")
+    module = importlib.import_module(f"nbv_prob_cnn.ros.{args.name}")
+    return int(module.main([sys.argv[0], *args.ros_args]) or 0)

@@ -1,0 +1,132 @@
+"""Conversions between our messages and numpy (no node needed; testable without a graph).
+
+Grids travel flattened x fastest, then y, then z (SPEC §1). Large arrays are assigned as
+``array.array`` and read with ``np.frombuffer`` (assigning numpy arrays to message fields is
+slow in rclpy).
+"""
+
+from __future__ import annotations
+
+import array
+import math
+
+import numpy as np
+from geometry_msgs.msg import Pose, PoseStamped
+from nbv_prob_cnn_msgs.msg import ProbabilityGrid, VoxelGrid
+
+from nbv_prob_cnn.geometry import GridGeometry
+
+#: Largest grid accepted from the wire (cells); bigger requests are refused with a reason.
+MAX_GRID_CELLS = 64_000_000
+
+
+def _check_identity_orientation(pose: Pose, what: str) -> None:
+    q = pose.orientation
+    if not (abs(q.x) < 1e-6 and abs(q.y) < 1e-6 and abs(q.z) < 1e-6 and abs(abs(q.w) - 1) < 1e-6):
+        raise ValueError(f"{what}: only axis-aligned grids are supported (origin orientation must be identity)")
+
+
+def geometry_of(msg: VoxelGrid | ProbabilityGrid) -> GridGeometry:
+    """Grid geometry of a grid message (``size_z == 1`` means a 2D grid).
+
+    Raises:
+        ValueError: zero or huge sizes, bad resolution, rotated origin.
+    """
+    sizes = (int(msg.size_x), int(msg.size_y), int(msg.size_z))
+    if min(sizes) < 1:
+        raise ValueError(f"grid: sizes must be positive, got {sizes}")
+    if math.prod(sizes) > MAX_GRID_CELLS:
+        raise ValueError(f"grid: {math.prod(sizes)} cells exceed the limit of {MAX_GRID_CELLS}")
+    _check_identity_orientation(msg.origin, "grid.origin")
+    p = msg.origin.position
+    shape = sizes[:2] if sizes[2] == 1 else sizes
+    return GridGeometry((p.x, p.y, p.z), float(msg.resolution), shape)
+
+
+def _fill_geometry(msg, geometry: GridGeometry, frame_id: str, stamp) -> None:
+    msg.header.frame_id = frame_id
+    if stamp is not None:
+        msg.header.stamp = stamp
+    msg.origin.position.x, msg.origin.position.y, msg.origin.position.z = (float(v) for v in geometry.origin)
+    msg.origin.orientation.w = 1.0
+    msg.resolution = float(geometry.resolution)
+    shape3 = tuple(geometry.shape) + (1,) * (3 - geometry.dims)
+    msg.size_x, msg.size_y, msg.size_z = (int(n) for n in shape3)
+
+
+def grid_to_msg(state: np.ndarray, geometry: GridGeometry, frame_id: str = "world", stamp=None) -> VoxelGrid:
+    """A ternary ``int8`` grid ``[x, y(, z)]`` as a :class:`VoxelGrid` message."""
+    msg = VoxelGrid()
+    _fill_geometry(msg, geometry, frame_id, stamp)
+    msg.data = array.array("b", np.asarray(state, dtype=np.int8).ravel(order="F").tobytes())
+    return msg
+
+
+def probability_to_msg(
+    prob: np.ndarray, geometry: GridGeometry, frame_id: str = "world", stamp=None
+) -> ProbabilityGrid:
+    """A probability map as a :class:`ProbabilityGrid` message."""
+    msg = ProbabilityGrid()
+    _fill_geometry(msg, geometry, frame_id, stamp)
+    msg.data = array.array("f", np.asarray(prob, dtype=np.float32).ravel(order="F").tobytes())
+    return msg
+
+
+def _data_array(msg, dtype) -> np.ndarray:
+    data = msg.data
+    if isinstance(data, array.array | bytes | bytearray | memoryview):
+        return np.frombuffer(data, dtype=dtype)
+    return np.asarray(data, dtype=dtype)
+
+
+def msg_to_grid(msg: VoxelGrid) -> tuple[np.ndarray, GridGeometry]:
+    """The ``int8`` grid ``[x, y(, z)]`` and geometry of a :class:`VoxelGrid`.
+
+    Raises:
+        ValueError: data length does not match the sizes, or values outside {-1, 0, 1}.
+    """
+    geometry = geometry_of(msg)
+    data = _data_array(msg, np.int8)
+    if data.size != math.prod(geometry.shape):
+        raise ValueError(f"grid: data has {data.size} cells but size_x*size_y*size_z = {math.prod(geometry.shape)}")
+    if data.size and (data.min() < -1 or data.max() > 1):
+        raise ValueError("grid: data values must be -1 (unknown), 0 (empty) or 1 (occupied)")
+    return np.ascontiguousarray(data.reshape(geometry.shape, order="F")), geometry
+
+
+def msg_to_probability(msg: ProbabilityGrid) -> tuple[np.ndarray, GridGeometry]:
+    """The ``float32`` probability map and geometry of a :class:`ProbabilityGrid`."""
+    geometry = geometry_of(msg)
+    data = _data_array(msg, np.float32)
+    if data.size != math.prod(geometry.shape):
+        raise ValueError(f"probability: data has {data.size} cells, expected {math.prod(geometry.shape)}")
+    return np.ascontiguousarray(data.reshape(geometry.shape, order="F")), geometry
+
+
+def pose_to_arrays(pose: Pose) -> tuple[np.ndarray, np.ndarray]:
+    """Position (3,) and unit quaternion (x, y, z, w) of a pose.
+
+    Raises:
+        ValueError: NaN/inf components or a zero quaternion.
+    """
+    p, q = pose.position, pose.orientation
+    position = np.array([p.x, p.y, p.z], dtype=np.float64)
+    quat = np.array([q.x, q.y, q.z, q.w], dtype=np.float64)
+    if not np.all(np.isfinite(position)):
+        raise ValueError(f"pose: position has NaN or infinite components {position.tolist()}")
+    norm = np.linalg.norm(quat)
+    if not np.all(np.isfinite(quat)) or norm < 1e-6:
+        raise ValueError(f"pose: orientation must be a finite non-zero quaternion, got {quat.tolist()}")
+    return position, quat / norm
+
+
+def arrays_to_pose_stamped(position: np.ndarray, quat: np.ndarray, frame_id: str, stamp=None) -> PoseStamped:
+    """A :class:`PoseStamped` from a position and a quaternion (x, y, z, w)."""
+    msg = PoseStamped()
+    msg.header.frame_id = frame_id
+    if stamp is not None:
+        msg.header.stamp = stamp
+    msg.pose.position.x, msg.pose.position.y, msg.pose.position.z = (float(v) for v in position)
+    o = msg.pose.orientation
+    o.x, o.y, o.z, o.w = (float(v) for v in quat)
+    return msg

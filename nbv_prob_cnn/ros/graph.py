@@ -1,0 +1,120 @@
+"""Start and stop node graphs as separate processes (there is no ``ros2 launch`` here).
+
+Imports no rclpy: used by the launch scripts and the multi-process tests. Every graph gets
+localhost-only discovery, its own ``ROS_DOMAIN_ID`` and the Fast DDS shared-memory profile.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from collections.abc import Iterable
+from pathlib import Path
+
+PROFILE = Path(__file__).with_name("fastdds_shm_profile.xml")
+
+
+def ros_environment(domain_id: int | None = None, base: dict | None = None) -> dict[str, str]:
+    """Environment for our nodes: localhost discovery, a domain id, the shared-memory profile."""
+    env = dict(os.environ if base is None else base)
+    env["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
+    env["RMW_IMPLEMENTATION"] = "rmw_fastrtps_cpp"
+    env["FASTRTPS_DEFAULT_PROFILES_FILE"] = str(PROFILE)
+    env["PYTHONUNBUFFERED"] = "1"
+    if domain_id is not None:
+        env["ROS_DOMAIN_ID"] = str(domain_id)
+    env.setdefault("ROS_DOMAIN_ID", str(free_domain_id()))
+    return env
+
+
+def free_domain_id() -> int:
+    """A domain id derived from the process id (1..100), so parallel runs do not meet."""
+    return 1 + os.getpid() % 100
+
+
+def node_command(node: str, parameters: dict | None = None, remappings: dict | None = None) -> list[str]:
+    """Command line that runs one of our nodes (``nbv_prob_cnn.ros.<node>``) with parameters."""
+    cmd = [sys.executable, "-m", f"nbv_prob_cnn.ros.{node}", "--ros-args"]
+    for name, value in (parameters or {}).items():
+        if isinstance(value, bool):
+            value = "true" if value else "false"
+        elif isinstance(value, list | tuple):
+            value = "[" + ",".join(str(v) for v in value) + "]"
+        cmd += ["-p", f"{name}:={value}"]
+    for src, dst in (remappings or {}).items():
+        cmd += ["-r", f"{src}:={dst}"]
+    return cmd
+
+
+class NodeGraph:
+    """A set of node processes started together and stopped together (context manager).
+
+    Stopping sends SIGINT (rclpy shuts down cleanly), then SIGTERM and SIGKILL to whatever is
+    still alive after ``grace_s``; every process is started in its own process group so
+    children are reached too.
+    """
+
+    def __init__(self, env: dict[str, str] | None = None, log_dir: str | Path | None = None) -> None:
+        self.env = env or ros_environment()
+        self.log_dir = Path(log_dir) if log_dir else None
+        self.processes: dict[str, subprocess.Popen] = {}
+
+    def start(self, name: str, command: list[str]) -> subprocess.Popen:
+        if self.log_dir:
+            self.log_dir.mkdir(parents=True, exist_ok=True)
+            out = open(self.log_dir / f"{name}.log", "w")  # noqa: SIM115 - closed with the process
+        else:
+            out = subprocess.DEVNULL
+        proc = subprocess.Popen(command, env=self.env, stdout=out, stderr=subprocess.STDOUT, start_new_session=True)
+        self.processes[name] = proc
+        return proc
+
+    def start_node(self, name: str, node: str, parameters: dict | None = None, remappings: dict | None = None):
+        return self.start(name, node_command(node, parameters, remappings))
+
+    def alive(self) -> dict[str, bool]:
+        return {name: proc.poll() is None for name, proc in self.processes.items()}
+
+    def stop(self, grace_s: float = 5.0) -> dict[str, int]:
+        """Stop every process; returns their exit codes."""
+        for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGKILL):
+            running = [p for p in self.processes.values() if p.poll() is None]
+            if not running:
+                break
+            for proc in running:
+                try:
+                    os.killpg(proc.pid, sig)
+                except ProcessLookupError:
+                    pass
+            deadline = time.monotonic() + grace_s
+            while time.monotonic() < deadline and any(p.poll() is None for p in running):
+                time.sleep(0.05)
+        return {name: proc.wait() for name, proc in self.processes.items()}
+
+    def __enter__(self) -> NodeGraph:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.stop()
+
+
+def shm_segments() -> set[str]:
+    """Fast DDS shared-memory files in /dev/shm (to check that nothing leaks)."""
+    root = Path("/dev/shm")
+    return {p.name for p in root.iterdir() if p.name.startswith(("fastrtps_", "fast_datasharing", "sem.fastrtps_"))}
+
+
+def wait_for(predicate, timeout_s: float, interval_s: float = 0.1) -> bool:
+    """Poll ``predicate`` until it returns true or the timeout passes."""
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        if predicate():
+            return True
+        time.sleep(interval_s)
+    return bool(predicate())
+
+
+__all__: Iterable[str] = ["NodeGraph", "node_command", "ros_environment", "shm_segments", "wait_for"]
