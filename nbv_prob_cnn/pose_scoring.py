@@ -1,0 +1,99 @@
+"""Score arbitrary camera poses (e.g. the poses a manipulator can reach) with the gain of
+SPEC §4–§5: the ray gains of the cell that contains the camera, summed over the rays inside
+that pose's frustum."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from nbv_prob_cnn.camera import in_frustum
+from nbv_prob_cnn.gain import ray_gains
+from nbv_prob_cnn.geometry import GridGeometry
+from nbv_prob_cnn.planners.base import PlanningContext
+
+VALID = 0
+OUTSIDE_GRID = 1
+IN_OCCUPIED_CELL = 2
+IN_UNKNOWN_CELL = 3
+INVALID_POSE = 4
+
+REASONS = {
+    VALID: "",
+    OUTSIDE_GRID: "camera position outside the grid",
+    IN_OCCUPIED_CELL: "camera position inside an occupied cell",
+    IN_UNKNOWN_CELL: "camera position inside an unknown cell",
+    INVALID_POSE: "NaN/infinite position or a zero/non-finite quaternion",
+}
+
+
+@dataclass
+class PoseScores:
+    """Per pose: view gain (0 when invalid), validity code and a human-readable reason."""
+
+    gains: np.ndarray
+    validity: np.ndarray
+    reasons: list[str]
+
+
+def yaw_of(quat: np.ndarray) -> float:
+    """Heading of the camera's +x axis in the plane (2D grids), from a quaternion (x, y, z, w)."""
+    x, y, z, w = quat
+    return math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
+
+
+def classify_poses(
+    state: np.ndarray, geometry: GridGeometry, positions: np.ndarray, quats: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Validity code and containing cell of each pose (cells are meaningless where invalid)."""
+    positions = np.asarray(positions, dtype=np.float64).reshape(-1, 3)
+    quats = np.asarray(quats, dtype=np.float64).reshape(-1, 4)
+    n = positions.shape[0]
+    validity = np.full(n, VALID, dtype=np.uint8)
+    finite = np.all(np.isfinite(positions), axis=1) & np.all(np.isfinite(quats), axis=1)
+    norms = np.linalg.norm(np.where(np.isfinite(quats), quats, 0.0), axis=1)
+    validity[~finite | (norms < 1e-6)] = INVALID_POSE
+    safe_positions = np.where(np.isfinite(positions), positions, 0.0)
+    cells, inside = geometry.containing_cell(safe_positions)
+    validity[(validity == VALID) & ~inside] = OUTSIDE_GRID
+    ok = validity == VALID
+    values = np.full(n, 0, dtype=np.int8)
+    values[ok] = state[tuple(cells[ok].T)]
+    validity[ok & (values == 1)] = IN_OCCUPIED_CELL
+    validity[ok & (values == -1)] = IN_UNKNOWN_CELL
+    return validity, cells
+
+
+def score_poses(
+    state: np.ndarray,
+    prob: np.ndarray | None,
+    geometry: GridGeometry,
+    positions: np.ndarray,
+    quats: np.ndarray,
+    context: PlanningContext,
+    mode: str = "prob",
+) -> PoseScores:
+    """Gain of each camera pose (position in metres, optical-frame quaternion x, y, z, w).
+
+    The camera is placed at the centre of the cell containing it (the method's candidate
+    origins are cell centres); its frustum comes from the pose's own orientation and the
+    context's sensor (fields of view, range).
+    """
+    validity, cells = classify_poses(state, geometry, positions, quats)
+    gains = np.zeros(validity.shape[0], dtype=np.float32)
+    ok = np.flatnonzero(validity == VALID)
+    if ok.size:
+        sensor = context.active_sensor
+        unique_cells, which = np.unique(cells[ok], axis=0, return_inverse=True)
+        per_ray = ray_gains(
+            state, prob, context.directions, sensor.r_max, unique_cells, context.backend,
+            mode=mode, eps=context.eps, min_range=sensor.min_range,
+        )  # fmt: skip
+        q = np.asarray(quats, dtype=np.float64).reshape(-1, 4)[ok]
+        q = q / np.linalg.norm(q, axis=1, keepdims=True)
+        orientations = np.array([yaw_of(v) for v in q]) if state.ndim == 2 else q
+        member = in_frustum(context.directions, orientations, sensor.hfov_deg, sensor.vfov_deg)  # (R, P)
+        gains[ok] = np.einsum("pr,rp->p", per_ray[which.reshape(-1)], member.astype(np.float32))
+    return PoseScores(gains, validity, [REASONS[int(v)] for v in validity])
