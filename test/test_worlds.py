@@ -94,7 +94,7 @@ def test_3dt_table_and_objects(worlds):
         table = world.table
         assert set(table) >= {"height_m", "thickness_m", "noise_m"}
         top = round(table["height_m"] / res)
-        assert 20 <= top <= 30
+        assert tabletop3d.TABLE_TOP_CELLS[0] <= top <= tabletop3d.TABLE_TOP_CELLS[1]
         layers = grid.mean(axis=(0, 1))
         assert layers[top - 2] == 1.0  # below the noise: a full layer
         assert layers[top - 1] > 0.8  # the noisy top layer: nearly full
@@ -116,7 +116,7 @@ def test_3dt_table_and_objects(worlds):
                 assert not a & b
         meshes = world.triangle_meshes()
         assert len(meshes) == len(world.meshes) + 1
-        assert meshes[-1].bounds[1, 2] == pytest.approx(table["height_m"])
+        assert meshes[-1].bounds[1, 2] == pytest.approx(table["height_m"] + res)  # raised noise columns
         assert meshes[-1].bounds[1, 0] == pytest.approx(grid.shape[0] * res)
 
 
@@ -192,3 +192,32 @@ def test_preview_3d(worlds, tmp_path):
 
     path = save_preview(worlds[("3dt", 0)], tmp_path / "p.png")
     assert path.read_bytes().startswith(b"\x89PNG")
+
+
+def test_3dt_table_mesh_matches_the_grid(worlds):
+    import open3d as o3d
+
+    world = worlds[("3dt", 0)]
+    res = world.resolution
+    scene = o3d.t.geometry.RaycastingScene()
+    for mesh in world.triangle_meshes()[-1:]:  # the table alone
+        scene.add_triangles(
+            o3d.core.Tensor(np.asarray(mesh.vertices, dtype=np.float32)),
+            o3d.core.Tensor(np.asarray(mesh.faces, dtype=np.uint32)),
+        )
+    nx, ny, nz = world.shape
+    ii, jj = np.meshgrid(np.arange(nx), np.arange(ny), indexing="ij")
+    rays = np.zeros((nx * ny, 6), dtype=np.float32)
+    rays[:, 0], rays[:, 1], rays[:, 2] = (ii.ravel() + 0.5) * res, (jj.ravel() + 0.5) * res, nz * res
+    rays[:, 5] = -1.0  # straight down through every column centre
+    hit_z = nz * res - scene.cast_rays(o3d.core.Tensor(rays))["t_hit"].numpy()
+    occupied = world.ground_truth.reshape(nx * ny, nz)
+    column_top = nz - np.argmax(occupied[:, ::-1], axis=1)  # first free cell above the highest occupied one
+    under_objects = np.zeros((nx, ny), dtype=bool)
+    for placed in world.meshes:
+        lo, mask = ycb.voxelize(placed.name, placed.transform, world.shape, res, world.origin)
+        cells = np.argwhere(mask) + lo
+        under_objects[cells[:, 0], cells[:, 1]] = True
+    table_only = ~under_objects.ravel()
+    assert table_only.sum() > 0.8 * nx * ny
+    np.testing.assert_allclose(hit_z[table_only] / res, column_top[table_only], atol=1e-3)

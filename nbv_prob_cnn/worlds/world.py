@@ -57,26 +57,15 @@ class World:
 
     def triangle_meshes(self) -> list[trimesh.Trimesh]:
         """The scene as ``trimesh.Trimesh`` objects in world metres (for ray casting a depth camera):
-        every placed object moved by its transform, plus, when there is a table, a box spanning the
-        grid's x-y extent from ``height_m - thickness_m`` to ``height_m`` (the nominal plane, without
-        the per-cell noise of the voxel grid). Empty for 2D worlds."""
-        import trimesh
-
+        every placed object moved by its transform, plus, when there is a table, its surface with
+        the same per-column noise as the voxel grid. Empty for 2D worlds."""
         from nbv_prob_cnn.worlds.ycb import placed_mesh
 
         meshes = [placed_mesh(m.name, m.transform) for m in self.meshes]
         if self.table and self.dims == 3:
-            size_xy = np.asarray(self.shape[:2], dtype=np.float64) * self.resolution
-            thickness = float(self.table["thickness_m"])
-            box = trimesh.creation.box(extents=(size_xy[0], size_xy[1], thickness))
-            origin = np.asarray(self.origin, dtype=np.float64)
-            centre = [
-                origin[0] + size_xy[0] / 2,
-                origin[1] + size_xy[1] / 2,
-                float(self.table["height_m"]) - thickness / 2,  # height_m is a world z coordinate
-            ]
-            box.apply_translation(centre)
-            meshes.append(box)
+            from nbv_prob_cnn.worlds.tabletop3d import table_surface_mesh
+
+            meshes.append(table_surface_mesh(self))
         return meshes
 
     def save(self, path: str | Path) -> None:
