@@ -4,22 +4,13 @@ from __future__ import annotations
 
 from collections.abc import Callable
 
-from nbv_prob_cnn.planners.base import Planner, PlanningContext, ViewChoice, search_best_view
-from nbv_prob_cnn.planners.classic import (
-    InformationGainPlanner,
-    ProbabilisticPlanner,
-    RandomPlanner,
-    constant_probability,
-    oracle_probability,
-)
+from nbv_prob_cnn.planners.base import Planner, PlanningContext, ViewChoice, search_best_view, search_views
+from nbv_prob_cnn.planners.classic import RandomPlanner
+from nbv_prob_cnn.planners.methods import GAIN_METHODS, GainMethod, GainPlanner
 
-#: name -> factory; methods with a CNN register themselves in the same table.
-PLANNER_FACTORIES: dict[str, Callable[[], Planner]] = {
-    "random": RandomPlanner,
-    "ig": InformationGainPlanner,
-    "prob_ig": lambda: ProbabilisticPlanner("prob_ig", constant_probability),
-    "omniscient": lambda: ProbabilisticPlanner("omniscient", oracle_probability),
-}
+#: name -> factory. The City-CNN methods register here too.
+PLANNER_FACTORIES: dict[str, Callable[[], Planner]] = {"random": RandomPlanner}
+PLANNER_FACTORIES.update({name: (lambda m=method: GainPlanner(m)) for name, method in GAIN_METHODS.items()})
 
 
 def make_planner(name: str) -> Planner:
@@ -35,4 +26,15 @@ def make_planner(name: str) -> Planner:
     return factory()
 
 
-__all__ = ["PLANNER_FACTORIES", "Planner", "PlanningContext", "ViewChoice", "make_planner", "search_best_view"]
+__all__ = [
+    "GAIN_METHODS",
+    "PLANNER_FACTORIES",
+    "GainMethod",
+    "GainPlanner",
+    "Planner",
+    "PlanningContext",
+    "ViewChoice",
+    "make_planner",
+    "search_best_view",
+    "search_views",
+]
