@@ -49,3 +49,15 @@ class GridGeometry:
         cell = np.floor(self.to_index(xyz) + 0.5).astype(np.int64)
         inside = np.all((cell >= 0) & (cell < np.array(self.shape)), axis=-1)
         return cell, inside
+
+    def cells_in_box(self, cells: np.ndarray, box_min: np.ndarray, box_max: np.ndarray) -> np.ndarray:
+        """Boolean mask of the cells whose centre lies in the axis-aligned box (metres).
+
+        Raises:
+            ValueError: non-finite bounds or ``box_min > box_max`` on some axis.
+        """
+        lo, hi = np.asarray(box_min, dtype=np.float64), np.asarray(box_max, dtype=np.float64)
+        if not (np.all(np.isfinite(lo)) and np.all(np.isfinite(hi))) or np.any(lo[: self.dims] > hi[: self.dims]):
+            raise ValueError(f"workspace: expected finite bounds with min <= max, got {lo.tolist()} .. {hi.tolist()}")
+        centres = self.cell_centre(cells)[..., : self.dims]
+        return np.all((centres >= lo[: self.dims]) & (centres <= hi[: self.dims]), axis=-1)

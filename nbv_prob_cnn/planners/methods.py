@@ -97,12 +97,24 @@ class GainPlanner:
         self.name = method.name
         self._completion = completion
 
-    def rank(self, state: np.ndarray, context: PlanningContext, top_k: int = 1) -> list[ViewChoice]:
-        """The ``top_k`` best views, best first (empty if no view has positive gain)."""
+    def rank(
+        self,
+        state: np.ndarray,
+        context: PlanningContext,
+        top_k: int = 1,
+        origin_filter: Callable[[np.ndarray], np.ndarray] | None = None,
+    ) -> list[ViewChoice]:
+        """The ``top_k`` best views, best first (empty if no view has positive gain).
+
+        ``origin_filter`` may narrow the method's candidate origins (e.g. to a reachable box).
+        """
         start = time.perf_counter()
         prob = probability_map(self.method, state, context, self._completion)
         t_prob = time.perf_counter() - start
-        found = search_views(state, prob, method_origins(self.method, state, context), context, self.method.mode, top_k)
+        origins = method_origins(self.method, state, context)
+        if origin_filter is not None:
+            origins = origin_filter(origins)
+        found = search_views(state, prob, origins, context, self.method.mode, top_k)
         for choice in found:
             choice.times["cnn"] = t_prob if self.method.probability == "cnn" else 0.0
         return found

@@ -1,0 +1,88 @@
+"""Turning a planning request (method name, sensor overrides, reachable box, origin budget)
+into core calls, and chosen views into poses. Used by the ROS nodes; imports no ROS."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import replace
+
+import numpy as np
+
+from nbv_prob_cnn.camera import dataset_defaults, yaw_quaternion
+from nbv_prob_cnn.geometry import GridGeometry
+from nbv_prob_cnn.planners import GAIN_METHODS, GainMethod, PlanningContext, ViewChoice
+
+
+def gain_method(name: str, default: str) -> GainMethod:
+    """The gain-based method called ``name`` (``""`` = ``default``); the oracle is refused.
+
+    Raises:
+        ValueError: unknown method or one that needs the ground truth.
+    """
+    name = name or default
+    method = GAIN_METHODS.get(name)
+    if method is None or method.probability == "oracle":
+        allowed = sorted(m for m, spec in GAIN_METHODS.items() if spec.probability != "oracle")
+        raise ValueError(f"unknown method {name!r}; expected one of {allowed}")
+    return method
+
+
+def planning_context(
+    dataset: str,
+    geometry: GridGeometry,
+    backend: str,
+    n_rays: int,
+    rng: np.random.Generator,
+    hfov_deg: float = 0.0,
+    vfov_deg: float = 0.0,
+    max_range_m: float = 0.0,
+) -> PlanningContext:
+    """The data set's defaults with the node's/request's sensor overrides (0 = default).
+
+    Raises:
+        ValueError: dimensionality of the grid differs from the data set's, or bad overrides.
+    """
+    defaults = dataset_defaults(dataset)
+    if defaults.dims != geometry.dims:
+        raise ValueError(f"grid is {geometry.dims}D but the node is configured for {dataset!r} ({defaults.dims}D)")
+    for name, value in (("hfov_deg", hfov_deg), ("vfov_deg", vfov_deg), ("max_range_m", max_range_m)):
+        if not math.isfinite(value) or value < 0:
+            raise ValueError(f"{name}: expected a finite non-negative value (0 = default), got {value}")
+    sensor = defaults.sensor
+    if hfov_deg or vfov_deg or max_range_m:
+        sensor = replace(
+            sensor,
+            hfov_deg=min(hfov_deg, 179.0) if hfov_deg else sensor.hfov_deg,
+            vfov_deg=(min(vfov_deg, 179.0) if vfov_deg else sensor.vfov_deg) if defaults.dims == 3 else None,
+            r_max=max(1, round(max_range_m / geometry.resolution)) if max_range_m else sensor.r_max,
+        )
+    return PlanningContext(defaults, rng=rng, backend=backend, n_rays=n_rays or None, sensor=sensor)
+
+
+def origin_filter(
+    geometry: GridGeometry,
+    use_workspace: bool,
+    box_min: np.ndarray,
+    box_max: np.ndarray,
+    max_origins: int,
+    rng: np.random.Generator,
+) -> Callable[[np.ndarray], np.ndarray]:
+    """Keep origins inside the workspace box (if asked), then at most ``max_origins`` at random."""
+
+    def apply(origins: np.ndarray) -> np.ndarray:
+        if use_workspace:
+            origins = origins[geometry.cells_in_box(origins, box_min, box_max)]
+        if max_origins and origins.shape[0] > max_origins:
+            origins = origins[np.sort(rng.choice(origins.shape[0], size=max_origins, replace=False))]
+        return origins
+
+    return apply
+
+
+def view_pose(choice: ViewChoice, context: PlanningContext, geometry: GridGeometry) -> tuple[np.ndarray, np.ndarray]:
+    """Camera position (metres, cell centre) and optical-frame quaternion of a chosen view."""
+    position = geometry.cell_centre(choice.cell)
+    orientation = context.orientations[choice.view_index]
+    quat = yaw_quaternion(float(orientation)) if geometry.dims == 2 else np.asarray(orientation, dtype=np.float64)
+    return position, quat

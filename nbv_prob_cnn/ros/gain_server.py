@@ -1,0 +1,187 @@
+"""Node ``gain_server``: scores camera poses (``/nbv/evaluate_views``) and searches the best
+views over candidate origins (``/nbv/rank_views``) with the OpenCL ray-casting kernel.
+
+The CNN methods get their probability map from the completion server (``/nbv/complete``) or,
+with ``completion:=in_process``, from the CNN loaded in this process.
+"""
+
+from __future__ import annotations
+
+import array
+import threading
+import time
+
+import numpy as np
+from nbv_prob_cnn_msgs.msg import ViewScore, VoxelGrid
+from nbv_prob_cnn_msgs.srv import CompleteGrid, EvaluateViews, RankViews
+from rclpy.callback_groups import ReentrantCallbackGroup
+from rclpy.node import Node
+
+from nbv_prob_cnn.camera import DATASETS
+from nbv_prob_cnn.gain import BACKENDS
+from nbv_prob_cnn.geometry import GridGeometry
+from nbv_prob_cnn.planners import GainPlanner, PlanningContext
+from nbv_prob_cnn.planners.methods import GainMethod, cnn_completion, probability_map
+from nbv_prob_cnn.planners.requests import gain_method, origin_filter, planning_context, view_pose
+from nbv_prob_cnn.pose_scoring import INVALID_POSE, score_poses
+from nbv_prob_cnn.ros.common import GRID_QOS, call_service, declare, run_node
+from nbv_prob_cnn.ros.conversions import (
+    arrays_to_pose_stamped,
+    grid_to_msg,
+    msg_to_grid,
+    msg_to_probability,
+)
+
+MAX_POSES = 100_000
+#: Ray-casts a probability map sent with the request.
+GIVEN_PROBABILITY = GainMethod("prob", "prob", "cnn")
+
+
+class GainServer(Node):
+    """Serves view gains on the latest grid (or on the grid sent with the request)."""
+
+    def __init__(self) -> None:
+        super().__init__("gain_server")
+        self.dataset = declare(self, "dataset", "3dt", f"sensor/ray defaults and CNN weights: {sorted(DATASETS)}")
+        self.default_method = declare(self, "method", "prob_ig", "method when a request names none")
+        self.backend = declare(self, "backend", "auto", f"ray-casting backend: {BACKENDS}")
+        self.n_rays = declare(
+            self, "n_rays", 0, "ray sub-cells per side (0 = data set default)", min_value=0, max_value=64
+        )
+        self.completion_mode = declare(self, "completion", "service", "CNN maps from 'service' or 'in_process'")
+        self.completion_timeout_s = declare(
+            self, "completion_timeout_s", 60.0, "wait for /nbv/complete", min_value=0.1, max_value=600.0
+        )
+        self.frame_id = declare(self, "frame_id", "world", "frame of the grid when the grid message has none")
+        if self.dataset not in DATASETS or self.backend not in BACKENDS:
+            raise ValueError(f"bad parameters: dataset={self.dataset!r}, backend={self.backend!r}")
+        if self.completion_mode not in ("service", "in_process"):
+            raise ValueError(f"completion: expected 'service' or 'in_process', got {self.completion_mode!r}")
+        self._rng = np.random.default_rng()
+        self._lock = threading.Lock()
+        self._grid: VoxelGrid | None = None
+        group = ReentrantCallbackGroup()
+        self.create_subscription(VoxelGrid, "/nbv/grid", self._on_grid, GRID_QOS, callback_group=group)
+        self._complete_client = self.create_client(CompleteGrid, "/nbv/complete", callback_group=group)
+        self.create_service(EvaluateViews, "/nbv/evaluate_views", self._evaluate_views, callback_group=group)
+        self.create_service(RankViews, "/nbv/rank_views", self._rank_views, callback_group=group)
+        self.get_logger().info(f"gain_server ready: dataset {self.dataset}, method {self.default_method}")
+
+    def _on_grid(self, msg: VoxelGrid) -> None:
+        with self._lock:
+            self._grid = msg
+
+    def _latest_grid(self) -> VoxelGrid:
+        with self._lock:
+            if self._grid is None:
+                raise ValueError("no grid received yet on /nbv/grid")
+            return self._grid
+
+    def _completion(self, header, geometry: GridGeometry):
+        """The CNN probability source for this node's mode."""
+        if self.completion_mode == "in_process":
+            return cnn_completion
+
+        def via_service(state: np.ndarray, context: PlanningContext) -> np.ndarray:
+            request = CompleteGrid.Request()
+            request.grid = grid_to_msg(state, geometry, header.frame_id or self.frame_id, header.stamp)
+            request.dataset = self.dataset
+            response = call_service(self, self._complete_client, request, self.completion_timeout_s)
+            if not response.success:
+                raise ValueError(f"completion failed: {response.message}")
+            prob, _ = msg_to_probability(response.probability)
+            return prob
+
+        return via_service
+
+    def _evaluate_views(self, request: EvaluateViews.Request, response: EvaluateViews.Response):
+        start = time.perf_counter()
+        try:
+            if len(request.poses) == 0:
+                raise ValueError("no poses in the request")
+            if len(request.poses) > MAX_POSES:
+                raise ValueError(f"{len(request.poses)} poses exceed the limit of {MAX_POSES}")
+            grid = self._latest_grid()
+            state, geometry = msg_to_grid(grid)
+            frame = grid.header.frame_id or self.frame_id
+            method = gain_method(request.method, self.default_method)
+            context = planning_context(
+                self.dataset, geometry, self.backend, self.n_rays, self._rng,
+                request.hfov_deg, request.vfov_deg, request.max_range_m,
+            )  # fmt: skip
+            positions = np.array([[p.pose.position.x, p.pose.position.y, p.pose.position.z] for p in request.poses])
+            o = [p.pose.orientation for p in request.poses]
+            quats = np.array([[q.x, q.y, q.z, q.w] for q in o])
+            wrong_frame = np.array([bool(p.header.frame_id) and p.header.frame_id != frame for p in request.poses])
+            positions[wrong_frame] = np.nan  # scored as invalid below, with its own reason
+            prob = probability_map(method, state, context, self._completion(grid.header, geometry))
+            scores = score_poses(state, prob, geometry, positions, quats, context, method.mode)
+            reasons = list(scores.reasons)
+            for i in np.flatnonzero(wrong_frame):
+                scores.validity[i] = INVALID_POSE
+                reasons[i] = f"unknown frame {request.poses[i].header.frame_id!r} (grid frame is {frame!r}; no tf here)"
+            response.gains = array.array("f", scores.gains.astype(np.float32).tobytes())
+            response.validity = array.array("B", scores.validity.astype(np.uint8).tobytes())
+            response.reasons = reasons
+            response.success = True
+            response.message = f"{int(np.count_nonzero(scores.validity == 0))} of {len(reasons)} poses valid"
+        except (ValueError, TimeoutError, RuntimeError) as exc:
+            response.success = False
+            response.message = str(exc)
+            self.get_logger().warning(f"evaluate_views: {exc}")
+        response.computation_time_s = time.perf_counter() - start
+        return response
+
+    def _rank_views(self, request: RankViews.Request, response: RankViews.Response):
+        try:
+            grid = request.grid if request.grid.size_x else self._latest_grid()
+            state, geometry = msg_to_grid(grid)
+            frame = grid.header.frame_id or self.frame_id
+            context = planning_context(self.dataset, geometry, self.backend, self.n_rays, self._rng)
+            if request.method == "prob":
+                if not request.probability.size_x:
+                    raise ValueError("method 'prob' needs a probability grid")
+                given, prob_geometry = msg_to_probability(request.probability)
+                if prob_geometry.shape != geometry.shape:
+                    raise ValueError(f"probability grid {prob_geometry.shape} does not match grid {geometry.shape}")
+                planner = GainPlanner(GIVEN_PROBABILITY, completion=lambda state, context: given)
+            else:
+                method = gain_method(request.method, self.default_method)
+                planner = GainPlanner(method, completion=self._completion(grid.header, geometry))
+            keep = origin_filter(
+                geometry, request.use_workspace,
+                np.array([request.workspace_min.x, request.workspace_min.y, request.workspace_min.z]),
+                np.array([request.workspace_max.x, request.workspace_max.y, request.workspace_max.z]),
+                int(request.max_origins), self._rng,
+            )  # fmt: skip
+            evaluated = []
+
+            def counting(origins):
+                kept = keep(origins)
+                evaluated.append(kept.shape[0])
+                return kept
+
+            ranked = planner.rank(state, context, max(1, int(request.top_k)), counting)
+            response.ranked = [
+                ViewScore(pose=arrays_to_pose_stamped(*view_pose(c, context, geometry), frame), gain=float(c.gain))
+                for c in ranked
+            ]
+            response.evaluated_origins = int(evaluated[0]) if evaluated else 0
+            if ranked:
+                response.time_raycast_s = ranked[0].times["raycast"]
+                response.time_views_s = ranked[0].times["views"]
+            response.success = True
+            response.message = "" if ranked else "no view with positive gain"
+        except (ValueError, TimeoutError, RuntimeError) as exc:
+            response.success = False
+            response.message = str(exc)
+            self.get_logger().warning(f"rank_views: {exc}")
+        return response
+
+
+def main(args: list[str] | None = None) -> int:
+    return run_node(GainServer, args)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
