@@ -1,0 +1,75 @@
+"""Node ``completion_server``: the completion CNN as a service (``/nbv/complete``).
+
+Loads the weights of the configured data set at start-up (or on the first request naming
+another data set) and keeps them. Missing or incompatible weights are reported in every
+response (with the command that trains them); the node keeps serving.
+"""
+
+from __future__ import annotations
+
+import time
+
+from nbv_prob_cnn_msgs.srv import CompleteGrid
+from rclpy.node import Node
+
+from nbv_prob_cnn.camera import DATASETS
+from nbv_prob_cnn.ros.common import declare, run_node
+from nbv_prob_cnn.ros.conversions import msg_to_grid, probability_to_msg
+
+
+class CompletionServer(Node):
+    """Serves ``CompleteGrid``: ternary grid in, probability grid out."""
+
+    def __init__(self) -> None:
+        super().__init__("completion_server")
+        self.dataset = declare(self, "dataset", "3dt", f"default weights: {sorted(DATASETS)}")
+        self.weights_file = declare(self, "weights_file", "", "weights file (empty = shipped weights of dataset)")
+        self.device = declare(self, "device", "auto", "torch device: auto (CUDA if present), cpu, cuda, cuda:N")
+        if self.dataset not in DATASETS:
+            raise ValueError(f"dataset: unknown data set {self.dataset!r}; expected one of {sorted(DATASETS)}")
+        from nbv_prob_cnn.completion.inference import WeightsError, load_model, resolve_device
+
+        self._device = resolve_device(None if self.device == "auto" else self.device)
+        self._load_model, self._weights_error = load_model, WeightsError
+        try:  # load now so the first request is fast; failures are reported per request
+            self._model_for(self.dataset)
+            self.get_logger().info(f"completion_server ready: {self.dataset} weights on {self._device}")
+        except WeightsError as exc:
+            self.get_logger().error(str(exc))
+        self.create_service(CompleteGrid, "/nbv/complete", self._complete)
+
+    def _model_for(self, dataset: str):
+        path = self.weights_file if (self.weights_file and dataset == self.dataset) else None
+        return self._load_model(path, dataset, self._device)
+
+    def _complete(self, request: CompleteGrid.Request, response: CompleteGrid.Response):
+        from nbv_prob_cnn.completion import complete
+
+        try:
+            state, geometry = msg_to_grid(request.grid)
+            dataset = request.dataset or self.dataset
+            if dataset not in DATASETS:
+                raise ValueError(f"dataset: unknown data set {dataset!r}; expected one of {sorted(DATASETS)}")
+            if DATASETS[dataset].dims != geometry.dims:
+                raise ValueError(f"a {geometry.dims}D grid cannot use the {dataset} ({DATASETS[dataset].dims}D) model")
+            model = self._model_for(dataset)
+            start = time.perf_counter()
+            prob = complete(state, model=model, device=self._device)
+            response.inference_time_s = time.perf_counter() - start
+            response.probability = probability_to_msg(
+                prob, geometry, request.grid.header.frame_id, request.grid.header.stamp
+            )
+            response.success = True
+        except ValueError as exc:  # WeightsError is a ValueError
+            response.success = False
+            response.message = str(exc)
+            self.get_logger().warning(f"complete: {exc}")
+        return response
+
+
+def main(args: list[str] | None = None) -> int:
+    return run_node(CompletionServer, args)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,289 @@
+"""Node ``nbv_planner``: plans next best views on the integrator's grid.
+
+* ``/nbv/plan`` (PlanNextBestView): completion (``/nbv/complete``) and best-view search
+  (``/nbv/rank_views``) through the servers, or everything in this process with
+  ``in_process:=true``. Publishes ``/nbv/next_best_view`` and ``/nbv/markers``.
+* ``/nbv/explore`` (Explore action): plan, move the camera (``/sim_camera/move_to``, or publish
+  ``/camera/goal_pose`` and wait for ``/camera/pose`` to arrive there), wait for a grid that
+  includes the new frame, repeat until a stop condition.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+
+import numpy as np
+from geometry_msgs.msg import PoseStamped, TransformStamped
+from nbv_prob_cnn_msgs.action import Explore
+from nbv_prob_cnn_msgs.msg import ViewScore, VoxelGrid
+from nbv_prob_cnn_msgs.srv import CompleteGrid, MoveCamera, PlanNextBestView, RankViews
+from rclpy.action import ActionServer, CancelResponse, GoalResponse
+from rclpy.callback_groups import ReentrantCallbackGroup
+from rclpy.node import Node
+from visualization_msgs.msg import MarkerArray
+
+from nbv_prob_cnn.camera import DATASETS
+from nbv_prob_cnn.gain import BACKENDS
+from nbv_prob_cnn.grid import unknown_fraction_all
+from nbv_prob_cnn.planners import GainPlanner
+from nbv_prob_cnn.planners.methods import DOWNSAMPLED_ORIGINS
+from nbv_prob_cnn.planners.requests import gain_method, origin_filter, planning_context, view_pose
+from nbv_prob_cnn.ros.common import GRID_QOS, call_service, declare, run_node
+from nbv_prob_cnn.ros.conversions import arrays_to_pose_stamped, msg_to_grid, pose_to_arrays
+from nbv_prob_cnn.ros.markers import planning_markers
+
+
+def _stamp_ns(stamp) -> int:
+    return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
+
+
+class NbvPlanner(Node):
+    """Plans views on the latest grid and runs explorations."""
+
+    def __init__(self) -> None:
+        super().__init__("nbv_planner")
+        self.dataset = declare(self, "dataset", "3dt", f"sensor/ray defaults and CNN weights: {sorted(DATASETS)}")
+        self.default_method = declare(self, "method", "cnn_prob", "method when a request names none")
+        self.in_process = declare(self, "in_process", False, "complete and ray-cast here instead of via the servers")
+        self.backend = declare(self, "backend", "auto", f"ray-casting backend (in-process mode): {BACKENDS}")
+        self.n_rays = declare(self, "n_rays", 0, "ray sub-cells per side (0 = default)", min_value=0, max_value=64)
+        self.frame_id = declare(self, "frame_id", "world", "frame of grids that carry none")
+        self.service_timeout_s = declare(
+            self, "service_timeout_s", 60.0, "completion/ranking wait", min_value=0.1, max_value=600.0
+        )
+        self.move_mode = declare(self, "move_mode", "service", "'service' (/sim_camera/move_to) or 'topic' (goal pose)")
+        self.move_timeout_s = declare(
+            self, "move_timeout_s", 30.0, "wait for the camera to arrive", min_value=0.1, max_value=600.0
+        )
+        self.grid_timeout_s = declare(
+            self, "grid_timeout_s", 30.0, "wait for the grid with the new frame", min_value=0.1, max_value=600.0
+        )
+        self.arrival_tolerance_m = declare(
+            self, "arrival_tolerance_m", 0.01, "topic mode: position tolerance", min_value=0.0, max_value=1.0
+        )
+        self.markers_top_k = declare(
+            self, "markers_top_k", 20, "candidate views shown as markers", min_value=1, max_value=1000
+        )
+        if self.dataset not in DATASETS or self.backend not in BACKENDS or self.move_mode not in ("service", "topic"):
+            raise ValueError(
+                f"bad parameters: dataset={self.dataset!r} backend={self.backend!r} move_mode={self.move_mode!r}"
+            )
+        gain_method(self.default_method, self.default_method)  # validates the default
+        self._rng = np.random.default_rng()
+        self._grid_lock = threading.Condition()
+        self._grid: VoxelGrid | None = None
+        self._camera_lock = threading.Condition()
+        self._camera_pose: TransformStamped | None = None
+        self._explore_lock = threading.Lock()
+        group = ReentrantCallbackGroup()
+        self.create_subscription(VoxelGrid, "/nbv/grid", self._on_grid, GRID_QOS, callback_group=group)
+        self.create_subscription(TransformStamped, "/camera/pose", self._on_camera_pose, 10, callback_group=group)
+        self._nbv_pub = self.create_publisher(PoseStamped, "/nbv/next_best_view", 10)
+        self._marker_pub = self.create_publisher(MarkerArray, "/nbv/markers", 10)
+        self._goal_pub = self.create_publisher(PoseStamped, "/camera/goal_pose", 10)
+        self._complete_client = self.create_client(CompleteGrid, "/nbv/complete", callback_group=group)
+        self._rank_client = self.create_client(RankViews, "/nbv/rank_views", callback_group=group)
+        self._move_client = self.create_client(MoveCamera, "/sim_camera/move_to", callback_group=group)
+        self.create_service(PlanNextBestView, "/nbv/plan", self._plan_service, callback_group=group)
+        self._action = ActionServer(
+            self, Explore, "/nbv/explore", execute_callback=self._explore,
+            goal_callback=self._accept_goal, cancel_callback=lambda _: CancelResponse.ACCEPT, callback_group=group,
+        )  # fmt: skip
+        mode = "in-process" if self.in_process else "via /nbv/complete and /nbv/rank_views"
+        self.get_logger().info(f"nbv_planner ready: dataset {self.dataset}, method {self.default_method}, {mode}")
+
+    # -- inputs -------------------------------------------------------------------------------
+    def _on_grid(self, msg: VoxelGrid) -> None:
+        with self._grid_lock:
+            self._grid = msg
+            self._grid_lock.notify_all()
+
+    def _on_camera_pose(self, msg: TransformStamped) -> None:
+        with self._camera_lock:
+            self._camera_pose = msg
+            self._camera_lock.notify_all()
+
+    def _latest_grid(self) -> VoxelGrid:
+        with self._grid_lock:
+            if self._grid is None:
+                raise ValueError("no grid received yet on /nbv/grid")
+            return self._grid
+
+    def _wait_for_grid(self, min_stamp_ns: int, timeout_s: float) -> VoxelGrid:
+        with self._grid_lock:
+            ok = self._grid_lock.wait_for(
+                lambda: self._grid is not None and _stamp_ns(self._grid.header.stamp) >= min_stamp_ns, timeout_s
+            )
+            if not ok:
+                raise TimeoutError(f"no grid including the frame at {min_stamp_ns} ns within {timeout_s:.0f} s")
+            return self._grid
+
+    # -- planning -----------------------------------------------------------------------------
+    def plan(self, request: PlanNextBestView.Request) -> PlanNextBestView.Response:
+        """Plan on the latest grid; never raises (errors go into the response)."""
+        response = PlanNextBestView.Response()
+        start = time.perf_counter()
+        try:
+            grid = self._latest_grid()
+            state, geometry = msg_to_grid(grid)
+            frame = grid.header.frame_id or self.frame_id
+            method = gain_method(request.method, self.default_method)
+            context = planning_context(self.dataset, geometry, self.backend, self.n_rays, self._rng)
+            box_min = np.array([request.workspace_min.x, request.workspace_min.y, request.workspace_min.z])
+            box_max = np.array([request.workspace_max.x, request.workspace_max.y, request.workspace_max.z])
+            top_k = max(1, int(request.top_k), self.markers_top_k)
+            if self.in_process:
+                keep = origin_filter(
+                    geometry, request.use_workspace, box_min, box_max, int(request.max_origins), self._rng
+                )
+                ranked = GainPlanner(method).rank(state, context, top_k, keep)
+                views = [(*view_pose(c, context, geometry), c.gain) for c in ranked]
+                if ranked:
+                    t = ranked[0].times
+                    response.time_cnn_s, response.time_raycast_s, response.time_views_s = (
+                        t["cnn"],
+                        t["raycast"],
+                        t["views"],
+                    )
+            else:
+                views = self._plan_via_servers(grid, method, request, top_k, response)
+            if not views:
+                raise ValueError("no view with positive gain")
+            ranked_msgs = [
+                ViewScore(pose=arrays_to_pose_stamped(p, q, frame, grid.header.stamp), gain=float(g))
+                for p, q, g in views
+            ]
+            response.best_pose, response.best_gain = ranked_msgs[0].pose, ranked_msgs[0].gain
+            response.ranked = ranked_msgs[: max(1, int(request.top_k))]
+            response.success = True
+            self._nbv_pub.publish(response.best_pose)
+            sensor = context.active_sensor
+            depth = sensor.r_max * geometry.resolution * 0.5
+            self._marker_pub.publish(
+                planning_markers(frame, grid.header.stamp, views[: self.markers_top_k], sensor.hfov_deg,
+                                 sensor.vfov_deg or 0.0, depth, 4 * geometry.resolution)
+            )  # fmt: skip
+        except (ValueError, TimeoutError, RuntimeError) as exc:
+            response.success = False
+            response.message = str(exc)
+            self.get_logger().warning(f"plan: {exc}")
+        response.time_total_s = time.perf_counter() - start
+        return response
+
+    def _plan_via_servers(self, grid, method, request, top_k, response) -> list:
+        rank = RankViews.Request(grid=grid, top_k=top_k, use_workspace=request.use_workspace)
+        rank.workspace_min, rank.workspace_max = request.workspace_min, request.workspace_max
+        rank.max_origins = request.max_origins
+        if method.probability == "cnn":
+            completion = call_service(
+                self,
+                self._complete_client,
+                CompleteGrid.Request(grid=grid, dataset=self.dataset),
+                self.service_timeout_s,
+            )
+            if not completion.success:
+                raise ValueError(f"completion failed: {completion.message}")
+            response.time_cnn_s = completion.inference_time_s
+            rank.probability, rank.method = completion.probability, "prob"
+            if method.downsampled:
+                budget = DOWNSAMPLED_ORIGINS[3 if grid.size_z > 1 else 2]
+                rank.max_origins = min(int(request.max_origins) or budget, budget)
+        else:
+            rank.method = method.name
+        ranked = call_service(self, self._rank_client, rank, self.service_timeout_s)
+        if not ranked.success:
+            raise ValueError(f"ranking failed: {ranked.message}")
+        response.time_raycast_s, response.time_views_s = ranked.time_raycast_s, ranked.time_views_s
+        return [(*pose_to_arrays(v.pose.pose), v.gain) for v in ranked.ranked]
+
+    def _plan_service(self, request, response):
+        result = self.plan(request)
+        for field in result.get_fields_and_field_types():
+            setattr(response, field, getattr(result, field))
+        return response
+
+    # -- exploration --------------------------------------------------------------------------
+    def _accept_goal(self, goal: Explore.Goal) -> GoalResponse:
+        if goal.max_views < 1 or not np.isfinite(goal.stop_unknown_fraction) or not np.isfinite(goal.stop_gain):
+            self.get_logger().warning("explore: rejected a goal with max_views < 1 or non-finite thresholds")
+            return GoalResponse.REJECT
+        if self._explore_lock.locked():
+            self.get_logger().warning("explore: rejected, another exploration is running")
+            return GoalResponse.REJECT
+        return GoalResponse.ACCEPT
+
+    def _move_camera(self, target: PoseStamped) -> int:
+        """Move the camera; returns the stamp (ns) of the first frame taken at the target."""
+        if self.move_mode == "service":
+            reply = call_service(self, self._move_client, MoveCamera.Request(target=target), self.move_timeout_s)
+            if not reply.success:
+                raise ValueError(f"camera move failed: {reply.message}")
+            return _stamp_ns(reply.frame_stamp)
+        goal_position, _ = pose_to_arrays(target.pose)
+        self._goal_pub.publish(target)
+        sent = self.get_clock().now().nanoseconds
+
+        def arrived() -> bool:
+            pose = self._camera_pose
+            if pose is None or _stamp_ns(pose.header.stamp) < sent:
+                return False
+            t = pose.transform.translation
+            return float(np.linalg.norm(np.array([t.x, t.y, t.z]) - goal_position)) <= self.arrival_tolerance_m
+
+        with self._camera_lock:
+            if not self._camera_lock.wait_for(arrived, self.move_timeout_s):
+                raise TimeoutError(f"camera did not report arrival within {self.move_timeout_s:.0f} s")
+            return _stamp_ns(self._camera_pose.header.stamp)
+
+    def _explore(self, goal_handle) -> Explore.Result:
+        goal: Explore.Goal = goal_handle.request
+        result = Explore.Result()
+        with self._explore_lock:
+            reason = f"reached {goal.max_views} views"
+            fraction = 1.0
+            try:
+                fraction = unknown_fraction_all(msg_to_grid(self._wait_for_grid(0, self.grid_timeout_s))[0])
+                for index in range(goal.max_views):
+                    if goal_handle.is_cancel_requested:
+                        goal_handle.canceled()
+                        reason = "canceled"
+                        break
+                    if goal.stop_unknown_fraction > 0 and fraction <= goal.stop_unknown_fraction:
+                        reason = f"unknown fraction {fraction:.4f} <= {goal.stop_unknown_fraction}"
+                        break
+                    planned = self.plan(PlanNextBestView.Request(method=goal.method))
+                    if not planned.success:
+                        reason = f"planning stopped: {planned.message}"
+                        break
+                    if planned.best_gain <= goal.stop_gain:
+                        reason = f"best gain {planned.best_gain:.4f} <= {goal.stop_gain}"
+                        break
+                    frame_ns = self._move_camera(planned.best_pose)
+                    grid = self._wait_for_grid(frame_ns, self.grid_timeout_s)
+                    fraction = unknown_fraction_all(msg_to_grid(grid)[0])
+                    result.poses.append(planned.best_pose)
+                    feedback = Explore.Feedback(
+                        view_index=index, pose=planned.best_pose, gain=planned.best_gain, unknown_fraction=fraction
+                    )
+                    goal_handle.publish_feedback(feedback)
+                    self.get_logger().info(
+                        f"view {index}: gain {planned.best_gain:.4f}, unknown fraction {fraction:.4f}"
+                    )
+            except (ValueError, TimeoutError, RuntimeError) as exc:
+                reason = f"error: {exc}"
+                self.get_logger().error(f"explore: {exc}")
+            result.views = len(result.poses)
+            result.final_unknown_fraction = float(fraction)
+            result.reason_stopped = reason
+            if reason != "canceled":
+                goal_handle.succeed()
+            return result
+
+
+def main(args: list[str] | None = None) -> int:
+    return run_node(NbvPlanner, args)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
