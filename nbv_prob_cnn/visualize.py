@@ -1,70 +1,95 @@
-"""Pictures of exploration results (matplotlib, Agg backend)."""
+"""Pictures of exploration results (matplotlib, Agg backend, no pyplot state kept)."""
 
 from __future__ import annotations
 
 from pathlib import Path
 
-import matplotlib
+import numpy as np
+from matplotlib.figure import Figure
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
+from nbv_prob_cnn.camera import matrix_from_quaternion
 
-from nbv_prob_cnn.camera import matrix_from_quaternion  # noqa: E402
+_AXES = ("x", "y", "z")
 
 
-def _state_image_2d(state: np.ndarray, truth: np.ndarray) -> np.ndarray:
-    """RGB: unknown dark grey, observed empty white, observed occupied red, unseen occupied pink."""
+def _state_image_2d(state: np.ndarray, truth: np.ndarray | None) -> np.ndarray:
+    """RGB: unknown dark grey, observed empty white, observed occupied red, unseen occupied
+    (when the ground truth is known) dull red."""
     rgb = np.full(state.shape + (3,), 0.25)
     rgb[state == 0] = 1.0
-    rgb[(truth == 1) & (state == -1)] = (0.55, 0.35, 0.35)
+    if truth is not None:
+        rgb[(truth == 1) & (state == -1)] = (0.55, 0.35, 0.35)
     rgb[state == 1] = (0.85, 0.1, 0.1)
     return rgb
 
 
-def save_exploration_png(result, world, path: str | Path, title: str = "") -> None:
-    """Plot the explored grid with the chosen views and the unknown-fraction curve."""
-    state, records = result.state, result.records
-    cells = np.array([r.cell for r in records], dtype=float)
-    quats = np.array([r.quaternion for r in records])
-    axes_dirs = np.array([matrix_from_quaternion(q)[:, 2] for q in quats]) if world.dims == 3 else None
-    if world.dims == 2:
-        fig, (ax_map, ax_curve) = plt.subplots(1, 2, figsize=(12, 6), gridspec_kw={"width_ratios": [1.3, 1]})
-        ax_map.imshow(np.transpose(_state_image_2d(state, world.ground_truth), (1, 0, 2)), origin="lower")
+def _projection_image(state: np.ndarray, hidden_axis: int) -> np.ndarray:
+    """RGB projection along one axis: brightness = share of known cells along the line of
+    sight, red where an observed occupied cell lies on it."""
+    known = 1.0 - np.mean(state == -1, axis=hidden_axis)
+    occupied = np.any(state == 1, axis=hidden_axis)
+    grey = 0.15 + 0.85 * known
+    rgb = np.stack([grey, grey, grey], axis=-1)
+    rgb[occupied] = np.stack([0.5 + 0.5 * grey[occupied], 0.15 * grey[occupied], 0.15 * grey[occupied]], axis=-1)
+    return rgb
+
+
+def plot_views(
+    state: np.ndarray,
+    cells: np.ndarray,
+    quats: np.ndarray,
+    path: str | Path,
+    title: str = "",
+    truth: np.ndarray | None = None,
+    curve: tuple[list[int], list[float]] | None = None,
+) -> None:
+    """Save a PNG of a grid with camera views (cell indices + quaternions) and, optionally, the
+    unknown-fraction curve ``(view indices, fractions)``."""
+    cells = np.asarray(cells, dtype=float).reshape(-1, state.ndim)
+    quats = np.asarray(quats, dtype=float).reshape(-1, 4)
+    panels = (1 if state.ndim == 2 else 3) + (curve is not None)
+    fig = Figure(figsize=(5.5 * panels, 5.2))
+    axes = [fig.add_subplot(1, panels, i + 1) for i in range(panels)]
+    if state.ndim == 2:
+        ax = axes[0]
+        ax.imshow(np.transpose(_state_image_2d(state, truth), (1, 0, 2)), origin="lower")
         yaw = 2.0 * np.arctan2(quats[:, 2], quats[:, 3])
-        ax_map.quiver(cells[:, 0], cells[:, 1], np.cos(yaw), np.sin(yaw), color="tab:blue", scale=25, width=0.004)
-        ax_map.plot(cells[:, 0], cells[:, 1], "o", color="tab:blue", ms=3)
-        ax_map.set_xlabel("x (cells)")
-        ax_map.set_ylabel("y (cells)")
-        ax_map.set_title("explored map (white empty, red occupied, pink unseen occupied)")
+        ax.quiver(cells[:, 0], cells[:, 1], np.cos(yaw), np.sin(yaw), color="tab:blue", scale=25, width=0.004)
+        ax.plot(cells[:, 0], cells[:, 1], "o", color="tab:blue", ms=3)
+        ax.set_xlabel("x (cells)")
+        ax.set_ylabel("y (cells)")
+        ax.set_title("white: seen empty, red: seen occupied, grey: unknown")
     else:
-        fig, axes = plt.subplots(1, 4, figsize=(20, 5))
-        ax_curve = axes[3]
-        names = ("x", "y", "z")
+        forward = np.array([matrix_from_quaternion(q)[:, 2] for q in quats]).reshape(-1, 3)
         for ax, (a, b) in zip(axes[:3], ((0, 1), (0, 2), (1, 2)), strict=True):
             hidden = 3 - a - b
-            known_occ = np.any(state == 1, axis=hidden).astype(float)
-            unknown_share = np.mean(state == -1, axis=hidden)
-            img = np.stack(
-                [
-                    0.25 + 0.6 * known_occ,
-                    0.25 * (1 - known_occ) + 0.75 * (1 - unknown_share),
-                    0.3 * (1 - known_occ) + 0.7 * (1 - unknown_share),
-                ],
-                axis=-1,
-            )
-            ax.imshow(np.clip(np.transpose(img, (1, 0, 2)), 0, 1), origin="lower")
-            ax.quiver(cells[:, a], cells[:, b], axes_dirs[:, a], axes_dirs[:, b], color="gold", scale=20, width=0.006)
+            ax.imshow(np.transpose(_projection_image(state, hidden), (1, 0, 2)), origin="lower")
+            ax.quiver(cells[:, a], cells[:, b], forward[:, a], forward[:, b], color="gold", scale=20, width=0.006)
             ax.plot(cells[:, a], cells[:, b], "o", color="gold", ms=3)
-            ax.set_xlabel(f"{names[a]} (cells)")
-            ax.set_ylabel(f"{names[b]} (cells)")
-            ax.set_title(f"projection along {names[hidden]} (red: seen occupied; bright: known)")
-    ax_curve.plot([r.iteration for r in records], [100 * r.unknown_fraction for r in records], "-o", ms=3)
-    ax_curve.set_xlabel("view")
-    ax_curve.set_ylabel("unknown empty cells (%)")
-    ax_curve.grid(alpha=0.3)
-    ax_curve.set_title("unknown fraction")
+            ax.set_xlabel(f"{_AXES[a]} (cells)")
+            ax.set_ylabel(f"{_AXES[b]} (cells)")
+            ax.set_title(f"along {_AXES[hidden]}: bright = known, red = seen occupied", fontsize=9)
+    if curve is not None:
+        ax = axes[-1]
+        ax.plot(curve[0], [100 * f for f in curve[1]], "-o", ms=3)
+        ax.set_xlabel("view")
+        ax.set_ylabel("unknown cells (%)")
+        ax.grid(alpha=0.3)
+        ax.set_title("unknown fraction")
     fig.suptitle(title)
     fig.tight_layout()
     fig.savefig(path, dpi=90)
-    plt.close(fig)
+
+
+def save_exploration_png(result, world, path: str | Path, title: str = "") -> None:
+    """Plot a simulated exploration (:class:`nbv_prob_cnn.explore.ExplorationResult`)."""
+    records = result.records
+    plot_views(
+        result.state,
+        np.array([r.cell for r in records]),
+        np.array([r.quaternion for r in records]),
+        path,
+        title,
+        truth=world.ground_truth,
+        curve=([r.iteration for r in records], [r.unknown_fraction for r in records]),
+    )
