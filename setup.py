@@ -8,7 +8,7 @@ setup(
     name=PACKAGE,
     version="0.1.0",
     packages=find_packages(exclude=["test", "test.*"]),
-    package_data={PACKAGE: ["*.cl", "gain/*.cl", "weights/*.pt", "weights/*.md"]},
+    package_data={PACKAGE: ["*.cl", "gain/*.cl", "ros/*.xml", "weights/*.pt", "weights/*.md", "weights/*.csv", "weights/*.png"]},
     data_files=[
         ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
         (f"share/{PACKAGE}", ["package.xml"]),

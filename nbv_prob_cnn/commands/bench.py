@@ -7,7 +7,7 @@ import argparse
 from nbv_prob_cnn.benchmark import DEFAULT_CASES, format_table, run_case
 
 NAME = "bench"
-HELP = "Time one prob_ig planning iteration at ~50% explored on the default worlds."
+HELP = "Time one prob_ig planning iteration at ~50%% explored on the default worlds."
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

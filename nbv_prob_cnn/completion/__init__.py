@@ -1,0 +1,15 @@
+"""The completion CNN of SPEC §3: model, inference, training data and training."""
+
+from nbv_prob_cnn.completion.inference import WeightsError, complete, default_weights_path, load_model
+from nbv_prob_cnn.completion.model import CompletionNet, pad_to_multiple
+from nbv_prob_cnn.completion.train import train
+
+__all__ = [
+    "CompletionNet",
+    "WeightsError",
+    "complete",
+    "default_weights_path",
+    "load_model",
+    "pad_to_multiple",
+    "train",
+]

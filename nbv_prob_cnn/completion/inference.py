@@ -1,0 +1,216 @@
+"""Running the completion CNN: weights files, model cache and :func:`complete`.
+
+A weights file is a ``torch.save`` of ``{"state_dict", "config": {dims, n_conv,
+first_channels, dataset}, "card": {...}}``. The shipped weights live in
+``nbv_prob_cnn/weights/<dataset>.pt``. Missing or incompatible weights raise
+:class:`WeightsError` with the command that retrains them; there is no silent fallback.
+"""
+
+from __future__ import annotations
+
+import os
+import threading
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from nbv_prob_cnn.camera import DATASETS
+from nbv_prob_cnn.completion.model import CompletionNet, encode_state
+from nbv_prob_cnn.grid import OCCUPIED, UNKNOWN, check_state
+
+_CONFIG_KEYS = ("dims", "n_conv", "first_channels", "dataset")
+_CACHE: dict[tuple[str, int, str], CompletionNet] = {}
+_CACHE_LOCK = threading.Lock()
+
+
+class WeightsError(ValueError):
+    """Completion weights are missing, unreadable or do not fit the request."""
+
+
+def default_weights_path(dataset: str) -> Path:
+    """``nbv_prob_cnn/weights/<dataset>.pt`` (the shipped weights)."""
+    if dataset not in DATASETS:
+        raise ValueError(f"dataset: unknown data set {dataset!r}; expected one of {sorted(DATASETS)}")
+    return Path(__file__).resolve().parent.parent / "weights" / f"{dataset}.pt"
+
+
+def retrain_command(dataset: str | None, path: str | Path | None = None) -> str:
+    """The command that (re)creates a weights file."""
+    name = dataset if dataset in DATASETS else "{2d,3du,3dt}"
+    cmd = f"nbv train --dataset {name}"
+    if path is not None and dataset in DATASETS and Path(path).resolve() != default_weights_path(dataset):
+        cmd += f" --out {path}"
+    return cmd
+
+
+def _dataset_from_path(path: Path) -> str | None:
+    return path.stem if path.stem in DATASETS else None
+
+
+def resolve_device(device: str | torch.device | None = None) -> torch.device:
+    """``device`` as given, else CUDA when available, else CPU."""
+    if device is None:
+        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    return torch.device(device)
+
+
+def save_weights(model: CompletionNet, path: str | Path, dataset: str, card: dict | None = None) -> Path:
+    """Write a weights file (atomically) and return its path."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    payload = {
+        "state_dict": {k: v.detach().cpu() for k, v in model.state_dict().items()},
+        "config": {**model.config(), "dataset": dataset},
+        "card": dict(card or {}),
+    }
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    torch.save(payload, tmp)
+    os.replace(tmp, path)
+    return path
+
+
+def read_weights(path: str | Path, dataset: str | None = None) -> dict:
+    """Read and validate a weights file (without building the model).
+
+    Raises:
+        WeightsError: missing/unreadable file, missing keys, or a different data set than ``dataset``.
+    """
+    path = Path(path)
+    hint_dataset = dataset or _dataset_from_path(path)
+    hint = f"train them with `{retrain_command(hint_dataset, path)}`"
+    if not path.is_file():
+        raise WeightsError(f"{path}: completion CNN weights not found; {hint}")
+    try:
+        payload = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as exc:  # noqa: BLE001 - any unpickling failure means an unusable file
+        raise WeightsError(f"{path}: unreadable completion CNN weights ({exc}); {hint}") from exc
+    if not isinstance(payload, dict) or "state_dict" not in payload or "config" not in payload:
+        raise WeightsError(f"{path}: not a completion CNN weights file (needs state_dict and config); {hint}")
+    config = payload["config"]
+    missing = [k for k in _CONFIG_KEYS if k not in config]
+    if missing:
+        raise WeightsError(f"{path}: weights config lacks {missing}; {hint}")
+    if dataset is not None and config["dataset"] != dataset:
+        raise WeightsError(f"{path}: weights were trained on data set {config['dataset']!r}, not {dataset!r}; {hint}")
+    return payload
+
+
+def build_model(payload: dict, path: str | Path = "<weights>") -> CompletionNet:
+    """A :class:`CompletionNet` with the weights of a payload from :func:`read_weights`."""
+    config = payload["config"]
+    hint = f"train them with `{retrain_command(config.get('dataset'), path)}`"
+    try:
+        model = CompletionNet(int(config["dims"]), int(config["n_conv"]), int(config["first_channels"]))
+        model.load_state_dict(payload["state_dict"], strict=True)
+    except (RuntimeError, ValueError, TypeError, KeyError) as exc:
+        raise WeightsError(f"{path}: weights do not fit the completion CNN ({exc}); {hint}") from exc
+    model.dataset = str(config["dataset"])
+    model.card = dict(payload.get("card", {}))
+    return model.eval()
+
+
+def load_model(
+    path: str | Path | None = None, dataset: str | None = None, device: str | torch.device | None = None
+) -> CompletionNet:
+    """Load (and cache per file version and device) a completion CNN in eval mode.
+
+    Args:
+        path: weights file (default: the shipped weights of ``dataset``).
+        dataset: expected data set; checked against the file's config when given.
+        device: default CUDA when available, else CPU.
+
+    Raises:
+        WeightsError: missing or incompatible weights (the message names the file and the
+            ``nbv train`` command that recreates it).
+    """
+    if path is None:
+        if dataset is None:
+            raise ValueError("path: give a weights file or a dataset to use its shipped weights")
+        path = default_weights_path(dataset)
+    path = Path(path).expanduser().resolve()
+    dev = resolve_device(device)
+    mtime = path.stat().st_mtime_ns if path.is_file() else -1
+    key = (str(path), mtime, str(dev))
+    with _CACHE_LOCK:
+        model = _CACHE.get(key)
+    if model is None:
+        model = build_model(read_weights(path, dataset), path).to(dev)
+        with _CACHE_LOCK:
+            _CACHE[key] = model
+    elif dataset is not None and getattr(model, "dataset", dataset) != dataset:
+        raise WeightsError(f"{path}: weights were trained on data set {model.dataset!r}, not {dataset!r}")
+    return model
+
+
+def clear_model_cache() -> None:
+    """Forget every cached model (e.g. after retraining in-process)."""
+    with _CACHE_LOCK:
+        _CACHE.clear()
+
+
+def _validate(state: np.ndarray, batch: bool) -> np.ndarray:
+    if not batch:
+        return check_state(state, "state")[None]
+    if not isinstance(state, np.ndarray) or state.ndim not in (3, 4) or state.shape[0] == 0:
+        shape = getattr(state, "shape", None)
+        raise ValueError(f"state: expected a batch (B, X, Y) or (B, X, Y, Z) of ternary grids, got shape {shape}")
+    check_state(state.reshape(state.shape[0], -1)[:, :, None], "state")  # dtype and values of the whole batch
+    return np.ascontiguousarray(state, dtype=np.int8)
+
+
+def complete(
+    state: np.ndarray,
+    model: CompletionNet | str | Path | None = None,
+    dataset: str | None = None,
+    device: str | torch.device | None = None,
+    batch: bool = False,
+    chunk: int = 8,
+) -> np.ndarray:
+    """Probabilistic map ``P`` of a ternary grid (SPEC §3): 0 on known empty, 1 on known
+    occupied, the CNN's occupancy probability on unknown cells.
+
+    Args:
+        state: ``int8`` grid of -1/0/1 (``(B, …)`` when ``batch``).
+        model: a :class:`CompletionNet`, a weights path, or None for the shipped weights of
+            ``dataset`` (which defaults to ``2d`` for 2D grids; 3D grids need ``3du``/``3dt``).
+        dataset: data set of the shipped weights, also checked against a loaded file.
+        device: default CUDA when available, else CPU.
+        batch: ``state`` is a batch of grids.
+        chunk: grids per forward pass in batch mode.
+
+    Returns:
+        ``float32`` array of the shape of ``state``.
+
+    Raises:
+        ValueError: invalid ``state``; :class:`WeightsError` for missing/incompatible weights.
+    """
+    grids = _validate(state, batch)
+    dims = grids.ndim - 1
+    dev = resolve_device(device)
+    if not isinstance(model, CompletionNet):
+        if model is None and dataset is None:
+            if dims != 2:
+                raise ValueError("dataset: required for 3D grids without a model ('3du' or '3dt')")
+            dataset = "2d"
+        model = load_model(model, dataset, dev)
+    elif next(model.parameters()).device != dev:
+        model = model.to(dev)
+    if model.dims != dims:
+        raise ValueError(f"state: a {dims}D grid does not fit a {model.dims}D completion model")
+
+    out = np.empty(grids.shape, dtype=np.float32)
+    was_training = model.training
+    model.eval()
+    try:
+        with torch.inference_mode():
+            for start in range(0, grids.shape[0], max(1, chunk)):
+                part = grids[start : start + chunk]
+                prob = model(encode_state(part).to(dev))[:, 0]
+                out[start : start + chunk] = prob.float().cpu().numpy()
+    finally:
+        model.train(was_training)
+    # Known cells exactly 0 / 1 whatever the arithmetic did.
+    out = np.where(grids == UNKNOWN, np.clip(out, 0.0, 1.0), (grids == OCCUPIED).astype(np.float32))
+    out = out.astype(np.float32, copy=False)
+    return out if batch else out[0]
