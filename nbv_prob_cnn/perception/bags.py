@@ -17,7 +17,7 @@ corrupt or truncated bag raises :class:`BagError` up front instead of giving a s
 from __future__ import annotations
 
 import warnings
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
@@ -34,15 +34,18 @@ __all__ = [
     "BagWarning",
     "BagWriter",
     "Frame",
+    "RawMessage",
     "TOPIC_CAMERA_INFO",
     "TOPIC_IMAGE",
     "TOPIC_POSE",
+    "bag_topics",
     "camera_info_to_intrinsics",
     "depth_to_image_msg",
     "image_msg_to_depth",
     "intrinsics_to_camera_info",
     "pose_to_transform_msg",
     "read_frames",
+    "read_raw_messages",
     "transform_msg_to_pose",
 ]
 
@@ -435,3 +438,95 @@ def read_frames(path: str | Path, validate: bool = True, strict: bool = False) -
                 )
         unpaired = "ignore"  # already reported
     return _frames(path, conns, unpaired)
+
+
+# ------------------------------------------------------------------------- raw messages
+@dataclass(frozen=True)
+class RawMessage:
+    """One serialized (CDR) message of a bag, as recorded."""
+
+    topic: str
+    msgtype: str
+    log_time_ns: int
+    data: bytes
+
+
+def bag_topics(path: str | Path) -> dict[str, tuple[str, int]]:
+    """``{topic: (message type, message count from the bag's index)}`` of any rosbag2 bag.
+
+    Raises:
+        FileNotFoundError: no such path.
+        BagError: unreadable bag, or a topic recorded with two different types.
+    """
+    path = Path(path)
+    reader = _open_reader(path)
+    try:
+        topics: dict[str, tuple[str, int]] = {}
+        for conn in reader.connections:
+            msgtype, count = topics.get(conn.topic, (conn.msgtype, 0))
+            if msgtype != conn.msgtype:
+                raise BagError(f"{path}: topic {conn.topic} is recorded with types {msgtype} and {conn.msgtype}")
+            topics[conn.topic] = (msgtype, count + int(conn.msgcount))
+        return topics
+    finally:
+        reader.close()
+
+
+def _raw_pass(path: Path, topics: set[str] | None, deserialize: bool) -> Iterator[RawMessage]:
+    store = typestore()
+    reader = _open_reader(path)
+    try:
+        conns = [c for c in reader.connections if topics is None or c.topic in topics]
+        stream = reader.messages(connections=conns)
+        read = 0
+        while True:
+            try:
+                conn, log_time, data = next(stream)
+            except StopIteration:
+                break
+            except Exception as exc:
+                raise BagError(
+                    f"{path}: corrupt or truncated bag after {read} message(s) ({type(exc).__name__}: {exc})"
+                ) from exc
+            if deserialize and conn.msgtype in store.types:
+                try:
+                    store.deserialize_cdr(data, conn.msgtype)
+                except Exception as exc:
+                    raise BagError(
+                        f"{path}: message {read} on {conn.topic} is not a valid {conn.msgtype} ({exc})"
+                    ) from exc
+            read += 1
+            yield RawMessage(conn.topic, conn.msgtype, int(log_time), bytes(data))
+    finally:
+        reader.close()
+
+
+def read_raw_messages(
+    path: str | Path, topics: Iterable[str] | None = None, validate: bool = True
+) -> Iterator[RawMessage]:
+    """The serialized messages of any rosbag2 bag (or of ``topics``), in log-time order (for replay).
+
+    Args:
+        validate: read the whole bag once before returning: every message must be readable and
+            (for the ROS 2 Jazzy standard types) deserialize, and the number read per topic must
+            match the bag's index, so a corrupt or truncated bag raises here, before any message
+            is used.
+
+    Raises:
+        FileNotFoundError: no such path.
+        BagError: unreadable, corrupt or truncated bag.
+    """
+    path = Path(path)
+    selected = None if topics is None else set(topics)
+    if validate:
+        expected = {t: n for t, (_, n) in bag_topics(path).items() if selected is None or t in selected}
+        counts: dict[str, int] = {}
+        for msg in _raw_pass(path, selected, deserialize=True):
+            counts[msg.topic] = counts.get(msg.topic, 0) + 1
+        for topic, n_expected in expected.items():
+            if n_expected and counts.get(topic, 0) != n_expected:
+                raise BagError(
+                    f"{path}: truncated bag: {counts.get(topic, 0)} {topic} message(s) readable, "
+                    f"the bag index lists {n_expected}"
+                )
+    return _raw_pass(path, selected, deserialize=False)

@@ -17,7 +17,7 @@ from nbv_prob_cnn_msgs.msg import ProbabilityGrid, VoxelGrid
 from nbv_prob_cnn.geometry import GridGeometry
 
 #: Largest grid accepted from the wire (cells); bigger requests are refused with a reason.
-MAX_GRID_CELLS = 64_000_000
+MAX_GRID_CELLS = 2**24  # 256³; a 50 MB grid is refused
 
 
 def _check_identity_orientation(pose: Pose, what: str) -> None:

@@ -1,0 +1,158 @@
+"""``bag_record``: record the depth-camera topics to a rosbag2 (mcap) with ``rosbags``.
+
+There is no ``ros2 bag record`` here; this node records what :mod:`~nbv_prob_cnn.ros.bag_replay`
+and ``nbv integrate`` read: ``/camera/depth/image``, ``/camera/depth/camera_info`` and
+``/camera/pose`` (remappable), as the serialized CDR bytes received (raw subscriptions, no
+decoding). The log time of a message is its reception time on the node's clock (the rosbag2
+convention); the header stamps inside the messages are kept as published.
+
+The bag is created when the node starts (an existing ``output`` is never overwritten: the node
+exits with status 1) and closed cleanly on SIGINT/SIGTERM, so the bag is complete and indexed.
+
+Run: ``nbv node bag_record --ros-args -p output:=/tmp/run1``
+"""
+
+from __future__ import annotations
+
+from collections import Counter
+from pathlib import Path
+from typing import Any
+
+import rclpy
+from geometry_msgs.msg import TransformStamped
+from rcl_interfaces.msg import IntegerRange, ParameterDescriptor
+from rclpy.exceptions import ParameterException
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from sensor_msgs.msg import CameraInfo, Image
+
+from nbv_prob_cnn.perception.bags import (
+    MSG_CAMERA_INFO,
+    MSG_IMAGE,
+    MSG_TRANSFORM,
+    TOPIC_CAMERA_INFO,
+    TOPIC_IMAGE,
+    TOPIC_POSE,
+    BagError,
+    typestore,
+)
+
+NODE_NAME = "bag_record"
+#: topic -> (rclpy class, rosbag2 type name)
+TOPICS = {
+    TOPIC_IMAGE: (Image, MSG_IMAGE),
+    TOPIC_CAMERA_INFO: (CameraInfo, MSG_CAMERA_INFO),
+    TOPIC_POSE: (TransformStamped, MSG_TRANSFORM),
+}
+
+
+def _descriptor(description: str, int_range=None):
+    desc = ParameterDescriptor(description=description)
+    if int_range is not None:
+        desc.integer_range = [IntegerRange(from_value=int_range[0], to_value=int_range[1], step=1)]
+    return desc
+
+
+class BagRecord(Node):
+    """Writes every message of the camera topics to a new mcap bag."""
+
+    def __init__(self) -> None:
+        super().__init__(NODE_NAME)
+        output = self.declare_parameter(
+            "output", "", _descriptor("new rosbag2 directory to create (required; never overwritten)")
+        ).value
+        queue_size = self.declare_parameter(
+            "queue_size", 100, _descriptor("depth of the subscriptions", int_range=(1, 10000))
+        ).value
+        reliability = self.declare_parameter(
+            "qos_reliability",
+            "reliable",
+            _descriptor("subscriptions: 'reliable' or 'best_effort' (for sensor_data publishers)"),
+        ).value
+        if not output:
+            raise ValueError("parameter 'output' is required (path of the new bag directory)")
+        if reliability not in ("reliable", "best_effort"):
+            raise ValueError(f"qos_reliability: expected 'reliable' or 'best_effort', got {reliability!r}")
+        self.path = Path(output).expanduser()
+        self.counts: Counter[str] = Counter()
+        self._writer = self._open_writer()
+        self._connections: dict[str, Any] = {}
+        qos = QoSProfile(
+            history=HistoryPolicy.KEEP_LAST,
+            depth=int(queue_size),
+            reliability=ReliabilityPolicy.RELIABLE if reliability == "reliable" else ReliabilityPolicy.BEST_EFFORT,
+            durability=DurabilityPolicy.VOLATILE,
+        )
+        store = typestore()
+        for default_topic, (msg_class, msgtype) in TOPICS.items():
+            topic = self.resolve_topic_name(default_topic)  # recorded under its remapped name
+            self._connections[topic] = self._writer.add_connection(topic, msgtype, typestore=store)
+            self.create_subscription(msg_class, default_topic, self._callback(topic), qos, raw=True)
+        self.get_logger().info(f"recording {sorted(self._connections)} to {self.path}")
+
+    def _open_writer(self) -> Any:
+        from rosbags.rosbag2 import StoragePlugin, Writer, WriterError
+
+        if self.path.exists():
+            raise BagError(f"{self.path}: exists already; a bag is never overwritten")
+        try:
+            writer = Writer(self.path, version=Writer.VERSION_LATEST, storage_plugin=StoragePlugin.MCAP)
+            writer.open()
+        except (WriterError, OSError) as exc:
+            raise BagError(f"{self.path}: cannot create the bag ({exc})") from exc
+        return writer
+
+    def _callback(self, topic: str):
+        connection = self._connections[topic]
+
+        def write(raw: bytes) -> None:
+            if self._writer is None:
+                return
+            self._writer.write(connection, self.get_clock().now().nanoseconds, raw)
+            self.counts[topic] += 1
+
+        return write
+
+    def close(self) -> None:
+        """Finish the bag (mcap summary, metadata.yaml); idempotent."""
+        if self._writer is not None:
+            writer, self._writer = self._writer, None
+            writer.close()
+
+    def summary(self) -> str:
+        per_topic = ", ".join(f"{t} {n}" for t, n in sorted(self.counts.items())) or "nothing"
+        return f"wrote {sum(self.counts.values())} message(s) to {self.path} ({per_topic})"
+
+
+def main(args: list[str] | None = None) -> int:
+    """Record until interrupted (bag closed cleanly); 1 when the bag cannot be created."""
+    rclpy.init(args=args)
+    node = None
+    code = 0
+    try:
+        node = BagRecord()
+        executor = SingleThreadedExecutor()
+        executor.add_node(node)
+        executor.spin()
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    except Exception as exc:
+        if rclpy.ok() and isinstance(exc, ValueError | ParameterException):  # BagError is a ValueError
+            rclpy.logging.get_logger(NODE_NAME).fatal(f"cannot start: {exc}")
+            code = 1
+        elif rclpy.ok():
+            raise
+        # else: interrupted during start-up (SIGINT can surface as another error, e.g. an aborted import)
+    finally:
+        if node is not None:
+            node.close()
+            # not the node's logger: its rosout publisher may be gone already (SIGINT shuts the context down)
+            rclpy.logging.get_logger(f"{node.get_name()}.summary").info(node.summary())
+            node.destroy_node()
+        rclpy.try_shutdown()
+    return code
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

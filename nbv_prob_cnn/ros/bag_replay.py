@@ -1,0 +1,230 @@
+"""``bag_replay``: publish the messages of a rosbag2 on their original topics, paced by bag time.
+
+There is no ``ros2 bag play`` here; this node stands in for it (SPEC §10: ``bag_replay`` feeds the
+integrator the camera topics of a recorded bag). Messages are published as the serialized CDR
+bytes stored in the bag (no decoding), with the publish times following the bag's log times
+divided by ``rate``.
+
+The whole bag is validated before anything is published (every message read and, for standard
+types, deserialized; counts checked against the bag's index: see
+:func:`nbv_prob_cnn.perception.bags.read_raw_messages`). A missing, corrupt or truncated bag is
+logged as an error and the node exits with status 1 having published nothing.
+
+When the bag is done (``loop:=false``) the node waits until reliable subscribers acknowledged
+everything (at most ``ack_timeout_s``), logs a summary and exits with status 0; with
+``exit_when_done:=false`` it keeps running (publishers alive) until interrupted.
+
+QoS: reliable, volatile, depth ``queue_size``. Messages published before a subscriber is
+matched are lost (volatile), so ``wait_for_subscribers:=N`` holds the start until every topic
+has N subscribers (at most ``wait_timeout_s``; the replay starts anyway after it, with a warning).
+
+Run: ``nbv node bag_replay --ros-args -p bag:=bags/3dt_seed1000_sample -p rate:=2.0``
+"""
+
+from __future__ import annotations
+
+import importlib
+import time
+from collections import Counter
+from pathlib import Path
+
+import rclpy
+from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
+from rclpy.duration import Duration
+from rclpy.exceptions import ParameterException
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+
+from nbv_prob_cnn.perception.bags import BagError, bag_topics, read_raw_messages
+
+NODE_NAME = "bag_replay"
+
+
+def _descriptor(description: str, float_range=None, int_range=None):
+    desc = ParameterDescriptor(description=description)
+    if float_range is not None:
+        desc.floating_point_range = [FloatingPointRange(from_value=float_range[0], to_value=float_range[1], step=0.0)]
+    if int_range is not None:
+        desc.integer_range = [IntegerRange(from_value=int_range[0], to_value=int_range[1], step=1)]
+    return desc
+
+
+def message_class(msgtype: str) -> type:
+    """The rclpy message class of ``pkg/msg/Name``.
+
+    Raises:
+        ValueError: not a message type name, or its package is not installed.
+    """
+    parts = msgtype.split("/")
+    if len(parts) != 3 or parts[1] != "msg":
+        raise ValueError(f"{msgtype!r} is not a message type name (pkg/msg/Name)")
+    try:
+        return getattr(importlib.import_module(f"{parts[0]}.msg"), parts[2])
+    except (ImportError, AttributeError) as exc:
+        raise ValueError(f"message type {msgtype} is not installed ({exc})") from exc
+
+
+class BagReplay(Node):
+    """Validates a bag, then publishes its messages paced by their log times (see :meth:`replay`)."""
+
+    def __init__(self) -> None:
+        super().__init__(NODE_NAME)
+        self.bag = self.declare_parameter("bag", "", _descriptor("rosbag2 directory or .mcap file (required)")).value
+        self.rate = self.declare_parameter(
+            "rate", 1.0, _descriptor("replay speed factor (2.0 = twice as fast as recorded)", float_range=(1e-3, 1e4))
+        ).value
+        self.loop = self.declare_parameter(
+            "loop", False, _descriptor("start again at the end, until interrupted")
+        ).value
+        self.start_delay = self.declare_parameter(
+            "start_delay_s", 0.0, _descriptor("wait this long before the first message [s]", float_range=(0.0, 3600.0))
+        ).value
+        self.exit_when_done = self.declare_parameter(
+            "exit_when_done", True, _descriptor("exit (status 0) after the last message; false: keep running")
+        ).value
+        topics = self.declare_parameter(
+            "topics", "", _descriptor("comma-separated topics to replay; empty = every topic of the bag")
+        ).value
+        queue_size = self.declare_parameter(
+            "queue_size", 10, _descriptor("publisher history depth", int_range=(1, 10000))
+        ).value
+        self.wait_for_subscribers = self.declare_parameter(
+            "wait_for_subscribers",
+            0,
+            _descriptor("before starting, wait until every topic has this many subscribers", int_range=(0, 1000)),
+        ).value
+        self.wait_timeout = self.declare_parameter(
+            "wait_timeout_s", 10.0, _descriptor("longest wait for subscribers [s]", float_range=(0.0, 3600.0))
+        ).value
+        self.ack_timeout = self.declare_parameter(
+            "ack_timeout_s",
+            5.0,
+            _descriptor(
+                "at the end, longest wait for reliable subscribers to acknowledge [s]", float_range=(0.0, 600.0)
+            ),
+        ).value
+        if not self.bag:
+            raise ValueError("parameter 'bag' is required (a rosbag2 directory or .mcap file)")
+        self.path = Path(self.bag).expanduser()
+
+        # validate everything before the first publisher exists: a bad bag publishes nothing
+        available = bag_topics(self.path)
+        selected = [t.strip() for t in topics.split(",") if t.strip()] or sorted(available)
+        unknown = sorted(set(selected) - set(available))
+        if unknown:
+            raise BagError(f"{self.path}: topic(s) {unknown} are not in the bag; it has {sorted(available)}")
+        classes = {}
+        for topic in selected:
+            try:
+                classes[topic] = message_class(available[topic][0])
+            except ValueError as exc:
+                self.get_logger().warning(f"{topic} skipped: {exc}")
+        if not classes:
+            raise BagError(f"{self.path}: no topic can be replayed")
+        self.topics = sorted(classes)
+        t0 = time.monotonic()
+        n_messages = sum(1 for _ in read_raw_messages(self.path, self.topics, validate=True))
+        if n_messages == 0:
+            raise BagError(f"{self.path}: the bag has no messages on {self.topics}")
+
+        qos = QoSProfile(
+            history=HistoryPolicy.KEEP_LAST,
+            depth=int(queue_size),
+            reliability=ReliabilityPolicy.RELIABLE,
+            durability=DurabilityPolicy.VOLATILE,
+        )
+        self._topic_publishers = {topic: self.create_publisher(classes[topic], topic, qos) for topic in self.topics}
+        self.published: Counter[str] = Counter()
+        self.passes = 0
+        self.get_logger().info(
+            f"{self.path}: {n_messages} message(s) on {self.topics} validated in {time.monotonic() - t0:.2f} s; "
+            f"rate {self.rate:g}, loop {self.loop}"
+        )
+
+    def _sleep(self, executor: SingleThreadedExecutor, seconds: float) -> None:
+        """Wait while serving the node's callbacks (parameter services)."""
+        deadline = time.monotonic() + seconds
+        while (remaining := deadline - time.monotonic()) > 0:
+            executor.spin_once(timeout_sec=min(remaining, 0.1))
+
+    def _wait_for_subscribers(self, executor: SingleThreadedExecutor) -> None:
+        deadline = time.monotonic() + self.wait_timeout
+        while True:
+            counts = {t: p.get_subscription_count() for t, p in self._topic_publishers.items()}
+            if min(counts.values()) >= self.wait_for_subscribers:
+                self._sleep(executor, 0.2)  # let the readers finish matching the writers
+                return
+            if time.monotonic() >= deadline:
+                self.get_logger().warning(
+                    f"starting without {self.wait_for_subscribers} subscriber(s) on every topic: {counts}"
+                )
+                return
+            self._sleep(executor, 0.05)
+
+    def replay(self, executor: SingleThreadedExecutor) -> None:
+        """Publish the bag once (or until interrupted with ``loop``)."""
+        if self.wait_for_subscribers > 0:
+            self._wait_for_subscribers(executor)
+        if self.start_delay > 0:
+            self._sleep(executor, self.start_delay)
+        t_start = time.monotonic()
+        while True:
+            first_ns = None
+            pass_start = time.monotonic()
+            for msg in read_raw_messages(self.path, self.topics, validate=False):
+                if first_ns is None:
+                    first_ns = msg.log_time_ns
+                due = pass_start + (msg.log_time_ns - first_ns) * 1e-9 / self.rate
+                self._sleep(executor, due - time.monotonic())
+                self._topic_publishers[msg.topic].publish(msg.data)
+                self.published[msg.topic] += 1
+            self.passes += 1
+            if not self.loop:
+                break
+        for topic, publisher in self._topic_publishers.items():
+            if not publisher.wait_for_all_acked(Duration(seconds=self.ack_timeout)):
+                self.get_logger().warning(f"{topic}: not every subscriber acknowledged within {self.ack_timeout:g} s")
+        self.get_logger().info(f"done: {self.summary()} in {time.monotonic() - t_start:.2f} s")
+
+    def summary(self) -> str:
+        per_topic = ", ".join(f"{topic} {n}" for topic, n in sorted(self.published.items())) or "nothing"
+        return f"published {sum(self.published.values())} message(s) in {self.passes} pass(es) ({per_topic})"
+
+
+def main(args: list[str] | None = None) -> int:
+    """Replay the bag; 0 when done or interrupted, 1 on a bad bag or parameters (nothing published)."""
+    rclpy.init(args=args)
+    node = None
+    code = 0
+    try:
+        node = BagReplay()
+        executor = SingleThreadedExecutor()
+        executor.add_node(node)
+        node.replay(executor)
+        if not node.exit_when_done:
+            executor.spin()
+    except (KeyboardInterrupt, ExternalShutdownException):
+        if node is not None:
+            rclpy.logging.get_logger(f"{NODE_NAME}.summary").info(f"interrupted: {node.summary()}")
+    except Exception as exc:
+        if rclpy.ok() and isinstance(exc, BagError | FileNotFoundError):
+            rclpy.logging.get_logger(NODE_NAME).error(
+                f"cannot replay the bag (missing, corrupt, truncated or not a rosbag2; nothing was published): {exc}"
+            )
+            code = 1
+        elif rclpy.ok() and isinstance(exc, ValueError | ParameterException):
+            rclpy.logging.get_logger(NODE_NAME).fatal(f"cannot start: {exc}")
+            code = 1
+        elif rclpy.ok():
+            raise
+        # else: interrupted during start-up (SIGINT can surface as another error, e.g. an aborted import)
+    finally:
+        if node is not None:
+            node.destroy_node()
+        rclpy.try_shutdown()
+    return code
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

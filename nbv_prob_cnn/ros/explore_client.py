@@ -1,0 +1,122 @@
+"""A command-line client of the Explore action: sends a goal, prints progress per view, and
+writes the per-view CSV and a PNG of the explored grid (used by the launch scripts)."""
+
+from __future__ import annotations
+
+import csv
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import rclpy
+from nbv_prob_cnn_msgs.action import Explore
+from nbv_prob_cnn_msgs.msg import VoxelGrid
+from rclpy.action import ActionClient
+from rclpy.executors import SingleThreadedExecutor
+
+from nbv_prob_cnn.grid import unknown_fraction_all
+from nbv_prob_cnn.ros.common import GRID_QOS
+from nbv_prob_cnn.ros.conversions import msg_to_grid, pose_to_arrays
+
+
+class ExploreClient:
+    """Runs one exploration through ``/nbv/explore`` and keeps the latest ``/nbv/grid``."""
+
+    def __init__(self) -> None:
+        self.node = rclpy.create_node("explore_client")
+        self._action = ActionClient(self.node, Explore, "/nbv/explore")
+        self._grid: VoxelGrid | None = None
+        self._grid_lock = threading.Lock()
+        self.node.create_subscription(VoxelGrid, "/nbv/grid", self._on_grid, GRID_QOS)
+        self.feedback: list[tuple[float, Explore.Feedback]] = []
+        self._executor = SingleThreadedExecutor()
+        self._executor.add_node(self.node)
+
+    def _on_grid(self, msg: VoxelGrid) -> None:
+        with self._grid_lock:
+            self._grid = msg
+
+    def latest_grid(self) -> VoxelGrid | None:
+        with self._grid_lock:
+            return self._grid
+
+    def wait_ready(self, timeout_s: float) -> bool:
+        """Wait for the action server and a first grid."""
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline:
+            self._executor.spin_once(timeout_sec=0.1)
+            if self._action.server_is_ready() and self.latest_grid() is not None:
+                return True
+        return False
+
+    def explore(self, goal: Explore.Goal, timeout_s: float, on_feedback=None) -> Explore.Result:
+        """Send ``goal`` and spin until the result arrives.
+
+        Raises:
+            RuntimeError: goal rejected; TimeoutError: no result in time.
+        """
+        start = time.monotonic()
+
+        def feedback_cb(message) -> None:
+            self.feedback.append((time.monotonic() - start, message.feedback))
+            if on_feedback:
+                on_feedback(message.feedback, time.monotonic() - start)
+
+        send = self._action.send_goal_async(goal, feedback_callback=feedback_cb)
+        self._executor.spin_until_future_complete(send, timeout_sec=30.0)
+        handle = send.result()
+        if handle is None or not handle.accepted:
+            raise RuntimeError("the Explore goal was rejected (is another exploration running?)")
+        self._goal_handle = handle
+        result = handle.get_result_async()
+        self._executor.spin_until_future_complete(result, timeout_sec=timeout_s)
+        if not result.done():
+            raise TimeoutError(f"no Explore result within {timeout_s:.0f} s")
+        # let the last grid arrive
+        end = time.monotonic() + 1.0
+        while time.monotonic() < end:
+            self._executor.spin_once(timeout_sec=0.1)
+        return result.result().result
+
+    def cancel(self) -> None:
+        handle = getattr(self, "_goal_handle", None)
+        if handle is not None:
+            future = handle.cancel_goal_async()
+            self._executor.spin_until_future_complete(future, timeout_sec=5.0)
+
+    def destroy(self) -> None:
+        self._executor.shutdown()
+        self.node.destroy_node()
+
+
+def write_outputs(client: ExploreClient, result: Explore.Result, out_dir: Path, title: str) -> list[Path]:
+    """Per-view CSV and a PNG of the last grid with the chosen views."""
+    from nbv_prob_cnn.visualize import plot_views
+
+    out_dir.mkdir(parents=True, exist_ok=True)
+    csv_path = out_dir / "views.csv"
+    with open(csv_path, "w", newline="") as handle:
+        writer = csv.writer(handle)
+        writer.writerow(["view", "elapsed_s", "gain", "unknown_fraction", "x", "y", "z", "qx", "qy", "qz", "qw"])
+        for elapsed, fb in client.feedback:
+            position, quat = pose_to_arrays(fb.pose.pose)
+            writer.writerow(
+                [fb.view_index, f"{elapsed:.3f}", f"{fb.gain:.6g}", f"{fb.unknown_fraction:.6f}",
+                 *(f"{v:.5f}" for v in position), *(f"{v:.6f}" for v in quat)]
+            )  # fmt: skip
+    written = [csv_path]
+    grid = client.latest_grid()
+    if grid is not None:
+        state, geometry = msg_to_grid(grid)
+        poses = [pose_to_arrays(p.pose) for p in result.poses]
+        cells = np.array([geometry.to_index(p) for p, _ in poses]).reshape(-1, geometry.dims)
+        quats = np.array([q for _, q in poses]).reshape(-1, 4)
+        curve = ([fb.view_index for _, fb in client.feedback], [fb.unknown_fraction for _, fb in client.feedback])
+        png = out_dir / "explored.png"
+        plot_views(state, cells, quats, png, f"{title} (unknown {unknown_fraction_all(state):.3f})", curve=curve)
+        np.savez_compressed(
+            out_dir / "grid.npz", grid=state, origin=np.array(geometry.origin), resolution=geometry.resolution
+        )
+        written += [png, out_dir / "grid.npz"]
+    return written

@@ -1,0 +1,316 @@
+"""``sim_camera``: a simulated depth camera looking at a generated world or a mesh (SPEC §2, §10).
+
+Publishes, all with the same header stamp per frame:
+
+* ``/camera/depth/image`` (``sensor_msgs/Image``, ``32FC1`` metres or ``16UC1`` millimetres, 0 = no return)
+* ``/camera/depth/camera_info`` (``sensor_msgs/CameraInfo``, pinhole, no distortion)
+* ``/camera/pose`` (``geometry_msgs/TransformStamped``, ``frame_id`` -> ``camera_frame``)
+
+Moves with the service ``/sim_camera/move_to`` (``nbv_prob_cnn_msgs/MoveCamera``: the frame at the
+target is rendered and published inside the service call, the reply carries its stamp) or the
+topic ``/camera/goal_pose`` (``geometry_msgs/PoseStamped``; a frame is published immediately).
+Target poses are ``camera_optical`` poses (REP-103: z forward, x right, y down) in ``frame_id``.
+
+Frames are rendered by :class:`~nbv_prob_cnn.perception.DepthCamera` and converted by the
+rosbag2 helpers of :mod:`nbv_prob_cnn.perception.bags` (CDR bytes published as they are), so a
+live stream and a recorded bag carry byte-for-byte the same message layout.
+
+Run: ``nbv node sim_camera --ros-args -p dataset:=3dt -p seed:=1000 -p rate_hz:=5.0``
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+from pathlib import Path
+
+import numpy as np
+import rclpy
+from builtin_interfaces.msg import Time
+from geometry_msgs.msg import PoseStamped, TransformStamped
+from nbv_prob_cnn_msgs.srv import MoveCamera
+from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
+from rclpy.exceptions import ParameterException
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from sensor_msgs.msg import CameraInfo, Image
+
+from nbv_prob_cnn.camera import look_rotation, matrix_from_quaternion, quaternion_from_matrix
+from nbv_prob_cnn.perception.bags import (
+    MSG_CAMERA_INFO,
+    MSG_IMAGE,
+    MSG_TRANSFORM,
+    TOPIC_CAMERA_INFO,
+    TOPIC_IMAGE,
+    TOPIC_POSE,
+    depth_to_image_msg,
+    intrinsics_to_camera_info,
+    pose_to_transform_msg,
+    typestore,
+)
+from nbv_prob_cnn.perception.depth_camera import DepthCamera, DepthNoise, Intrinsics
+from nbv_prob_cnn.ros.conversions import pose_to_arrays
+
+NODE_NAME = "sim_camera"
+TOPIC_GOAL_POSE = "/camera/goal_pose"
+SERVICE_MOVE_TO = "/sim_camera/move_to"
+ENCODINGS = ("32FC1", "16UC1")
+
+
+def look_at_pose(position, target) -> list[float]:
+    """``[x, y, z, qx, qy, qz, qw]`` of a camera_optical pose at ``position`` looking at ``target``."""
+    rot = look_rotation(np.asarray(target, dtype=np.float64) - np.asarray(position, dtype=np.float64))
+    return [float(v) for v in position] + [float(q) for q in quaternion_from_matrix(rot)]
+
+
+def overview_pose(meshes) -> list[float]:
+    """Default camera pose: looking at the centre of the scene's bounding box (a third of the way up)
+    from the front (-y) side, 45 degrees above it, far enough to see most of the scene
+    (for a 3DT world: from about 0.95 m away, above the front edge of the table)."""
+    vertices = np.concatenate([np.asarray(m.vertices, dtype=np.float64).reshape(-1, 3) for m in meshes])
+    lo, hi = vertices.min(axis=0), vertices.max(axis=0)
+    target = np.array([(lo[0] + hi[0]) / 2, (lo[1] + hi[1]) / 2, lo[2] + (hi[2] - lo[2]) / 3])
+    distance = 0.65 * float(np.max(hi - lo))
+    position = target + distance * np.array([0.0, -math.sqrt(0.5), math.sqrt(0.5)])
+    return look_at_pose(position, target)
+
+
+def _descriptor(description: str, float_range=None, int_range=None, dynamic_typing: bool = False):
+    desc = ParameterDescriptor(description=description, dynamic_typing=dynamic_typing)
+    if float_range is not None:
+        desc.floating_point_range = [FloatingPointRange(from_value=float_range[0], to_value=float_range[1], step=0.0)]
+    if int_range is not None:
+        desc.integer_range = [IntegerRange(from_value=int_range[0], to_value=int_range[1], step=1)]
+    return desc
+
+
+def pose_matrix(values) -> np.ndarray:
+    """4×4 ``world_from_optical`` matrix of ``[x, y, z, qx, qy, qz, qw]``.
+
+    Raises:
+        ValueError: not 7 numbers, NaN/inf, or a zero quaternion.
+    """
+    values = np.asarray(list(values), dtype=np.float64)
+    if values.shape != (7,):
+        raise ValueError(f"pose: expected 7 numbers [x, y, z, qx, qy, qz, qw], got {values.size}")
+    if not np.all(np.isfinite(values)):
+        raise ValueError(f"pose: NaN or infinite components {values.tolist()}")
+    pose = np.eye(4)
+    pose[:3, :3] = matrix_from_quaternion(values[3:])  # raises on a zero quaternion
+    pose[:3, 3] = values[:3]
+    return pose
+
+
+def stamp_to_time(stamp_ns: int) -> Time:
+    return Time(sec=int(stamp_ns // 1_000_000_000), nanosec=int(stamp_ns % 1_000_000_000))
+
+
+def load_meshes(dataset: str, seed: int, mesh_file: str) -> tuple[list, str]:
+    """The scene meshes (world metres) and a description of where they came from."""
+    if mesh_file:
+        import trimesh
+
+        path = Path(mesh_file).expanduser()
+        if not path.is_file():
+            raise ValueError(f"mesh_file: no such file {str(path)!r}")
+        try:
+            mesh = trimesh.load(path, force="mesh")
+        except Exception as exc:  # trimesh raises many types on unreadable files
+            raise ValueError(f"mesh_file: cannot read {str(path)!r} ({exc})") from exc
+        if len(mesh.faces) == 0:
+            raise ValueError(f"mesh_file: {str(path)!r} has no triangles")
+        return [mesh], f"mesh {path}"
+    if dataset not in ("3dt", "3du"):
+        raise ValueError(f"dataset: expected '3dt' or '3du' (3D worlds with meshes), got {dataset!r}")
+    from nbv_prob_cnn.worlds import load_or_generate
+
+    world = load_or_generate(dataset, seed)
+    meshes = world.triangle_meshes()
+    if not meshes:
+        raise ValueError(f"dataset {dataset} seed {seed}: the world has no meshes")
+    return meshes, f"{dataset} world seed {seed}"
+
+
+class SimCamera(Node):
+    """Renders depth frames of a static scene from a movable camera pose."""
+
+    def __init__(self) -> None:
+        super().__init__(NODE_NAME)
+        dataset = self.declare_parameter(
+            "dataset", "3dt", _descriptor("generated world to look at: '3dt' or '3du' (ignored with mesh_file)")
+        ).value
+        seed = self.declare_parameter("seed", 1000, _descriptor("world seed", int_range=(0, 2**31 - 1))).value
+        mesh_file = self.declare_parameter(
+            "mesh_file", "", _descriptor("mesh file (world metres, any format trimesh reads); overrides dataset/seed")
+        ).value
+        width = self.declare_parameter("width", 640, _descriptor("image width [px]", int_range=(1, 8192))).value
+        height = self.declare_parameter("height", 480, _descriptor("image height [px]", int_range=(1, 8192))).value
+        hfov = self.declare_parameter(
+            "hfov_deg", 60.0, _descriptor("horizontal field of view [deg]", float_range=(1.0, 179.0))
+        ).value
+        self.frame_id = self.declare_parameter(
+            "frame_id", "world", _descriptor("fixed frame of the scene and of the published pose")
+        ).value
+        self.camera_frame = self.declare_parameter(
+            "camera_frame", "camera_optical", _descriptor("optical frame of the images (REP-103)")
+        ).value
+        rate = self.declare_parameter(
+            "rate_hz", 5.0, _descriptor("frame rate [Hz]; 0 = publish only when moved", float_range=(0.0, 100.0))
+        ).value
+        self.encoding = self.declare_parameter(
+            "encoding", "32FC1", _descriptor("image encoding: '32FC1' (float metres) or '16UC1' (millimetres)")
+        ).value
+        initial = self.declare_parameter(
+            "initial_pose",
+            [],
+            _descriptor(
+                "initial camera_optical pose [x, y, z, qx, qy, qz, qw] in frame_id; empty = looking at the "
+                "scene centre from above its front (-y) side",
+                dynamic_typing=True,
+            ),
+        ).value
+        depth_min = self.declare_parameter(
+            "depth_min_m", 0.0, _descriptor("returns nearer than this are 'no return' [m]", float_range=(0.0, 100.0))
+        ).value
+        depth_max = self.declare_parameter(
+            "depth_max_m", 10.0, _descriptor("returns farther than this are 'no return' [m]", float_range=(0.0, 655.0))
+        ).value
+        sigma = self.declare_parameter(
+            "noise_sigma_per_m",
+            0.0,
+            _descriptor("depth noise standard deviation per metre of depth (0 = exact)", float_range=(0.0, 1.0)),
+        ).value
+        dropout = self.declare_parameter(
+            "noise_dropout", 0.0, _descriptor("probability of a pixel dropout (no return)", float_range=(0.0, 1.0))
+        ).value
+        noise_seed = self.declare_parameter(
+            "noise_seed", 0, _descriptor("seed of the noise generator", int_range=(0, 2**31 - 1))
+        ).value
+
+        if self.encoding not in ENCODINGS:
+            raise ValueError(f"encoding: expected one of {ENCODINGS}, got {self.encoding!r}")
+        if not self.frame_id or not self.camera_frame:
+            raise ValueError("frame_id and camera_frame must not be empty")
+        if not depth_max > depth_min:
+            raise ValueError(f"depth_max_m ({depth_max}) must be greater than depth_min_m ({depth_min})")
+        if not isinstance(initial, list | tuple) or not all(isinstance(v, int | float) for v in initial):
+            raise ValueError(f"initial_pose: expected 7 numbers [x, y, z, qx, qy, qz, qw], got {initial!r}")
+        if initial:
+            self._pose = pose_matrix(initial)  # checked before the (slow) scene loading
+
+        meshes, source = load_meshes(dataset, seed, mesh_file)
+        if not initial:
+            self._pose = pose_matrix(overview_pose(meshes))
+        noise = DepthNoise(sigma, dropout, noise_seed) if (sigma > 0 or dropout > 0) else None
+        self.intrinsics = Intrinsics.from_hfov(width, height, hfov)
+        self._camera = DepthCamera(meshes, self.intrinsics, noise=noise, depth_min=depth_min, depth_max=depth_max)
+        self._lock = threading.Lock()
+        self._last_stamp_ns = 0
+        self.frames = 0
+
+        qos = QoSProfile(
+            history=HistoryPolicy.KEEP_LAST,
+            depth=5,
+            reliability=ReliabilityPolicy.RELIABLE,
+            durability=DurabilityPolicy.VOLATILE,
+        )
+        self._image_pub = self.create_publisher(Image, TOPIC_IMAGE, qos)
+        self._info_pub = self.create_publisher(CameraInfo, TOPIC_CAMERA_INFO, qos)
+        self._pose_pub = self.create_publisher(TransformStamped, TOPIC_POSE, qos)
+        self.create_service(MoveCamera, SERVICE_MOVE_TO, self._on_move_to)
+        self.create_subscription(PoseStamped, TOPIC_GOAL_POSE, self._on_goal_pose, 10)
+        self._timer = self.create_timer(1.0 / rate, self._on_timer) if rate > 0 else None
+        self.get_logger().info(
+            f"{source}: {self._camera.n_meshes} mesh(es), {width}x{height} px, hfov {hfov:g} deg, "
+            f"{self.encoding}, {rate:g} Hz, pose {np.round(self._pose[:3, 3], 3).tolist()}"
+        )
+
+    # ------------------------------------------------------------------ frames
+    def publish_frame(self) -> int:
+        """Render and publish one frame from the current pose; returns its stamp (ns)."""
+        with self._lock:
+            stamp_ns = max(self.get_clock().now().nanoseconds, self._last_stamp_ns + 1)
+            self._last_stamp_ns = stamp_ns
+            depth = self._camera.render(self._pose)
+            store = typestore()
+            info = intrinsics_to_camera_info(self.intrinsics, stamp_ns, self.camera_frame)
+            pose = pose_to_transform_msg(self._pose, stamp_ns, self.frame_id, self.camera_frame)
+            image = depth_to_image_msg(depth, stamp_ns, self.encoding, self.camera_frame)
+            self._info_pub.publish(bytes(store.serialize_cdr(info, MSG_CAMERA_INFO)))
+            self._pose_pub.publish(bytes(store.serialize_cdr(pose, MSG_TRANSFORM)))
+            self._image_pub.publish(bytes(store.serialize_cdr(image, MSG_IMAGE)))
+            self.frames += 1
+            return stamp_ns
+
+    def _target_pose(self, msg: PoseStamped) -> np.ndarray:
+        frame = msg.header.frame_id
+        if frame not in ("", self.frame_id):
+            raise ValueError(f"target frame {frame!r} is not the camera's fixed frame {self.frame_id!r} (no tf here)")
+        position, quat = pose_to_arrays(msg.pose)  # raises on NaN / zero quaternion
+        pose = np.eye(4)
+        pose[:3, :3] = matrix_from_quaternion(quat)
+        pose[:3, 3] = position
+        return pose
+
+    def _move(self, msg: PoseStamped) -> int:
+        pose = self._target_pose(msg)
+        with self._lock:
+            self._pose = pose
+        return self.publish_frame()
+
+    # --------------------------------------------------------------- callbacks
+    def _on_timer(self) -> None:
+        self.publish_frame()
+
+    def _on_move_to(self, request: MoveCamera.Request, response: MoveCamera.Response) -> MoveCamera.Response:
+        try:
+            stamp_ns = self._move(request.target)
+        except ValueError as exc:
+            response.success = False
+            response.message = f"rejected: {exc}"
+            self.get_logger().warning(f"move_to {response.message}")
+            return response
+        response.success = True
+        p = request.target.pose.position
+        response.message = f"moved to ({p.x:.3f}, {p.y:.3f}, {p.z:.3f}); frame published"
+        response.frame_stamp = stamp_to_time(stamp_ns)
+        return response
+
+    def _on_goal_pose(self, msg: PoseStamped) -> None:
+        try:
+            self._move(msg)
+        except ValueError as exc:
+            self.get_logger().warning(f"goal_pose rejected: {exc}", throttle_duration_sec=2.0)
+
+
+def main(args: list[str] | None = None) -> int:
+    """Run the node until interrupted; 1 on a configuration error."""
+    rclpy.init(args=args)
+    node = None
+    code = 0
+    try:
+        node = SimCamera()
+        executor = SingleThreadedExecutor()
+        executor.add_node(node)
+        executor.spin()
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    except Exception as exc:
+        if rclpy.ok() and isinstance(exc, ValueError | ParameterException):
+            rclpy.logging.get_logger(NODE_NAME).fatal(f"cannot start: {exc}")
+            code = 1
+        elif rclpy.ok():
+            raise
+        # else: interrupted during start-up (SIGINT can surface as another error, e.g. an aborted import)
+    finally:
+        if node is not None:
+            # not the node's logger: its rosout publisher may be gone already (SIGINT shuts the context down)
+            rclpy.logging.get_logger(f"{node.get_name()}.summary").info(f"published {node.frames} frame(s)")
+            node.destroy_node()
+        rclpy.try_shutdown()
+    return code
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,415 @@
+"""Multi-process tests of the perception nodes: sim_camera, integrator, bag_replay (SPEC §10).
+
+Every test starts its nodes as separate processes (:class:`NodeGraph`) on its own
+``ROS_DOMAIN_ID`` with localhost discovery and the Fast DDS shared-memory profile, and talks to
+them from a small rclpy client node in the test process.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import re
+import shutil
+import signal
+import time
+import warnings
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+pytest.importorskip("open3d")
+pytest.importorskip("rosbags")
+rclpy = pytest.importorskip("rclpy")
+pytest.importorskip("nbv_prob_cnn_msgs")
+
+from geometry_msgs.msg import PoseStamped, TransformStamped  # noqa: E402
+from nbv_prob_cnn_msgs.msg import VoxelGrid  # noqa: E402
+from nbv_prob_cnn_msgs.srv import MoveCamera, SaveGrid  # noqa: E402
+from rclpy.executors import SingleThreadedExecutor  # noqa: E402
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy  # noqa: E402
+from sensor_msgs.msg import CameraInfo, Image  # noqa: E402
+from std_srvs.srv import Trigger  # noqa: E402
+
+from nbv_prob_cnn import cli  # noqa: E402
+from nbv_prob_cnn.camera import look_rotation, quaternion_from_matrix  # noqa: E402
+from nbv_prob_cnn.grid import EMPTY, OCCUPIED, UNKNOWN  # noqa: E402
+from nbv_prob_cnn.perception import Intrinsics, load_grid  # noqa: E402
+from nbv_prob_cnn.perception.bags import (  # noqa: E402
+    MSG_CAMERA_INFO,
+    MSG_IMAGE,
+    MSG_TRANSFORM,
+    TOPIC_CAMERA_INFO,
+    TOPIC_IMAGE,
+    TOPIC_POSE,
+    BagWarning,
+    depth_to_image_msg,
+    intrinsics_to_camera_info,
+    pose_to_transform_msg,
+    read_frames,
+    typestore,
+)
+from nbv_prob_cnn.ros.conversions import msg_to_grid  # noqa: E402
+from nbv_prob_cnn.ros.graph import NodeGraph, ros_environment, shm_segments, wait_for  # noqa: E402
+
+REPO = Path(__file__).resolve().parents[1]
+SAMPLE_BAG = REPO / "bags" / "3dt_seed1000_sample"
+SCENE_CENTRE = np.array([0.742, 0.742, 0.29])
+START_TIMEOUT_S = 40.0
+
+
+def domain_id(index: int) -> int:
+    """A domain per test (and per test process): 120..219, away from the graph default 1..100."""
+    return 120 + (os.getpid() * 7 + index) % 100
+
+
+def look_at(position, target=SCENE_CENTRE) -> PoseStamped:
+    msg = PoseStamped()
+    msg.header.frame_id = "world"
+    quat = quaternion_from_matrix(look_rotation(np.asarray(target, float) - np.asarray(position, float)))
+    msg.pose.position.x, msg.pose.position.y, msg.pose.position.z = (float(v) for v in position)
+    o = msg.pose.orientation
+    o.x, o.y, o.z, o.w = (float(v) for v in quat)
+    return msg
+
+
+def stamp_ns(stamp) -> int:
+    return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
+
+
+def counts(grid: np.ndarray) -> dict[str, int]:
+    return {
+        name: int(np.count_nonzero(grid == v))
+        for name, v in (("unknown", UNKNOWN), ("empty", EMPTY), ("occupied", OCCUPIED))
+    }
+
+
+def _in_use(name: str) -> bool:
+    """Whether a live process maps or holds open ``/dev/shm/<name>``."""
+    target = f"/dev/shm/{name}"
+    for pid in os.listdir("/proc"):
+        if not pid.isdigit():
+            continue
+        try:
+            with open(f"/proc/{pid}/maps") as maps:
+                if target in maps.read():
+                    return True
+            for fd in os.listdir(f"/proc/{pid}/fd"):
+                if os.readlink(f"/proc/{pid}/fd/{fd}") == target:
+                    return True
+        except OSError:
+            continue
+    return False
+
+
+def _segment_domain(name: str) -> int | None:
+    """DDS domain of a port-named segment (RTPS ports are 7400 + 250 * domain + offset), else None."""
+    match = re.search(r"port(\d+)", name)
+    if match is None:
+        return None
+    return (int(match.group(1)) - 7400) // 250
+
+
+def leaked_segments(before: set[str], domain: int) -> set[str]:
+    """Fast DDS segments created since ``before`` that no live process uses any more; segments of
+    other domains (graphs of concurrent test runs) are not ours to judge."""
+    return {name for name in shm_segments() - before if _segment_domain(name) in (None, domain) and not _in_use(name)}
+
+
+def log_text(tmp_path: Path, name: str) -> str:
+    path = tmp_path / f"{name}.log"
+    return path.read_text(errors="replace") if path.exists() else ""
+
+
+def assert_clean_stop(graph: NodeGraph, expected: dict[str, int] | None = None) -> None:
+    """Stop the graph: exit status 0 (or death by SIGINT) unless ``expected`` says otherwise."""
+    codes = graph.stop()
+    for name, code in codes.items():
+        if expected and name in expected:
+            assert code == expected[name], f"{name} exited with {code}, expected {expected[name]}"
+        else:
+            assert code in (0, -signal.SIGINT), f"{name} exited with {code}"
+    for proc in graph.processes.values():
+        with pytest.raises(ProcessLookupError):
+            os.killpg(proc.pid, 0)  # no survivor in the node's process group
+
+
+class RosClient:
+    """rclpy client node of the test process, on its own context."""
+
+    def __init__(self, domain: int) -> None:
+        self.context = rclpy.Context()
+        rclpy.init(context=self.context, domain_id=domain)
+        self.node = rclpy.create_node("test_client", context=self.context)
+        self.executor = SingleThreadedExecutor(context=self.context)
+        self.executor.add_node(self.node)
+        self.grid: VoxelGrid | None = None
+        self.grids = 0
+        qos = QoSProfile(
+            history=HistoryPolicy.KEEP_LAST,
+            depth=1,
+            reliability=ReliabilityPolicy.RELIABLE,
+            durability=DurabilityPolicy.TRANSIENT_LOCAL,
+        )
+        self.node.create_subscription(VoxelGrid, "/nbv/grid", self._on_grid, qos)
+
+    def _on_grid(self, msg: VoxelGrid) -> None:
+        self.grid = msg
+        self.grids += 1
+
+    def spin_until(self, predicate, timeout_s: float) -> bool:
+        deadline = time.monotonic() + timeout_s
+        while not predicate():
+            if time.monotonic() > deadline:
+                return False
+            self.executor.spin_once(timeout_sec=0.05)
+        return True
+
+    def call(self, client, request, timeout_s: float = 20.0):
+        assert client.wait_for_service(timeout_sec=START_TIMEOUT_S), f"{client.srv_name} never appeared"
+        future = client.call_async(request)
+        self.executor.spin_until_future_complete(future, timeout_sec=timeout_s)
+        assert future.done(), f"{client.srv_name}: no reply within {timeout_s} s"
+        return future.result()
+
+    def wait_grid(self, min_stamp_ns: int, timeout_s: float = 20.0) -> VoxelGrid:
+        ok = self.spin_until(
+            lambda: self.grid is not None and stamp_ns(self.grid.header.stamp) >= min_stamp_ns, timeout_s
+        )
+        assert ok, (
+            f"no grid stamped >= {min_stamp_ns} within {timeout_s} s (last: {self.grid and self.grid.header.stamp})"
+        )
+        return self.grid
+
+    def close(self) -> None:
+        self.executor.shutdown()
+        self.node.destroy_node()
+        rclpy.shutdown(context=self.context)
+
+    def __enter__(self) -> RosClient:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+@pytest.fixture
+def ros_env(monkeypatch: pytest.MonkeyPatch, request: pytest.FixtureRequest):
+    """The graph environment of one test; the test process gets the same DDS settings."""
+    index = {"test_sim_camera_to_integrator": 0, "test_bag_replay_matches_offline_integration": 1}.get(
+        request.node.name, 2
+    )
+    env = ros_environment(domain_id(index))
+    for key in (
+        "ROS_AUTOMATIC_DISCOVERY_RANGE",
+        "RMW_IMPLEMENTATION",
+        "FASTRTPS_DEFAULT_PROFILES_FILE",
+        "ROS_DOMAIN_ID",
+    ):
+        monkeypatch.setenv(key, env[key])
+    return env
+
+
+def test_sim_camera_to_integrator(ros_env: dict, tmp_path: Path) -> None:
+    before = shm_segments()
+    with NodeGraph(ros_env, log_dir=tmp_path) as graph:
+        graph.start_node("sim_camera", "sim_camera", {"rate_hz": 1.0})
+        graph.start_node("integrator", "integrator", {"publish_rate_hz": 5.0})
+        graph.start_node("bag_record", "bag_record", {"output": str(tmp_path / "recorded")})
+        with RosClient(int(ros_env["ROS_DOMAIN_ID"])) as client:
+            move = client.node.create_client(MoveCamera, "/sim_camera/move_to")
+            assert client.spin_until(
+                lambda: all(
+                    client.node.count_subscribers(t) >= 2 for t in (TOPIC_IMAGE, TOPIC_CAMERA_INFO, TOPIC_POSE)
+                ),
+                START_TIMEOUT_S,
+            ), "integrator and bag_record did not subscribe"
+            # invalid targets are refused with a reason; the next valid one works
+            bad = look_at([0.7, 0.1, 0.8])
+            bad.pose.position.x = math.nan
+            reply = client.call(move, MoveCamera.Request(target=bad))
+            assert not reply.success and "NaN" in reply.message
+            zero = look_at([0.7, 0.1, 0.8])
+            zero.pose.orientation.x = zero.pose.orientation.y = zero.pose.orientation.z = 0.0
+            zero.pose.orientation.w = 0.0
+            reply = client.call(move, MoveCamera.Request(target=zero))
+            assert not reply.success and "quaternion" in reply.message
+
+            unknown, moved = [], []
+            for position in ([0.74, 0.15, 0.80], [1.30, 0.90, 0.70], [0.20, 1.20, 0.75]):
+                reply = client.call(move, MoveCamera.Request(target=look_at(position)))
+                assert reply.success, reply.message
+                frame_stamp = stamp_ns(reply.frame_stamp)
+                assert frame_stamp > 0
+                moved.append(frame_stamp)
+                grid, geometry = msg_to_grid(client.wait_grid(frame_stamp))
+                assert grid.shape == (128, 128, 96) and geometry.resolution == pytest.approx(0.0116)
+                n = counts(grid)
+                assert n["occupied"] > 1000 and n["empty"] > 10000, n
+                unknown.append(n["unknown"])
+            assert unknown[0] > unknown[1] > unknown[2], unknown
+            assert all(graph.alive().values())
+        assert_clean_stop(graph)
+    assert "published" in log_text(tmp_path, "sim_camera")  # shutdown summary: it exited through main()
+    assert "integrated" in log_text(tmp_path, "integrator")
+    # bag_record closed its bag on SIGINT: complete, readable, with the frames taken at the targets
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", BagWarning)  # a frame cut in half by the shutdown is skipped
+        recorded = {frame.stamp_ns: frame for frame in read_frames(tmp_path / "recorded")}
+    assert set(moved) <= set(recorded)
+    assert recorded[moved[-1]].depth_m.shape == (480, 640)
+    assert "integrated" in log_text(tmp_path, "integrator")
+    domain = int(ros_env["ROS_DOMAIN_ID"])
+    assert wait_for(lambda: not leaked_segments(before, domain), 5.0), leaked_segments(before, domain)
+
+
+def test_bag_replay_matches_offline_integration(ros_env: dict, tmp_path: Path) -> None:
+    frames = list(read_frames(SAMPLE_BAG))
+    assert 20 <= len(frames) <= 40
+    assert cli.main(["integrate", "--bag", str(SAMPLE_BAG), "--out", str(tmp_path / "offline.npz")]) == 0
+    offline, _, _ = load_grid(tmp_path / "offline.npz")
+    before = shm_segments()
+    with NodeGraph(ros_env, log_dir=tmp_path) as graph:
+        # deterministic: every frame integrated, in stamp order (drop_when_behind false, deep queues)
+        graph.start_node(
+            "integrator", "integrator", {"drop_when_behind": False, "queue_size": 200, "publish_rate_hz": 5.0}
+        )
+        with RosClient(int(ros_env["ROS_DOMAIN_ID"])) as client:
+            replay = graph.start_node(
+                "bag_replay",
+                "bag_replay",
+                {"bag": str(SAMPLE_BAG), "rate": 10.0, "wait_for_subscribers": 1, "queue_size": 200},
+            )
+            grid_msg = client.wait_grid(frames[-1].stamp_ns, timeout_s=START_TIMEOUT_S)
+            assert stamp_ns(grid_msg.header.stamp) == frames[-1].stamp_ns
+            grid, _ = msg_to_grid(grid_msg)
+            assert wait_for(lambda: replay.poll() is not None, 20.0)
+            assert replay.returncode == 0, log_text(tmp_path, "bag_replay")
+            reply = client.call(
+                client.node.create_client(SaveGrid, "/integrator/save"),
+                SaveGrid.Request(path=str(tmp_path / "live.npz")),
+            )
+            assert reply.success, reply.message
+        assert_clean_stop(graph)
+    with np.load(tmp_path / "live.npz") as saved:
+        assert int(saved["frames"]) == len(frames)  # no frame dropped
+        assert np.array_equal(saved["grid"], grid)
+    assert counts(grid) == counts(offline)
+    assert np.array_equal(grid, offline)
+    assert f"published {3 * len(frames)} message(s)" in log_text(tmp_path, "bag_replay")
+    domain = int(ros_env["ROS_DOMAIN_ID"])
+    assert wait_for(lambda: not leaked_segments(before, domain), 5.0), leaked_segments(before, domain)
+
+
+def _header(stamp: int, frame_id: str):
+    types = typestore().types
+    t = types["builtin_interfaces/msg/Time"](sec=stamp // 1_000_000_000, nanosec=stamp % 1_000_000_000)
+    return types["std_msgs/msg/Header"](stamp=t, frame_id=frame_id)
+
+
+def test_bad_inputs_are_reported_and_survived(ros_env: dict, tmp_path: Path) -> None:
+    truncated = tmp_path / "truncated"
+    shutil.copytree(SAMPLE_BAG, truncated)
+    mcap = next(truncated.glob("*.mcap"))
+    mcap.write_bytes(mcap.read_bytes()[: mcap.stat().st_size // 2])
+    store = typestore()
+    intrinsics = Intrinsics.from_hfov(64, 48, 60.0)
+    pose = np.eye(4)
+    pose[:3, :3] = look_rotation(np.array([0.0, 0.0, -1.0]))  # looking straight down on the box
+    pose[:3, 3] = [0.74, 0.74, 1.0]
+    before = shm_segments()
+    with NodeGraph(ros_env, log_dir=tmp_path) as graph:
+        integrator = graph.start_node("integrator", "integrator", {"pose_timeout_s": 0.5, "publish_rate_hz": 10.0})
+        with RosClient(int(ros_env["ROS_DOMAIN_ID"])) as client:
+            received = []
+            for topic, cls in ((TOPIC_IMAGE, Image), (TOPIC_CAMERA_INFO, CameraInfo), (TOPIC_POSE, TransformStamped)):
+                client.node.create_subscription(cls, topic, lambda raw, t=topic: received.append(t), 10, raw=True)
+            # a truncated bag: bag_replay fails before publishing anything, with a clear message
+            replay = graph.start_node("bag_replay", "bag_replay", {"bag": str(truncated), "rate": 100.0})
+            assert wait_for(lambda: replay.poll() is not None, 30.0)
+            assert replay.returncode == 1
+            text = log_text(tmp_path, "bag_replay")
+            assert "cannot replay the bag" in text and "nothing was published" in text and str(truncated) in text, text
+            assert "validated" not in text and "done:" not in text
+            client.spin_until(lambda: False, 0.3)
+            assert received == []
+
+            publishers = {
+                topic: client.node.create_publisher(cls, topic, 10)
+                for topic, cls in (
+                    (TOPIC_IMAGE, Image),
+                    (TOPIC_CAMERA_INFO, CameraInfo),
+                    (TOPIC_POSE, TransformStamped),
+                )
+            }
+            assert client.spin_until(
+                lambda: all(p.get_subscription_count() >= 2 for p in publishers.values()), START_TIMEOUT_S
+            ), "the integrator did not subscribe"
+            client.spin_until(lambda: False, 0.3)
+
+            def publish(topic: str, msg, msgtype: str) -> None:
+                publishers[topic].publish(bytes(store.serialize_cdr(msg, msgtype)))
+
+            def publish_frame(stamp: int, image=None, with_pose: bool = True) -> None:
+                publish(TOPIC_CAMERA_INFO, intrinsics_to_camera_info(intrinsics, stamp), MSG_CAMERA_INFO)
+                if with_pose:
+                    publish(TOPIC_POSE, pose_to_transform_msg(pose, stamp), MSG_TRANSFORM)
+                if image is None:
+                    image = depth_to_image_msg(np.full(intrinsics.shape, 0.6, np.float32), stamp, "16UC1")
+                publish(TOPIC_IMAGE, image, MSG_IMAGE)
+
+            # an unsupported encoding: error logged, frame dropped
+            rgb = store.types[MSG_IMAGE](
+                header=_header(1_000_000_000, "camera_optical"),
+                height=48,
+                width=64,
+                encoding="rgb8",
+                is_bigendian=0,
+                step=64 * 3,
+                data=np.zeros(48 * 64 * 3, np.uint8),
+            )
+            publish_frame(1_000_000_000, image=rgb)
+            assert wait_for(lambda: "unsupported encoding 'rgb8'" in log_text(tmp_path, "integrator"), 10.0)
+            # a frame whose pose never arrives: dropped with a warning after pose_timeout_s
+            publish_frame(2_000_000_000, with_pose=False)
+            assert wait_for(lambda: "dropped: no pose within" in log_text(tmp_path, "integrator"), 10.0)
+            assert client.grids == 0  # nothing was integrated
+            # still serving: reset answers, and a good frame is integrated and published
+            reply = client.call(client.node.create_client(Trigger, "/integrator/reset"), Trigger.Request())
+            assert reply.success, reply.message
+            publish_frame(3_000_000_000)
+            grid, _ = msg_to_grid(client.wait_grid(3_000_000_000))
+            n = counts(grid)
+            assert n["occupied"] > 0 and n["empty"] > 0, n
+            assert integrator.poll() is None
+        assert_clean_stop(graph, expected={"bag_replay": 1})
+    domain = int(ros_env["ROS_DOMAIN_ID"])
+    assert wait_for(lambda: not leaked_segments(before, domain), 5.0), leaked_segments(before, domain)
+
+
+def test_stamp_sync_pairs_by_stamp_within_tolerance() -> None:
+    from nbv_prob_cnn.ros.integrator import StampSync
+
+    sync = StampSync(tolerance_ns=10_000_000)  # 10 ms
+    frames, overflow = sync.add_image(1_000_000_000, "image1", now=0.0)
+    assert frames == [] and overflow == []
+    assert sync.add_info(1_000_000_000, "info1") == []
+    assert sync.add_pose(1_020_000_000, "pose_far") == []  # 20 ms off: not a partner
+    (frame,) = sync.add_pose(1_008_000_000, "pose_near")  # 8 ms off: paired as soon as it is there
+    assert (frame.stamp_ns, frame.image, frame.info, frame.pose) == (1_000_000_000, "image1", "info1", "pose_near")
+    # the nearest pose wins when several are within the tolerance
+    sync = StampSync(tolerance_ns=10_000_000)
+    sync.add_info(2_000_000_000, "info")
+    sync.add_pose(1_995_000_000, "pose_a")
+    sync.add_pose(2_002_000_000, "pose_b")
+    (frame,), _ = sync.add_image(2_000_000_000, "image", now=0.0)
+    assert (frame.stamp_ns, frame.image, frame.info, frame.pose) == (2_000_000_000, "image", "info", "pose_b")
+    # an image whose pose is too old (outside the tolerance) waits, then expires with a reason
+    frames, _ = sync.add_image(3_000_000_000, "image3", now=10.0)
+    assert frames == []
+    assert sync.expire(now=10.5, timeout_s=1.0) == []
+    ((stamp, reason),) = sync.expire(now=11.5, timeout_s=1.0)
+    assert stamp == 3_000_000_000
+    assert "no pose within ±0.01 s (nearest is -0.998 s away)" in reason and "camera_info" in reason
+    assert sync.images == {}
