@@ -3,6 +3,7 @@
 from setuptools import find_packages, setup
 
 PACKAGE = "nbv_prob_cnn"
+NODES = ("sim_camera", "integrator", "bag_replay", "bag_record", "completion_server", "gain_server", "nbv_planner")
 
 setup(
     name=PACKAGE,
@@ -23,6 +24,7 @@ setup(
     entry_points={
         "console_scripts": [
             "nbv = nbv_prob_cnn.cli:main",
+            *(f"{node} = nbv_prob_cnn.ros.{node}:main" for node in NODES),
         ],
     },
 )
