@@ -201,3 +201,21 @@ def _mesh_arrays(mesh: object) -> tuple[np.ndarray, np.ndarray]:
     if faces.size and (faces.min() < 0 or faces.max() >= len(vertices)):
         raise ValueError("meshes: face indices out of range")
     return vertices, faces
+
+
+def room_mesh(lower: np.ndarray, upper: np.ndarray):
+    """The six walls of an axis-aligned box (a ``trimesh.Trimesh``), seen from inside.
+
+    Put around a scene, every pixel gets a return, so the integrator records free space all the
+    way to the edge of its box, as in a lab whose walls lie beyond the planning volume (a
+    camera looking into open space would otherwise record nothing there).
+    """
+    import trimesh
+
+    lower, upper = np.asarray(lower, dtype=np.float64), np.asarray(upper, dtype=np.float64)
+    if lower.shape != (3,) or upper.shape != (3,) or np.any(upper <= lower):
+        raise ValueError(f"room: expected 3D bounds with lower < upper, got {lower.tolist()} .. {upper.tolist()}")
+    box = trimesh.creation.box(extents=upper - lower)
+    box.apply_translation((lower + upper) / 2.0)
+    box.invert()
+    return box

@@ -49,7 +49,7 @@ from nbv_prob_cnn.perception.bags import (
     pose_to_transform_msg,
     typestore,
 )
-from nbv_prob_cnn.perception.depth_camera import DepthCamera, DepthNoise, Intrinsics
+from nbv_prob_cnn.perception.depth_camera import DepthCamera, DepthNoise, Intrinsics, room_mesh
 from nbv_prob_cnn.ros.conversions import pose_to_arrays
 
 NODE_NAME = "sim_camera"
@@ -106,8 +106,9 @@ def stamp_to_time(stamp_ns: int) -> Time:
     return Time(sec=int(stamp_ns // 1_000_000_000), nanosec=int(stamp_ns % 1_000_000_000))
 
 
-def load_meshes(dataset: str, seed: int, mesh_file: str) -> tuple[list, str]:
-    """The scene meshes (world metres) and a description of where they came from."""
+def load_meshes(dataset: str, seed: int, mesh_file: str, room_margin_m: float = 0.0) -> tuple[list, str]:
+    """The scene meshes (world metres) and a description of where they came from; generated
+    worlds get walls ``room_margin_m`` outside their grid when that is positive."""
     if mesh_file:
         import trimesh
 
@@ -129,7 +130,13 @@ def load_meshes(dataset: str, seed: int, mesh_file: str) -> tuple[list, str]:
     meshes = world.triangle_meshes()
     if not meshes:
         raise ValueError(f"dataset {dataset} seed {seed}: the world has no meshes")
-    return meshes, f"{dataset} world seed {seed}"
+    if room_margin_m > 0:
+        lower = np.asarray(world.origin, dtype=np.float64) - room_margin_m
+        upper = lower + np.asarray(world.shape) * world.resolution + 2 * room_margin_m
+        meshes.append(room_mesh(lower, upper))
+    return meshes, f"{dataset} world seed {seed}" + (
+        f" in a room ({room_margin_m} m margin)" if room_margin_m > 0 else ""
+    )
 
 
 class SimCamera(Node):
@@ -184,6 +191,14 @@ class SimCamera(Node):
         dropout = self.declare_parameter(
             "noise_dropout", 0.0, _descriptor("probability of a pixel dropout (no return)", float_range=(0.0, 1.0))
         ).value
+        room_margin = self.declare_parameter(
+            "room_margin_m",
+            0.3,
+            _descriptor(
+                "walls this far outside a generated world's grid, so every pixel has a return (0 = none)",
+                float_range=(0.0, 100.0),
+            ),
+        ).value
         noise_seed = self.declare_parameter(
             "noise_seed", 0, _descriptor("seed of the noise generator", int_range=(0, 2**31 - 1))
         ).value
@@ -199,7 +214,7 @@ class SimCamera(Node):
         if initial:
             self._pose = pose_matrix(initial)  # checked before the (slow) scene loading
 
-        meshes, source = load_meshes(dataset, seed, mesh_file)
+        meshes, source = load_meshes(dataset, seed, mesh_file, room_margin)
         if not initial:
             self._pose = pose_matrix(overview_pose(meshes))
         noise = DepthNoise(sigma, dropout, noise_seed) if (sigma > 0 or dropout > 0) else None
