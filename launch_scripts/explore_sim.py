@@ -2,11 +2,12 @@
 """Start the simulated node graph and explore a scene through the Explore action.
 
     sim_camera -> integrator -> nbv_planner <-> completion_server, gain_server
+                                     ^-- explore_client (sends the Explore goal, records the run)
 
 Every process gets localhost discovery, its own ROS_DOMAIN_ID and the Fast DDS shared-memory
-profile; Ctrl-C cancels the exploration and stops every process (no orphans, and the
-shared-memory files the graph created are removed). Outputs: <out>/views.csv,
-<out>/explored.png, <out>/grid.npz and one log per node in <out>/logs/.
+profile. Ctrl-C cancels the exploration and stops every process (no orphans), then removes the
+shared-memory files the graph left behind. This launcher itself joins no ROS graph. Outputs:
+<out>/views.csv, <out>/explored.png, <out>/grid.npz and one log per node in <out>/logs/.
 
 Example:  .venv/bin/python launch_scripts/explore_sim.py --views 10 --method cnn_prob
 """
@@ -16,11 +17,12 @@ from __future__ import annotations
 import argparse
 import os
 import signal
+import subprocess
 import sys
-import time
 from pathlib import Path
 
-from nbv_prob_cnn.ros.graph import NodeGraph, ros_environment, shm_segments
+from nbv_prob_cnn.camera import dataset_defaults
+from nbv_prob_cnn.ros.graph import NodeGraph, leaked_segments, ros_environment, shm_segments
 
 
 def parse_args(argv=None) -> argparse.Namespace:
@@ -38,9 +40,11 @@ def parse_args(argv=None) -> argparse.Namespace:
 
 
 def start_graph(graph: NodeGraph, args: argparse.Namespace) -> None:
+    defaults = dataset_defaults(args.dataset)
     common = {"dataset": args.dataset}
     graph.start_node("sim_camera", "sim_camera", {**common, "seed": args.seed})
-    graph.start_node("integrator", "integrator", {})
+    box = {"origin": [0.0, 0.0, 0.0], "shape": list(defaults.shape), "voxel_size": defaults.resolution_m}
+    graph.start_node("integrator", "integrator", box)
     graph.start_node("completion_server", "completion_server", common)
     graph.start_node("gain_server", "gain_server", {**common, "completion": "service"})
     graph.start_node("nbv_planner", "nbv_planner", {**common, "method": args.method, "in_process": args.in_process})
@@ -50,76 +54,38 @@ def main(argv=None) -> int:
     args = parse_args(argv)
     out = Path(args.out)
     env = ros_environment(args.domain_id)
-    os.environ.update(env)  # this process is a client of the same graph
+    domain = int(env["ROS_DOMAIN_ID"])
     shm_before = shm_segments()
     graph = NodeGraph(env, log_dir=out / "logs")
-    interrupted = False
-
-    def on_sigint(signum, frame):
-        nonlocal interrupted
-        interrupted = True
-        raise KeyboardInterrupt
-
-    signal.signal(signal.SIGINT, on_sigint)
-    signal.signal(signal.SIGTERM, on_sigint)
+    print(f"[explore_sim] ROS_DOMAIN_ID={domain}, logs in {out / 'logs'}", flush=True)
+    client_cmd = [
+        sys.executable, "-m", "nbv_prob_cnn.ros.explore_client", "--views", str(args.views),
+        "--method", args.method, "--stop-unknown", str(args.stop_unknown), "--out", str(out),
+        "--title", f"{args.dataset} seed {args.seed}, {args.method}", "--timeout", str(args.timeout),
+    ]  # fmt: skip
     code = 1
-    client = None
     try:
-        print(f"[explore_sim] ROS_DOMAIN_ID={env['ROS_DOMAIN_ID']}, logs in {out / 'logs'}", flush=True)
         start_graph(graph, args)
-        import rclpy
-        from nbv_prob_cnn_msgs.action import Explore
-
-        from nbv_prob_cnn.ros.explore_client import ExploreClient, write_outputs
-
-        rclpy.init()
-        client = ExploreClient()
-        print("[explore_sim] waiting for the graph (first grid and the Explore server)...", flush=True)
-        if not client.wait_ready(120.0):
-            dead = [name for name, alive in graph.alive().items() if not alive]
-            print(f"[explore_sim] graph not ready after 120 s; stopped processes: {dead or 'none'}", file=sys.stderr)
-            return 1
-        goal = Explore.Goal(method=args.method, max_views=args.views, stop_unknown_fraction=args.stop_unknown)
-
-        def progress(fb, elapsed):
-            rate = (fb.view_index + 1) / elapsed if elapsed > 0 else 0.0
-            eta = (args.views - fb.view_index - 1) / rate if rate > 0 else float("nan")
-            print(
-                f"[explore_sim] view {fb.view_index + 1}/{args.views}: gain {fb.gain:.4f}, "
-                f"unknown {fb.unknown_fraction:.4f}, {elapsed:.1f} s elapsed, ETA {eta:.0f} s",
-                flush=True,
-            )
-
-        started = time.monotonic()
-        result = client.explore(goal, args.timeout, progress)
-        written = write_outputs(client, result, out, f"{args.dataset} seed {args.seed}, {args.method}")
-        print(
-            f"[explore_sim] done: {result.views} views in {time.monotonic() - started:.1f} s, final unknown fraction "
-            f"{result.final_unknown_fraction:.4f}, stopped: {result.reason_stopped}; wrote "
-            + ", ".join(str(p) for p in written),
-            flush=True,
-        )
-        code = 0 if result.views > 0 else 1
+        # its own session: Ctrl-C reaches only this launcher, which forwards it exactly once
+        client = subprocess.Popen(client_cmd, env=env, start_new_session=True)
+        code = client.wait()
     except KeyboardInterrupt:
-        print("\n[explore_sim] interrupted: cancelling and stopping the graph", flush=True)
-        if client is not None:
+        print("\n[explore_sim] interrupted: stopping the graph", flush=True)
+        signal.signal(signal.SIGINT, signal.SIG_IGN)  # a second Ctrl-C must not cut the clean-up short
+        if "client" in locals() and client.poll() is None:
+            client.send_signal(signal.SIGINT)  # the client cancels the Explore goal
             try:
-                client.cancel()
-            except Exception:  # noqa: BLE001 - best effort while shutting down
+                client.wait(timeout=15)
+            except subprocess.TimeoutExpired:
                 pass
         code = 130
     finally:
-        if client is not None:
-            client.destroy()
-        try:
-            import rclpy
-
-            rclpy.try_shutdown()
-        except ImportError:
-            pass
         codes = graph.stop()
-        leaked = shm_segments() - shm_before
-        for name in leaked:  # files of our (now stopped) processes only
+        if "client" in locals() and client.poll() is None:
+            client.kill()
+            client.wait()
+        leaked = leaked_segments(shm_before, domain)
+        for name in leaked:  # files of our stopped processes that nothing uses any more
             try:
                 os.unlink(f"/dev/shm/{name}")
             except OSError:
@@ -127,7 +93,7 @@ def main(argv=None) -> int:
         print(
             f"[explore_sim] stopped {len(codes)} processes; removed {len(leaked)} stale shared-memory files", flush=True
         )
-    return code if not interrupted else 130
+    return code
 
 
 if __name__ == "__main__":

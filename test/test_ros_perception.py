@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import math
 import os
-import re
 import shutil
 import signal
 import time
@@ -51,7 +50,7 @@ from nbv_prob_cnn.perception.bags import (  # noqa: E402
     typestore,
 )
 from nbv_prob_cnn.ros.conversions import msg_to_grid  # noqa: E402
-from nbv_prob_cnn.ros.graph import NodeGraph, ros_environment, shm_segments, wait_for  # noqa: E402
+from nbv_prob_cnn.ros.graph import NodeGraph, leaked_segments, ros_environment, shm_segments, wait_for  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
 SAMPLE_BAG = REPO / "bags" / "3dt_seed1000_sample"
@@ -83,38 +82,6 @@ def counts(grid: np.ndarray) -> dict[str, int]:
         name: int(np.count_nonzero(grid == v))
         for name, v in (("unknown", UNKNOWN), ("empty", EMPTY), ("occupied", OCCUPIED))
     }
-
-
-def _in_use(name: str) -> bool:
-    """Whether a live process maps or holds open ``/dev/shm/<name>``."""
-    target = f"/dev/shm/{name}"
-    for pid in os.listdir("/proc"):
-        if not pid.isdigit():
-            continue
-        try:
-            with open(f"/proc/{pid}/maps") as maps:
-                if target in maps.read():
-                    return True
-            for fd in os.listdir(f"/proc/{pid}/fd"):
-                if os.readlink(f"/proc/{pid}/fd/{fd}") == target:
-                    return True
-        except OSError:
-            continue
-    return False
-
-
-def _segment_domain(name: str) -> int | None:
-    """DDS domain of a port-named segment (RTPS ports are 7400 + 250 * domain + offset), else None."""
-    match = re.search(r"port(\d+)", name)
-    if match is None:
-        return None
-    return (int(match.group(1)) - 7400) // 250
-
-
-def leaked_segments(before: set[str], domain: int) -> set[str]:
-    """Fast DDS segments created since ``before`` that no live process uses any more; segments of
-    other domains (graphs of concurrent test runs) are not ours to judge."""
-    return {name for name in shm_segments() - before if _segment_domain(name) in (None, domain) and not _in_use(name)}
 
 
 def log_text(tmp_path: Path, name: str) -> str:

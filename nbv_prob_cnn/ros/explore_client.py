@@ -1,9 +1,12 @@
 """A command-line client of the Explore action: sends a goal, prints progress per view, and
-writes the per-view CSV and a PNG of the explored grid (used by the launch scripts)."""
+writes the per-view CSV and a PNG of the explored grid (run by the launch scripts as its own
+process: ``python -m nbv_prob_cnn.ros.explore_client --views 10 --out DIR``)."""
 
 from __future__ import annotations
 
+import argparse
 import csv
+import sys
 import threading
 import time
 from pathlib import Path
@@ -120,3 +123,58 @@ def write_outputs(client: ExploreClient, result: Explore.Result, out_dir: Path, 
         )
         written += [png, out_dir / "grid.npz"]
     return written
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run one exploration; exit 0 when at least one view was taken, 130 on Ctrl-C."""
+    parser = argparse.ArgumentParser(description="Send an Explore goal to /nbv/explore and record the run.")
+    parser.add_argument("--views", type=int, default=10)
+    parser.add_argument("--method", default="")
+    parser.add_argument("--stop-unknown", type=float, default=0.0)
+    parser.add_argument("--out", default="out/explore")
+    parser.add_argument("--title", default="exploration")
+    parser.add_argument("--timeout", type=float, default=1800.0)
+    parser.add_argument("--ready-timeout", type=float, default=120.0)
+    args = parser.parse_args(argv)
+    rclpy.init()
+    client = ExploreClient()
+    try:
+        print("[explore] waiting for the graph (first grid and the Explore server)...", flush=True)
+        if not client.wait_ready(args.ready_timeout):
+            print(f"[explore] graph not ready after {args.ready_timeout:.0f} s", file=sys.stderr, flush=True)
+            return 1
+        goal = Explore.Goal(method=args.method, max_views=args.views, stop_unknown_fraction=args.stop_unknown)
+
+        def progress(fb, elapsed):
+            rate = (fb.view_index + 1) / elapsed if elapsed > 0 else 0.0
+            eta = (args.views - fb.view_index - 1) / rate if rate > 0 else float("nan")
+            print(
+                f"[explore] view {fb.view_index + 1}/{args.views}: gain {fb.gain:.4f}, unknown "
+                f"{fb.unknown_fraction:.4f}, {elapsed:.1f} s elapsed, {rate:.2f} views/s, ETA {eta:.0f} s",
+                flush=True,
+            )
+
+        started = time.monotonic()
+        result = client.explore(goal, args.timeout, progress)
+        written = write_outputs(client, result, Path(args.out), args.title)
+        print(
+            f"[explore] done: {result.views} views in {time.monotonic() - started:.1f} s, final unknown fraction "
+            f"{result.final_unknown_fraction:.4f}, stopped: {result.reason_stopped}; wrote "
+            + ", ".join(str(p) for p in written),
+            flush=True,
+        )
+        return 0 if result.views > 0 else 1
+    except KeyboardInterrupt:
+        print("[explore] interrupted: cancelling the exploration", flush=True)
+        client.cancel()
+        return 130
+    except (RuntimeError, TimeoutError) as exc:
+        print(f"[explore] {exc}", file=sys.stderr, flush=True)
+        return 1
+    finally:
+        client.destroy()
+        rclpy.try_shutdown()
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

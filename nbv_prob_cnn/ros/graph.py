@@ -7,6 +7,7 @@ localhost-only discovery, its own ``ROS_DOMAIN_ID`` and the Fast DDS shared-memo
 from __future__ import annotations
 
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -107,6 +108,40 @@ def shm_segments() -> set[str]:
     return {p.name for p in root.iterdir() if p.name.startswith(("fastrtps_", "fast_datasharing", "sem.fastrtps_"))}
 
 
+def segment_in_use(name: str, ignore_pids: frozenset[int] = frozenset()) -> bool:
+    """Whether a live process maps or holds open ``/dev/shm/<name>``."""
+    target = f"/dev/shm/{name}"
+    for pid in os.listdir("/proc"):
+        if not pid.isdigit() or int(pid) in ignore_pids:
+            continue
+        try:
+            with open(f"/proc/{pid}/maps") as maps:
+                if target in maps.read():
+                    return True
+            for fd in os.listdir(f"/proc/{pid}/fd"):
+                if os.readlink(f"/proc/{pid}/fd/{fd}") == target:
+                    return True
+        except OSError:
+            continue
+    return False
+
+
+def segment_domain(name: str) -> int | None:
+    """DDS domain of a port-named segment (RTPS ports are 7400 + 250 * domain + offset), else None."""
+    match = re.search(r"port(\d+)", name)
+    if match is None:
+        return None
+    return (int(match.group(1)) - 7400) // 250
+
+
+def leaked_segments(before: set[str], domain: int, ignore_pids: frozenset[int] = frozenset()) -> set[str]:
+    """Fast DDS segments created since ``before`` that no live process uses any more; segments of
+    other domains (graphs of concurrent test runs) are not ours to judge."""
+    return {
+        name for name in shm_segments() - before if segment_domain(name) in (None, domain) and not segment_in_use(name)
+    }
+
+
 def wait_for(predicate, timeout_s: float, interval_s: float = 0.1) -> bool:
     """Poll ``predicate`` until it returns true or the timeout passes."""
     deadline = time.monotonic() + timeout_s
@@ -117,4 +152,4 @@ def wait_for(predicate, timeout_s: float, interval_s: float = 0.1) -> bool:
     return bool(predicate())
 
 
-__all__: Iterable[str] = ["NodeGraph", "node_command", "ros_environment", "shm_segments", "wait_for"]
+__all__: Iterable[str] = ["NodeGraph", "leaked_segments", "node_command", "ros_environment", "shm_segments", "wait_for"]

@@ -1,0 +1,90 @@
+"""The launch script end to end: the simulated graph explores through the Explore action, and
+Ctrl-C stops everything cleanly."""
+
+from __future__ import annotations
+
+import csv
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+pytest.importorskip("rclpy")
+pytest.importorskip("nbv_prob_cnn_msgs")
+
+from nbv_prob_cnn.geometry import GridGeometry  # noqa: E402
+from nbv_prob_cnn.ros.graph import leaked_segments, shm_segments  # noqa: E402
+
+REPO = Path(__file__).resolve().parents[1]
+SCRIPT = REPO / "launch_scripts" / "explore_sim.py"
+
+
+def _descendants(pid: int) -> set[int]:
+    """Every live process whose ancestry includes ``pid``."""
+    parents = {}
+    for entry in os.listdir("/proc"):
+        if entry.isdigit():
+            try:
+                with open(f"/proc/{entry}/stat") as handle:
+                    parents[int(entry)] = int(handle.read().rsplit(")", 1)[1].split()[1])
+            except OSError:
+                continue
+    found, frontier = set(), {pid}
+    while frontier:
+        children = {p for p, parent in parents.items() if parent in frontier} - found
+        found |= children
+        frontier = children
+    return found
+
+
+def _domain(offset: int) -> str:  # 200..219, away from the other tests' domains
+    return str(200 + (os.getpid() + offset) % 20)
+
+
+def test_simulated_graph_explores_a_small_scene(tmp_path):
+    out = tmp_path / "run"
+    cmd = [sys.executable, str(SCRIPT), "--dataset", "3du", "--seed", "1001", "--views", "5",
+           "--method", "cnn_prob", "--out", str(out), "--domain-id", _domain(0)]  # fmt: skip
+    run = subprocess.run(cmd, capture_output=True, text=True, timeout=600)
+    assert run.returncode == 0, run.stdout[-3000:] + run.stderr[-3000:]
+    assert "view 5/5" in run.stdout and "done: 5 views" in run.stdout
+    with open(out / "views.csv") as handle:
+        rows = list(csv.DictReader(handle))
+    assert len(rows) == 5
+    fractions = [float(r["unknown_fraction"]) for r in rows]
+    assert all(b <= a for a, b in zip(fractions, fractions[1:], strict=False)) and fractions[-1] < fractions[0]
+    with np.load(out / "grid.npz") as data:
+        grid, origin, resolution = data["grid"], data["origin"], float(data["resolution"])
+    geometry = GridGeometry(tuple(origin), resolution, grid.shape)
+    for r in rows:
+        cell, inside = geometry.containing_cell(np.array([float(r["x"]), float(r["y"]), float(r["z"])]))
+        assert inside and grid[tuple(cell)] == 0, f"view pose {r} is not in known empty space"
+    assert (out / "explored.png").stat().st_size > 10_000
+
+
+def test_ctrl_c_stops_the_whole_graph(tmp_path):
+    before = shm_segments()
+    cmd = [sys.executable, str(SCRIPT), "--dataset", "3du", "--views", "50", "--method", "prob_ig",
+           "--out", str(tmp_path / "run"), "--domain-id", _domain(1)]  # fmt: skip
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    lines = []
+    deadline = time.monotonic() + 240
+    while time.monotonic() < deadline:
+        line = proc.stdout.readline()
+        lines.append(line)
+        if "view 2/50" in line or not line:
+            break
+    children = _descendants(proc.pid)
+    assert len(children) >= 5, "".join(lines)  # the five nodes are running
+    proc.send_signal(signal.SIGINT)
+    rest, _ = proc.communicate(timeout=60)
+    assert proc.returncode == 130, "".join(lines) + rest
+    assert "interrupted" in rest and "stopped 5 processes" in rest
+    time.sleep(0.5)
+    assert not (_descendants(proc.pid) | {p for p in children if os.path.exists(f"/proc/{p}")}), "orphans left"
+    assert not leaked_segments(before, int(_domain(1)))
