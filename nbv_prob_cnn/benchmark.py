@@ -126,3 +126,27 @@ def format_table(results: list[BenchResult]) -> str:
             f"{r.numpy_s:.2f} | {r.speedup:.0f}× | {r.samples_per_s:.2e} |"
         )
     return "\n".join(lines)
+
+
+def cnn_table(seed: int = 1000, repeats: int = 3) -> str:
+    """CNN inference time and a full ``cnn_prob`` planning iteration (CNN + ray casting + views)
+    per data set at ~50 % explored, next to ``prob_ig``; markdown table."""
+    from nbv_prob_cnn.completion import complete
+    from nbv_prob_cnn.worlds import load_or_generate
+
+    lines = [
+        "| data set | grid | CNN inference (s) | cnn_prob iteration (s) | prob_ig iteration (s) |",
+        "|---|---|---|---|---|",
+    ]
+    for dataset in ("2d", "3du", "3dt"):
+        world = load_or_generate(dataset, seed)
+        context = PlanningContext(_defaults(dataset), rng=np.random.default_rng(seed), backend="opencl")
+        state = half_explored(world, context)
+        complete(state, dataset=dataset)  # warm-up: load the weights
+        t_cnn = _time(lambda: complete(state, dataset=dataset), repeats)  # noqa: B023 - used right here
+        cnn, constant = make_planner("cnn_prob"), make_planner("prob_ig")
+        t_plan = _time(lambda: cnn.plan(state, context), repeats)  # noqa: B023
+        t_constant = _time(lambda: constant.plan(state, context), repeats)  # noqa: B023
+        shape = "×".join(map(str, world.shape))
+        lines.append(f"| {dataset.upper()} | {shape} | {t_cnn:.3f} | {t_plan:.3f} | {t_constant:.3f} |")
+    return "\n".join(lines)

@@ -7,10 +7,15 @@ import argparse
 from nbv_prob_cnn.benchmark import DEFAULT_CASES, format_table, run_case
 
 NAME = "bench"
-HELP = "Time one prob_ig planning iteration at ~50%% explored on the default worlds."
+HELP = (
+    "Benchmarks: planning iterations on half-explored grids (OpenCL vs numpy), CNN inference, TSDF "
+    "integration, and the transport overhead of the ROS node split."
+)
+SUITES = ("planning", "cnn", "integrator", "ros")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--suite", choices=(*SUITES, "all"), default="planning", help="what to measure")
     parser.add_argument("--seed", type=int, default=1000, help="world seed of every case")
     parser.add_argument("--repeats", type=int, default=3, help="OpenCL repetitions (best is reported)")
     parser.add_argument("--numpy-origins", type=int, default=3000, help="origins timed on the numpy reference")
@@ -18,6 +23,33 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    suites = SUITES if args.suite == "all" else (args.suite,)
+    for suite in suites:
+        print(f"## {suite}", flush=True)
+        {"planning": run_planning, "cnn": run_cnn, "integrator": run_integrator, "ros": run_ros}[suite](args)
+        print(flush=True)
+    return 0
+
+
+def run_integrator(args: argparse.Namespace) -> None:
+    from nbv_prob_cnn.perception.benchmark import integrator_benchmark
+
+    print(integrator_benchmark(seed=args.seed))
+
+
+def run_ros(args: argparse.Namespace) -> None:
+    from nbv_prob_cnn.ros.latency_benchmark import ros_latency_benchmark
+
+    print(ros_latency_benchmark(seed=args.seed))
+
+
+def run_cnn(args: argparse.Namespace) -> None:
+    from nbv_prob_cnn.benchmark import cnn_table
+
+    print(cnn_table(args.seed, args.repeats))
+
+
+def run_planning(args: argparse.Namespace) -> None:
     from nbv_prob_cnn.benchmark import BenchCase
     from nbv_prob_cnn.gain.opencl import get_ray_caster
     from nbv_prob_cnn.worlds import load_or_generate
@@ -39,4 +71,3 @@ def run(args: argparse.Namespace) -> int:
     print()
     print("nominal samples = origins × rays × (R_max + 1); the kernel stops rays early where exact.")
     print(format_table(results))
-    return 0

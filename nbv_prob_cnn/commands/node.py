@@ -14,7 +14,7 @@ HELP = "Run a ROS 2 node of this package, e.g. `nbv node nbv_planner --ros-args 
 def available_nodes() -> list[str]:
     import nbv_prob_cnn.ros as ros
 
-    skip = {"common", "conversions", "explore_client", "graph", "markers"}
+    skip = {"common", "conversions", "explore_client", "graph", "latency_benchmark", "markers"}
     return sorted(
         m.name for m in pkgutil.iter_modules(ros.__path__) if m.name not in skip and not m.name.startswith("_")
     )

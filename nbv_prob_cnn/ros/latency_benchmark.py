@@ -1,0 +1,77 @@
+"""Transport overhead of the node split: ``/nbv/plan`` round trips through the completion and
+gain servers against the same computation in one process (``nbv bench --suite ros``)."""
+
+from __future__ import annotations
+
+import os
+import statistics
+import time
+
+import numpy as np
+
+from nbv_prob_cnn.benchmark import half_explored
+from nbv_prob_cnn.camera import dataset_defaults
+from nbv_prob_cnn.geometry import GridGeometry
+from nbv_prob_cnn.planners import GAIN_METHODS, GainPlanner, PlanningContext
+from nbv_prob_cnn.ros.graph import NodeGraph, ros_environment, wait_for
+
+
+def ros_latency_benchmark(dataset: str = "3du", method: str = "cnn_prob", seed: int = 1000, repeats: int = 5) -> str:
+    """Median ``/nbv/plan`` round trip vs in-process planning on a ~50 % explored grid; a
+    markdown table."""
+    import rclpy
+    from nbv_prob_cnn_msgs.msg import VoxelGrid
+    from nbv_prob_cnn_msgs.srv import PlanNextBestView
+
+    from nbv_prob_cnn.ros.common import GRID_QOS
+    from nbv_prob_cnn.ros.conversions import grid_to_msg
+    from nbv_prob_cnn.worlds import load_or_generate
+
+    world = load_or_generate(dataset, seed)
+    defaults = dataset_defaults(dataset)
+    state = half_explored(world, PlanningContext(defaults, rng=np.random.default_rng(seed)))
+    geometry = GridGeometry(tuple(float(v) for v in world.origin), world.resolution, world.shape)
+
+    planner = GainPlanner(GAIN_METHODS[method])
+    context = PlanningContext(defaults, rng=np.random.default_rng(0), backend="opencl")
+    planner.rank(state, context, 20)  # warm-up: model load, kernel build
+    local = []
+    for _ in range(repeats):
+        start = time.perf_counter()
+        planner.rank(state, context, 20)
+        local.append(time.perf_counter() - start)
+
+    env = ros_environment()
+    os.environ.update(env)
+    with NodeGraph(env) as graph:
+        graph.start_node("completion_server", "completion_server", {"dataset": dataset})
+        graph.start_node("gain_server", "gain_server", {"dataset": dataset, "backend": "opencl"})
+        graph.start_node("nbv_planner", "nbv_planner", {"dataset": dataset, "method": method})
+        rclpy.init()
+        node = rclpy.create_node("latency_benchmark")
+        publisher = node.create_publisher(VoxelGrid, "/nbv/grid", GRID_QOS)
+        publisher.publish(grid_to_msg(state, geometry))
+        client = node.create_client(PlanNextBestView, "/nbv/plan")
+
+        def round_trip() -> tuple[float, bool]:
+            start = time.perf_counter()
+            future = client.call_async(PlanNextBestView.Request(top_k=1))
+            rclpy.spin_until_future_complete(node, future, timeout_sec=120)
+            return time.perf_counter() - start, bool(future.done() and future.result().success)
+
+        try:
+            if not client.wait_for_service(timeout_sec=60) or not wait_for(lambda: round_trip()[1], 120, 0.5):
+                raise RuntimeError("the planning graph did not answer /nbv/plan")
+            remote = [t for t, _ in (round_trip() for _ in range(repeats))]
+        finally:
+            node.destroy_node()
+            rclpy.try_shutdown()
+    t_local, t_remote = statistics.median(local), statistics.median(remote)
+    return "\n".join(
+        [
+            "| grid | method | in-process planning (s) | /nbv/plan round trip (s) | transport overhead |",
+            "|---|---|---|---|---|",
+            f"| {dataset.upper()} {'×'.join(map(str, world.shape))} | {method} | {t_local:.3f} | {t_remote:.3f} | "
+            f"{100 * (t_remote - t_local) / t_local:+.0f} % |",
+        ]
+    )
