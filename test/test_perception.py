@@ -439,3 +439,12 @@ def test_integrate_command_matches_in_process(scene: dict, tmp_path: Path, capsy
     assert (small != UNKNOWN).any()
     # errors are reported, not raised
     assert cli.main(["integrate", "--bag", str(tmp_path / "nope"), "--out", str(tmp_path / "x.npz")]) == 2
+
+
+def test_tsdf_grid_matches_a_generated_3dt_world() -> None:
+    from nbv_prob_cnn.perception.benchmark import tsdf_quality
+
+    quality = tsdf_quality(seed=1000, views=6)
+    assert quality["empty_cells"] > 100_000 and quality["seen_surface_cells"] > 5_000
+    assert quality["empty_precision"] >= 0.95
+    assert quality["surface_recall"] >= 0.90

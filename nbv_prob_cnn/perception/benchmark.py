@@ -13,7 +13,7 @@ import time
 
 import numpy as np
 
-__all__ = ["benchmark_poses", "integrator_benchmark"]
+__all__ = ["benchmark_poses", "integrator_benchmark", "tsdf_quality"]
 
 
 def benchmark_poses(
@@ -100,3 +100,43 @@ def _triple(ms: np.ndarray) -> str:
 
 if __name__ == "__main__":
     print(integrator_benchmark())
+
+
+def tsdf_quality(seed: int = 1000, views: int = 8, width: int = 640, height: int = 480) -> dict[str, float]:
+    """How well the integrated grid of a generated 3DT world matches its ground truth.
+
+    Depth frames from ``views`` poses around the table (:func:`benchmark_poses`) are fused; a
+    ground-truth surface cell counts as *seen* when a depth pixel back-projects into it.
+
+    Returns:
+        ``empty_precision`` (cells labelled empty that are empty in the ground truth),
+        ``surface_recall`` (seen ground-truth occupied cells labelled occupied),
+        ``occupied_precision``, ``observed_fraction`` and the cell counts behind them.
+    """
+    from nbv_prob_cnn.grid import EMPTY, OCCUPIED, UNKNOWN
+    from nbv_prob_cnn.perception import DepthCamera, Intrinsics, TsdfIntegrator
+    from nbv_prob_cnn.worlds import load_or_generate
+
+    world = load_or_generate("3dt", seed)
+    intrinsics = Intrinsics.from_hfov(width, height, 60.0)
+    camera = DepthCamera(world.triangle_meshes(), intrinsics)
+    origin = np.asarray(world.origin, dtype=np.float64)
+    shape = np.array(world.shape)
+    integrator = TsdfIntegrator(origin, tuple(world.shape), world.resolution)
+    seen = np.zeros(world.shape, dtype=bool)
+    for pose in benchmark_poses(views, float(world.table["height_m"])):
+        depth = camera.render(pose)
+        integrator.integrate(depth, intrinsics, pose)
+        points = intrinsics.backproject(depth) @ pose[:3, :3].T + pose[:3, 3]
+        ijk = np.floor((points - origin) / world.resolution).astype(int)
+        seen[tuple(ijk[np.all((ijk >= 0) & (ijk < shape), axis=1)].T)] = True
+    grid, truth = integrator.ternary(), world.ground_truth.astype(bool)
+    empty, occupied, surface = grid == EMPTY, grid == OCCUPIED, seen & truth
+    return {
+        "empty_precision": float(1.0 - truth[empty].mean()),
+        "surface_recall": float(occupied[surface].mean()),
+        "occupied_precision": float(truth[occupied].mean()),
+        "observed_fraction": float(np.mean(grid != UNKNOWN)),
+        "empty_cells": int(empty.sum()),
+        "seen_surface_cells": int(surface.sum()),
+    }
