@@ -6,8 +6,8 @@
 
 Every process gets localhost discovery, its own ROS_DOMAIN_ID and the Fast DDS shared-memory
 profile. Ctrl-C cancels the exploration and stops every process (no orphans), then removes the
-shared-memory files the graph left behind. This launcher itself joins no ROS graph. Outputs:
-<out>/views.csv, <out>/explored.png, <out>/grid.npz and one log per node in <out>/logs/.
+shared-memory files the graph left behind. Outputs: <out>/views.csv, <out>/explored.png,
+<out>/grid.npz and one log per node in <out>/logs/.
 
 Example:  .venv/bin/python launch_scripts/explore_sim.py --views 10 --method cnn_prob
 """
@@ -15,14 +15,11 @@ Example:  .venv/bin/python launch_scripts/explore_sim.py --views 10 --method cnn
 from __future__ import annotations
 
 import argparse
-import os
-import signal
-import subprocess
 import sys
 from pathlib import Path
 
 from nbv_prob_cnn.camera import dataset_defaults
-from nbv_prob_cnn.ros.graph import NodeGraph, leaked_segments, ros_environment, shm_segments
+from nbv_prob_cnn.ros.graph import NodeGraph, ros_environment, run_graph
 
 
 def parse_args(argv=None) -> argparse.Namespace:
@@ -39,61 +36,27 @@ def parse_args(argv=None) -> argparse.Namespace:
     return parser.parse_args(argv)
 
 
-def start_graph(graph: NodeGraph, args: argparse.Namespace) -> None:
-    defaults = dataset_defaults(args.dataset)
-    common = {"dataset": args.dataset}
-    graph.start_node("sim_camera", "sim_camera", {**common, "seed": args.seed})
-    box = {"origin": [0.0, 0.0, 0.0], "shape": list(defaults.shape), "voxel_size": defaults.resolution_m}
-    graph.start_node("integrator", "integrator", box)
-    graph.start_node("completion_server", "completion_server", common)
-    graph.start_node("gain_server", "gain_server", {**common, "completion": "service"})
-    graph.start_node("nbv_planner", "nbv_planner", {**common, "method": args.method, "in_process": args.in_process})
-
-
 def main(argv=None) -> int:
     args = parse_args(argv)
     out = Path(args.out)
-    env = ros_environment(args.domain_id)
-    domain = int(env["ROS_DOMAIN_ID"])
-    shm_before = shm_segments()
-    graph = NodeGraph(env, log_dir=out / "logs")
-    print(f"[explore_sim] ROS_DOMAIN_ID={domain}, logs in {out / 'logs'}", flush=True)
-    client_cmd = [
+    defaults = dataset_defaults(args.dataset)
+    common = {"dataset": args.dataset}
+
+    def start_nodes(graph: NodeGraph) -> None:
+        graph.start_node("sim_camera", "sim_camera", {**common, "seed": args.seed})
+        box = {"origin": [0.0, 0.0, 0.0], "shape": list(defaults.shape), "voxel_size": defaults.resolution_m}
+        graph.start_node("integrator", "integrator", box)
+        graph.start_node("completion_server", "completion_server", common)
+        graph.start_node("gain_server", "gain_server", {**common, "completion": "service"})
+        planner = {**common, "method": args.method, "in_process": args.in_process}
+        graph.start_node("nbv_planner", "nbv_planner", planner)
+
+    client = [
         sys.executable, "-m", "nbv_prob_cnn.ros.explore_client", "--views", str(args.views),
         "--method", args.method, "--stop-unknown", str(args.stop_unknown), "--out", str(out),
         "--title", f"{args.dataset} seed {args.seed}, {args.method}", "--timeout", str(args.timeout),
     ]  # fmt: skip
-    code = 1
-    try:
-        start_graph(graph, args)
-        # its own session: Ctrl-C reaches only this launcher, which forwards it exactly once
-        client = subprocess.Popen(client_cmd, env=env, start_new_session=True)
-        code = client.wait()
-    except KeyboardInterrupt:
-        print("\n[explore_sim] interrupted: stopping the graph", flush=True)
-        signal.signal(signal.SIGINT, signal.SIG_IGN)  # a second Ctrl-C must not cut the clean-up short
-        if "client" in locals() and client.poll() is None:
-            client.send_signal(signal.SIGINT)  # the client cancels the Explore goal
-            try:
-                client.wait(timeout=15)
-            except subprocess.TimeoutExpired:
-                pass
-        code = 130
-    finally:
-        codes = graph.stop()
-        if "client" in locals() and client.poll() is None:
-            client.kill()
-            client.wait()
-        leaked = leaked_segments(shm_before, domain)
-        for name in leaked:  # files of our stopped processes that nothing uses any more
-            try:
-                os.unlink(f"/dev/shm/{name}")
-            except OSError:
-                pass
-        print(
-            f"[explore_sim] stopped {len(codes)} processes; removed {len(leaked)} stale shared-memory files", flush=True
-        )
-    return code
+    return run_graph(start_nodes, client, ros_environment(args.domain_id), out / "logs", "explore_sim")
 
 
 if __name__ == "__main__":

@@ -12,7 +12,7 @@ import signal
 import subprocess
 import sys
 import time
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from pathlib import Path
 
 PROFILE = Path(__file__).with_name("fastdds_shm_profile.xml")
@@ -142,6 +142,57 @@ def leaked_segments(before: set[str], domain: int, ignore_pids: frozenset[int] =
     }
 
 
+def run_graph(
+    start_nodes: Callable[[NodeGraph], None],
+    client_cmd: list[str],
+    env: dict[str, str],
+    log_dir: str | Path,
+    label: str = "graph",
+) -> int:
+    """Start a node graph, run a client process against it, and stop everything.
+
+    The client runs in its own session, so Ctrl-C reaches only this launcher, which forwards it
+    once (the client cancels what it was doing), then stops the nodes and removes the
+    shared-memory files they left behind. The launcher itself joins no ROS graph.
+
+    Returns:
+        The client's exit status (130 after Ctrl-C).
+    """
+    domain = int(env["ROS_DOMAIN_ID"])
+    shm_before = shm_segments()
+    graph = NodeGraph(env, log_dir=log_dir)
+    print(f"[{label}] ROS_DOMAIN_ID={domain}, logs in {log_dir}", flush=True)
+    client: subprocess.Popen | None = None
+    code = 1
+    try:
+        start_nodes(graph)
+        client = subprocess.Popen(client_cmd, env=env, start_new_session=True)
+        code = client.wait()
+    except KeyboardInterrupt:
+        print(f"\n[{label}] interrupted: stopping the graph", flush=True)
+        signal.signal(signal.SIGINT, signal.SIG_IGN)  # a second Ctrl-C must not cut the clean-up short
+        if client is not None and client.poll() is None:
+            client.send_signal(signal.SIGINT)
+            try:
+                client.wait(timeout=15)
+            except subprocess.TimeoutExpired:
+                pass
+        code = 130
+    finally:
+        codes = graph.stop()
+        if client is not None and client.poll() is None:
+            client.kill()
+            client.wait()
+        leaked = leaked_segments(shm_before, domain)
+        for name in leaked:  # files of our stopped processes that nothing uses any more
+            try:
+                os.unlink(f"/dev/shm/{name}")
+            except OSError:
+                pass
+        print(f"[{label}] stopped {len(codes)} processes; removed {len(leaked)} stale shared-memory files", flush=True)
+    return code
+
+
 def wait_for(predicate, timeout_s: float, interval_s: float = 0.1) -> bool:
     """Poll ``predicate`` until it returns true or the timeout passes."""
     deadline = time.monotonic() + timeout_s
@@ -152,4 +203,12 @@ def wait_for(predicate, timeout_s: float, interval_s: float = 0.1) -> bool:
     return bool(predicate())
 
 
-__all__: Iterable[str] = ["NodeGraph", "leaked_segments", "node_command", "ros_environment", "shm_segments", "wait_for"]
+__all__: Iterable[str] = [
+    "NodeGraph",
+    "leaked_segments",
+    "node_command",
+    "ros_environment",
+    "run_graph",
+    "shm_segments",
+    "wait_for",
+]
