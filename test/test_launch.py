@@ -88,3 +88,17 @@ def test_ctrl_c_stops_the_whole_graph(tmp_path):
     time.sleep(0.5)
     assert not (_descendants(proc.pid) | {p for p in children if os.path.exists(f"/proc/{p}")}), "orphans left"
     assert not leaked_segments(before, int(_domain(1)))
+
+
+def test_graph_from_the_sample_bag_plans_views(tmp_path):
+    out = tmp_path / "plan"
+    cmd = [sys.executable, str(REPO / "launch_scripts" / "plan_from_bag.py"), "--method", "prob_ig",
+           "--out", str(out), "--domain-id", _domain(2)]  # fmt: skip
+    run = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
+    assert run.returncode == 0, run.stdout[-3000:] + run.stderr[-3000:]
+    with open(out / "ranked_views.csv") as handle:
+        rows = list(csv.DictReader(handle))
+    assert len(rows) == 5
+    gains = [float(r["gain"]) for r in rows]
+    assert gains == sorted(gains, reverse=True) and gains[0] > 0
+    assert "stopped 5 processes" in run.stdout
