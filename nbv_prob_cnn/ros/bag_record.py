@@ -18,11 +18,7 @@ from collections import Counter
 from pathlib import Path
 from typing import Any
 
-import rclpy
 from geometry_msgs.msg import TransformStamped
-from rcl_interfaces.msg import IntegerRange, ParameterDescriptor
-from rclpy.exceptions import ParameterException
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import CameraInfo, Image
@@ -37,6 +33,7 @@ from nbv_prob_cnn.perception.bags import (
     BagError,
     typestore,
 )
+from nbv_prob_cnn.ros.common import descriptor, run_node
 
 NODE_NAME = "bag_record"
 #: topic -> (rclpy class, rosbag2 type name)
@@ -47,28 +44,21 @@ TOPICS = {
 }
 
 
-def _descriptor(description: str, int_range=None):
-    desc = ParameterDescriptor(description=description)
-    if int_range is not None:
-        desc.integer_range = [IntegerRange(from_value=int_range[0], to_value=int_range[1], step=1)]
-    return desc
-
-
 class BagRecord(Node):
     """Writes every message of the camera topics to a new mcap bag."""
 
     def __init__(self) -> None:
         super().__init__(NODE_NAME)
         output = self.declare_parameter(
-            "output", "", _descriptor("new rosbag2 directory to create (required; never overwritten)")
+            "output", "", descriptor("new rosbag2 directory to create (required; never overwritten)")
         ).value
         queue_size = self.declare_parameter(
-            "queue_size", 100, _descriptor("depth of the subscriptions", int_range=(1, 10000))
+            "queue_size", 100, descriptor("depth of the subscriptions", int_range=(1, 10000))
         ).value
         reliability = self.declare_parameter(
             "qos_reliability",
             "reliable",
-            _descriptor("subscriptions: 'reliable' or 'best_effort' (for sensor_data publishers)"),
+            descriptor("subscriptions: 'reliable' or 'best_effort' (for sensor_data publishers)"),
         ).value
         if not output:
             raise ValueError("parameter 'output' is required (path of the new bag directory)")
@@ -120,6 +110,10 @@ class BagRecord(Node):
             writer, self._writer = self._writer, None
             writer.close()
 
+    def destroy_node(self) -> None:
+        self.close()
+        super().destroy_node()
+
     def summary(self) -> str:
         per_topic = ", ".join(f"{t} {n}" for t, n in sorted(self.counts.items())) or "nothing"
         return f"wrote {sum(self.counts.values())} message(s) to {self.path} ({per_topic})"
@@ -127,31 +121,7 @@ class BagRecord(Node):
 
 def main(args: list[str] | None = None) -> int:
     """Record until interrupted (bag closed cleanly); 1 when the bag cannot be created."""
-    rclpy.init(args=args)
-    node = None
-    code = 0
-    try:
-        node = BagRecord()
-        executor = SingleThreadedExecutor()
-        executor.add_node(node)
-        executor.spin()
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    except Exception as exc:
-        if rclpy.ok() and isinstance(exc, ValueError | ParameterException):  # BagError is a ValueError
-            rclpy.logging.get_logger(NODE_NAME).fatal(f"cannot start: {exc}")
-            code = 1
-        elif rclpy.ok():
-            raise
-        # else: interrupted during start-up (SIGINT can surface as another error, e.g. an aborted import)
-    finally:
-        if node is not None:
-            node.close()
-            # not the node's logger: its rosout publisher may be gone already (SIGINT shuts the context down)
-            rclpy.logging.get_logger(f"{node.get_name()}.summary").info(node.summary())
-            node.destroy_node()
-        rclpy.try_shutdown()
-    return code
+    return run_node(BagRecord, args, threads=1, summary=lambda node: node.summary())
 
 
 if __name__ == "__main__":

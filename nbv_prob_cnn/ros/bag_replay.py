@@ -28,26 +28,16 @@ import time
 from collections import Counter
 from pathlib import Path
 
-import rclpy
-from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
 from rclpy.duration import Duration
 from rclpy.exceptions import ParameterException
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
 from nbv_prob_cnn.perception.bags import BagError, bag_topics, read_raw_messages
+from nbv_prob_cnn.ros.common import descriptor, run_node
 
 NODE_NAME = "bag_replay"
-
-
-def _descriptor(description: str, float_range=None, int_range=None):
-    desc = ParameterDescriptor(description=description)
-    if float_range is not None:
-        desc.floating_point_range = [FloatingPointRange(from_value=float_range[0], to_value=float_range[1], step=0.0)]
-    if int_range is not None:
-        desc.integer_range = [IntegerRange(from_value=int_range[0], to_value=int_range[1], step=1)]
-    return desc
 
 
 def message_class(msgtype: str) -> type:
@@ -70,37 +60,35 @@ class BagReplay(Node):
 
     def __init__(self) -> None:
         super().__init__(NODE_NAME)
-        self.bag = self.declare_parameter("bag", "", _descriptor("rosbag2 directory or .mcap file (required)")).value
+        self.bag = self.declare_parameter("bag", "", descriptor("rosbag2 directory or .mcap file (required)")).value
         self.rate = self.declare_parameter(
-            "rate", 1.0, _descriptor("replay speed factor (2.0 = twice as fast as recorded)", float_range=(1e-3, 1e4))
+            "rate", 1.0, descriptor("replay speed factor (2.0 = twice as fast as recorded)", float_range=(1e-3, 1e4))
         ).value
-        self.loop = self.declare_parameter(
-            "loop", False, _descriptor("start again at the end, until interrupted")
-        ).value
+        self.loop = self.declare_parameter("loop", False, descriptor("start again at the end, until interrupted")).value
         self.start_delay = self.declare_parameter(
-            "start_delay_s", 0.0, _descriptor("wait this long before the first message [s]", float_range=(0.0, 3600.0))
+            "start_delay_s", 0.0, descriptor("wait this long before the first message [s]", float_range=(0.0, 3600.0))
         ).value
         self.exit_when_done = self.declare_parameter(
-            "exit_when_done", True, _descriptor("exit (status 0) after the last message; false: keep running")
+            "exit_when_done", True, descriptor("exit (status 0) after the last message; false: keep running")
         ).value
         topics = self.declare_parameter(
-            "topics", "", _descriptor("comma-separated topics to replay; empty = every topic of the bag")
+            "topics", "", descriptor("comma-separated topics to replay; empty = every topic of the bag")
         ).value
         queue_size = self.declare_parameter(
-            "queue_size", 10, _descriptor("publisher history depth", int_range=(1, 10000))
+            "queue_size", 10, descriptor("publisher history depth", int_range=(1, 10000))
         ).value
         self.wait_for_subscribers = self.declare_parameter(
             "wait_for_subscribers",
             0,
-            _descriptor("before starting, wait until every topic has this many subscribers", int_range=(0, 1000)),
+            descriptor("before starting, wait until every topic has this many subscribers", int_range=(0, 1000)),
         ).value
         self.wait_timeout = self.declare_parameter(
-            "wait_timeout_s", 10.0, _descriptor("longest wait for subscribers [s]", float_range=(0.0, 3600.0))
+            "wait_timeout_s", 10.0, descriptor("longest wait for subscribers [s]", float_range=(0.0, 3600.0))
         ).value
         self.ack_timeout = self.declare_parameter(
             "ack_timeout_s",
             5.0,
-            _descriptor(
+            descriptor(
                 "at the end, longest wait for reliable subscribers to acknowledge [s]", float_range=(0.0, 600.0)
             ),
         ).value
@@ -194,36 +182,17 @@ class BagReplay(Node):
 
 def main(args: list[str] | None = None) -> int:
     """Replay the bag; 0 when done or interrupted, 1 on a bad bag or parameters (nothing published)."""
-    rclpy.init(args=args)
-    node = None
-    code = 0
-    try:
-        node = BagReplay()
-        executor = SingleThreadedExecutor()
-        executor.add_node(node)
+
+    def replay(node: BagReplay, executor) -> None:
         node.replay(executor)
         if not node.exit_when_done:
             executor.spin()
-    except (KeyboardInterrupt, ExternalShutdownException):
-        if node is not None:
-            rclpy.logging.get_logger(f"{NODE_NAME}.summary").info(f"interrupted: {node.summary()}")
-    except Exception as exc:
-        if rclpy.ok() and isinstance(exc, BagError | FileNotFoundError):
-            rclpy.logging.get_logger(NODE_NAME).error(
-                f"cannot replay the bag (missing, corrupt, truncated or not a rosbag2; nothing was published): {exc}"
-            )
-            code = 1
-        elif rclpy.ok() and isinstance(exc, ValueError | ParameterException):
-            rclpy.logging.get_logger(NODE_NAME).fatal(f"cannot start: {exc}")
-            code = 1
-        elif rclpy.ok():
-            raise
-        # else: interrupted during start-up (SIGINT can surface as another error, e.g. an aborted import)
-    finally:
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
-    return code
+
+    return run_node(
+        BagReplay, args, threads=1, run=replay, summary=lambda node: node.summary(),
+        startup_errors=(BagError, FileNotFoundError, ValueError, ParameterException),
+        startup_message="cannot replay the bag (missing, corrupt, truncated or not a rosbag2; nothing was published)",
+    )  # fmt: skip
 
 
 if __name__ == "__main__":

@@ -8,12 +8,29 @@ from collections.abc import Callable
 
 import rclpy
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
-from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
+from rclpy.exceptions import ParameterException
+from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 
 #: The grid topic keeps its last message for late joiners and restarted nodes.
 GRID_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
+
+
+def descriptor(
+    description: str,
+    float_range: tuple[float, float] | None = None,
+    int_range: tuple[int, int] | None = None,
+    dynamic_typing: bool = False,
+    read_only: bool = False,
+) -> ParameterDescriptor:
+    """A parameter descriptor with a description and, optionally, a numeric range."""
+    desc = ParameterDescriptor(description=description, dynamic_typing=dynamic_typing, read_only=read_only)
+    if float_range is not None:
+        desc.floating_point_range = [FloatingPointRange(from_value=float_range[0], to_value=float_range[1], step=0.0)]
+    if int_range is not None:
+        desc.integer_range = [IntegerRange(from_value=int_range[0], to_value=int_range[1], step=1)]
+    return desc
 
 
 def declare(
@@ -27,17 +44,16 @@ def declare(
     read_only: bool = False,
 ):
     """Declare a parameter with a description (and a numeric range) and return its value."""
-    descriptor = ParameterDescriptor(description=description, read_only=read_only)
-    if min_value is not None and max_value is not None:
-        if isinstance(default, bool):
-            pass
-        elif isinstance(default, int):
-            descriptor.integer_range = [IntegerRange(from_value=int(min_value), to_value=int(max_value), step=0)]
-        elif isinstance(default, float):
-            descriptor.floating_point_range = [
-                FloatingPointRange(from_value=float(min_value), to_value=float(max_value), step=0.0)
-            ]
-    return node.declare_parameter(name, default, descriptor).value
+    bounds = (min_value, max_value) if min_value is not None and max_value is not None else None
+    is_int = isinstance(default, int) and not isinstance(default, bool)
+    is_float = isinstance(default, float)
+    desc = descriptor(
+        description,
+        float_range=bounds if is_float else None,
+        int_range=(int(bounds[0]), int(bounds[1])) if (bounds and is_int) else None,
+        read_only=read_only,
+    )
+    return node.declare_parameter(name, default, desc).value
 
 
 def call_service(node: Node, client, request, timeout_s: float):
@@ -60,20 +76,54 @@ def call_service(node: Node, client, request, timeout_s: float):
     return future.result()
 
 
-def run_node(factory: Callable[[], Node], args: list[str] | None = None, threads: int = 4) -> int:
-    """``rclpy.init``, build the node, spin a multi-threaded executor until Ctrl-C or an external
-    shutdown, then destroy the node and shut down. Returns the process exit code."""
+def run_node(
+    factory: Callable[[], Node],
+    args: list[str] | None = None,
+    *,
+    threads: int = 4,
+    run: Callable[[Node, object], None] | None = None,
+    summary: Callable[[Node], str] | None = None,
+    startup_errors: tuple[type[BaseException], ...] = (ValueError, RuntimeError, ParameterException),
+    startup_message: str = "cannot start",
+) -> int:
+    """The ``main`` of every node: ``rclpy.init``, build the node, spin (or ``run(node,
+    executor)``) until Ctrl-C or an external shutdown, then destroy the node, log its
+    ``summary`` and shut down.
+
+    Returns:
+        0, or 1 when building/running the node raised one of ``startup_errors`` (bad
+        parameters, unreadable inputs), logged as fatal with ``startup_message``.
+    """
     rclpy.init(args=args)
     node = None
+    executor = None
+    code = 0
     try:
         node = factory()
-        executor = MultiThreadedExecutor(num_threads=threads)
+        executor = MultiThreadedExecutor(num_threads=threads) if threads > 1 else SingleThreadedExecutor()
         executor.add_node(node)
-        executor.spin()
+        if run is None:
+            executor.spin()
+        else:
+            run(node, executor)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
+    except Exception as exc:
+        if rclpy.ok() and isinstance(exc, startup_errors):
+            name = node.get_name() if node is not None else getattr(factory, "__name__", "node")
+            rclpy.logging.get_logger(name).fatal(f"{startup_message}: {exc}")
+            code = 1
+        elif rclpy.ok():
+            raise
+        # else: interrupted during start-up (SIGINT can surface as another error, e.g. an aborted import)
     finally:
+        if executor is not None:
+            executor.shutdown()
         if node is not None:
+            name = node.get_name()
             node.destroy_node()
+            if summary is not None:
+                # not the node's logger: its rosout publisher may be gone already (SIGINT shuts the context down)
+                rclpy.logging.get_logger(f"{name}.summary").info(summary(node))
         rclpy.try_shutdown()
-    return 0
+    return code

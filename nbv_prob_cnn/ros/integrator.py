@@ -45,15 +45,11 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import rclpy
 from builtin_interfaces.msg import Time
 from geometry_msgs.msg import TransformStamped
 from nbv_prob_cnn_msgs.msg import VoxelGrid
 from nbv_prob_cnn_msgs.srv import SaveGrid
-from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
-from rclpy.exceptions import ParameterException
-from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import CameraInfo, Image
@@ -82,6 +78,7 @@ from nbv_prob_cnn.perception.tsdf import (
     DEFAULT_VOXEL_M,
     TsdfIntegrator,
 )
+from nbv_prob_cnn.ros.common import descriptor, run_node
 from nbv_prob_cnn.ros.conversions import grid_to_msg
 
 NODE_NAME = "integrator"
@@ -95,15 +92,6 @@ MAX_BACKLOG = 1000
 MAX_PENDING = 64
 #: Poses and camera_infos kept for pairing.
 HISTORY = 256
-
-
-def _descriptor(description: str, float_range=None, int_range=None, dynamic_typing: bool = False):
-    desc = ParameterDescriptor(description=description, dynamic_typing=dynamic_typing)
-    if float_range is not None:
-        desc.floating_point_range = [FloatingPointRange(from_value=float_range[0], to_value=float_range[1], step=0.0)]
-    if int_range is not None:
-        desc.integer_range = [IntegerRange(from_value=int_range[0], to_value=int_range[1], step=1)]
-    return desc
 
 
 def stamp_to_time(stamp_ns: int) -> Time:
@@ -217,63 +205,63 @@ class Integrator(Node):
     def __init__(self) -> None:
         super().__init__(NODE_NAME)
         self.frame_id = self.declare_parameter(
-            "frame_id", "world", _descriptor("fixed frame of the grid; poses must be given in it")
+            "frame_id", "world", descriptor("fixed frame of the grid; poses must be given in it")
         ).value
         origin = self.declare_parameter(
             "origin",
             [float(v) for v in DEFAULT_ORIGIN_M],
-            _descriptor("world coordinates [m] of the corner of cell (0, 0, 0)", dynamic_typing=True),
+            descriptor("world coordinates [m] of the corner of cell (0, 0, 0)", dynamic_typing=True),
         ).value
         shape = self.declare_parameter(
-            "shape", [int(v) for v in DEFAULT_SHAPE], _descriptor("grid size [cells] nx, ny, nz")
+            "shape", [int(v) for v in DEFAULT_SHAPE], descriptor("grid size [cells] nx, ny, nz")
         ).value
         voxel = self.declare_parameter(
-            "voxel_size", DEFAULT_VOXEL_M, _descriptor("cell edge [m]", float_range=(1e-4, 10.0))
+            "voxel_size", DEFAULT_VOXEL_M, descriptor("cell edge [m]", float_range=(1e-4, 10.0))
         ).value
         trunc = self.declare_parameter(
-            "trunc_voxels", DEFAULT_TRUNC_VOXELS, _descriptor("TSDF truncation [voxels]", float_range=(0.5, 100.0))
+            "trunc_voxels", DEFAULT_TRUNC_VOXELS, descriptor("TSDF truncation [voxels]", float_range=(0.5, 100.0))
         ).value
         margin = self.declare_parameter(
             "empty_margin_voxels",
             DEFAULT_EMPTY_MARGIN_VOXELS,
-            _descriptor("cells farther than this in front of a surface are empty [voxels]", float_range=(0.0, 100.0)),
+            descriptor("cells farther than this in front of a surface are empty [voxels]", float_range=(0.0, 100.0)),
         ).value
         self.depth_max = self.declare_parameter(
-            "depth_max_m", 3.0, _descriptor("returns beyond this depth are ignored [m]", float_range=(0.01, 100.0))
+            "depth_max_m", 3.0, descriptor("returns beyond this depth are ignored [m]", float_range=(0.01, 100.0))
         ).value
         refine = self.declare_parameter(
-            "refine_pose_icp", False, _descriptor("refine each pose by frame-to-model odometry (slow)")
+            "refine_pose_icp", False, descriptor("refine each pose by frame-to-model odometry (slow)")
         ).value
-        device = self.declare_parameter("device", "CPU:0", _descriptor("open3d device, e.g. CPU:0 or CUDA:0")).value
+        device = self.declare_parameter("device", "CPU:0", descriptor("open3d device, e.g. CPU:0 or CUDA:0")).value
         tolerance = self.declare_parameter(
             "sync_tolerance_s",
             0.01,
-            _descriptor("largest stamp difference of an image and its pose / camera_info [s]", float_range=(0.0, 10.0)),
+            descriptor("largest stamp difference of an image and its pose / camera_info [s]", float_range=(0.0, 10.0)),
         ).value
         self.pose_timeout = self.declare_parameter(
             "pose_timeout_s",
             1.0,
-            _descriptor(
+            descriptor(
                 "an image whose pose / camera_info is missing this long is dropped [s]", float_range=(0.0, 60.0)
             ),
         ).value
         self.publish_rate = self.declare_parameter(
             "publish_rate_hz",
             2.0,
-            _descriptor("most grids per second; 0 = a grid after every integrated frame", float_range=(0.0, 100.0)),
+            descriptor("most grids per second; 0 = a grid after every integrated frame", float_range=(0.0, 100.0)),
         ).value
         self.drop_when_behind = self.declare_parameter(
             "drop_when_behind",
             True,
-            _descriptor("when integration falls behind, only the newest waiting frame is kept (false: all, in order)"),
+            descriptor("when integration falls behind, only the newest waiting frame is kept (false: all, in order)"),
         ).value
         queue_size = self.declare_parameter(
-            "queue_size", 10, _descriptor("depth of the camera subscriptions", int_range=(1, 10000))
+            "queue_size", 10, descriptor("depth of the camera subscriptions", int_range=(1, 10000))
         ).value
         reliability = self.declare_parameter(
             "qos_reliability",
             "reliable",
-            _descriptor("camera subscriptions: 'reliable' or 'best_effort' (for sensor_data publishers)"),
+            descriptor("camera subscriptions: 'reliable' or 'best_effort' (for sensor_data publishers)"),
         ).value
 
         if (
@@ -543,34 +531,7 @@ class Integrator(Node):
 
 def main(args: list[str] | None = None) -> int:
     """Run the node until interrupted; 1 on a configuration error."""
-    rclpy.init(args=args)
-    node = None
-    executor = None
-    code = 0
-    try:
-        node = Integrator()
-        executor = MultiThreadedExecutor(num_threads=2)
-        executor.add_node(node)
-        executor.spin()
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    except Exception as exc:
-        if rclpy.ok() and isinstance(exc, ValueError | RuntimeError | ParameterException):
-            rclpy.logging.get_logger(NODE_NAME).fatal(f"cannot start: {exc}")
-            code = 1
-        elif rclpy.ok():
-            raise
-        # else: interrupted during start-up (SIGINT can surface as another error, e.g. an aborted import)
-    finally:
-        if executor is not None:
-            executor.shutdown()
-        if node is not None:
-            name = node.get_name()
-            node.destroy_node()  # stops the worker first
-            # not the node's logger: its rosout publisher may be gone already (SIGINT shuts the context down)
-            rclpy.logging.get_logger(f"{name}.summary").info(node.summary())
-        rclpy.try_shutdown()
-    return code
+    return run_node(Integrator, args, threads=2, summary=lambda node: node.summary())
 
 
 if __name__ == "__main__":

@@ -25,13 +25,9 @@ import threading
 from pathlib import Path
 
 import numpy as np
-import rclpy
 from builtin_interfaces.msg import Time
 from geometry_msgs.msg import PoseStamped, TransformStamped
 from nbv_prob_cnn_msgs.srv import MoveCamera
-from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
-from rclpy.exceptions import ParameterException
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import CameraInfo, Image
@@ -50,6 +46,7 @@ from nbv_prob_cnn.perception.bags import (
     typestore,
 )
 from nbv_prob_cnn.perception.depth_camera import DepthCamera, DepthNoise, Intrinsics, room_mesh
+from nbv_prob_cnn.ros.common import descriptor, run_node
 from nbv_prob_cnn.ros.conversions import pose_to_arrays
 
 NODE_NAME = "sim_camera"
@@ -74,15 +71,6 @@ def overview_pose(meshes) -> list[float]:
     distance = 0.65 * float(np.max(hi - lo))
     position = target + distance * np.array([0.0, -math.sqrt(0.5), math.sqrt(0.5)])
     return look_at_pose(position, target)
-
-
-def _descriptor(description: str, float_range=None, int_range=None, dynamic_typing: bool = False):
-    desc = ParameterDescriptor(description=description, dynamic_typing=dynamic_typing)
-    if float_range is not None:
-        desc.floating_point_range = [FloatingPointRange(from_value=float_range[0], to_value=float_range[1], step=0.0)]
-    if int_range is not None:
-        desc.integer_range = [IntegerRange(from_value=int_range[0], to_value=int_range[1], step=1)]
-    return desc
 
 
 def pose_matrix(values) -> np.ndarray:
@@ -145,62 +133,62 @@ class SimCamera(Node):
     def __init__(self) -> None:
         super().__init__(NODE_NAME)
         dataset = self.declare_parameter(
-            "dataset", "3dt", _descriptor("generated world to look at: '3dt' or '3du' (ignored with mesh_file)")
+            "dataset", "3dt", descriptor("generated world to look at: '3dt' or '3du' (ignored with mesh_file)")
         ).value
-        seed = self.declare_parameter("seed", 1000, _descriptor("world seed", int_range=(0, 2**31 - 1))).value
+        seed = self.declare_parameter("seed", 1000, descriptor("world seed", int_range=(0, 2**31 - 1))).value
         mesh_file = self.declare_parameter(
-            "mesh_file", "", _descriptor("mesh file (world metres, any format trimesh reads); overrides dataset/seed")
+            "mesh_file", "", descriptor("mesh file (world metres, any format trimesh reads); overrides dataset/seed")
         ).value
-        width = self.declare_parameter("width", 640, _descriptor("image width [px]", int_range=(1, 8192))).value
-        height = self.declare_parameter("height", 480, _descriptor("image height [px]", int_range=(1, 8192))).value
+        width = self.declare_parameter("width", 640, descriptor("image width [px]", int_range=(1, 8192))).value
+        height = self.declare_parameter("height", 480, descriptor("image height [px]", int_range=(1, 8192))).value
         hfov = self.declare_parameter(
-            "hfov_deg", 60.0, _descriptor("horizontal field of view [deg]", float_range=(1.0, 179.0))
+            "hfov_deg", 60.0, descriptor("horizontal field of view [deg]", float_range=(1.0, 179.0))
         ).value
         self.frame_id = self.declare_parameter(
-            "frame_id", "world", _descriptor("fixed frame of the scene and of the published pose")
+            "frame_id", "world", descriptor("fixed frame of the scene and of the published pose")
         ).value
         self.camera_frame = self.declare_parameter(
-            "camera_frame", "camera_optical", _descriptor("optical frame of the images (REP-103)")
+            "camera_frame", "camera_optical", descriptor("optical frame of the images (REP-103)")
         ).value
         rate = self.declare_parameter(
-            "rate_hz", 5.0, _descriptor("frame rate [Hz]; 0 = publish only when moved", float_range=(0.0, 100.0))
+            "rate_hz", 5.0, descriptor("frame rate [Hz]; 0 = publish only when moved", float_range=(0.0, 100.0))
         ).value
         self.encoding = self.declare_parameter(
-            "encoding", "32FC1", _descriptor("image encoding: '32FC1' (float metres) or '16UC1' (millimetres)")
+            "encoding", "32FC1", descriptor("image encoding: '32FC1' (float metres) or '16UC1' (millimetres)")
         ).value
         initial = self.declare_parameter(
             "initial_pose",
             [],
-            _descriptor(
+            descriptor(
                 "initial camera_optical pose [x, y, z, qx, qy, qz, qw] in frame_id; empty = looking at the "
                 "scene centre from above its front (-y) side",
                 dynamic_typing=True,
             ),
         ).value
         depth_min = self.declare_parameter(
-            "depth_min_m", 0.0, _descriptor("returns nearer than this are 'no return' [m]", float_range=(0.0, 100.0))
+            "depth_min_m", 0.0, descriptor("returns nearer than this are 'no return' [m]", float_range=(0.0, 100.0))
         ).value
         depth_max = self.declare_parameter(
-            "depth_max_m", 10.0, _descriptor("returns farther than this are 'no return' [m]", float_range=(0.0, 655.0))
+            "depth_max_m", 10.0, descriptor("returns farther than this are 'no return' [m]", float_range=(0.0, 655.0))
         ).value
         sigma = self.declare_parameter(
             "noise_sigma_per_m",
             0.0,
-            _descriptor("depth noise standard deviation per metre of depth (0 = exact)", float_range=(0.0, 1.0)),
+            descriptor("depth noise standard deviation per metre of depth (0 = exact)", float_range=(0.0, 1.0)),
         ).value
         dropout = self.declare_parameter(
-            "noise_dropout", 0.0, _descriptor("probability of a pixel dropout (no return)", float_range=(0.0, 1.0))
+            "noise_dropout", 0.0, descriptor("probability of a pixel dropout (no return)", float_range=(0.0, 1.0))
         ).value
         room_margin = self.declare_parameter(
             "room_margin_m",
             0.3,
-            _descriptor(
+            descriptor(
                 "walls this far outside a generated world's grid, so every pixel has a return (0 = none)",
                 float_range=(0.0, 100.0),
             ),
         ).value
         noise_seed = self.declare_parameter(
-            "noise_seed", 0, _descriptor("seed of the noise generator", int_range=(0, 2**31 - 1))
+            "noise_seed", 0, descriptor("seed of the noise generator", int_range=(0, 2**31 - 1))
         ).value
 
         if self.encoding not in ENCODINGS:
@@ -301,30 +289,7 @@ class SimCamera(Node):
 
 def main(args: list[str] | None = None) -> int:
     """Run the node until interrupted; 1 on a configuration error."""
-    rclpy.init(args=args)
-    node = None
-    code = 0
-    try:
-        node = SimCamera()
-        executor = SingleThreadedExecutor()
-        executor.add_node(node)
-        executor.spin()
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    except Exception as exc:
-        if rclpy.ok() and isinstance(exc, ValueError | ParameterException):
-            rclpy.logging.get_logger(NODE_NAME).fatal(f"cannot start: {exc}")
-            code = 1
-        elif rclpy.ok():
-            raise
-        # else: interrupted during start-up (SIGINT can surface as another error, e.g. an aborted import)
-    finally:
-        if node is not None:
-            # not the node's logger: its rosout publisher may be gone already (SIGINT shuts the context down)
-            rclpy.logging.get_logger(f"{node.get_name()}.summary").info(f"published {node.frames} frame(s)")
-            node.destroy_node()
-        rclpy.try_shutdown()
-    return code
+    return run_node(SimCamera, args, threads=1, summary=lambda node: f"published {node.frames} frame(s)")
 
 
 if __name__ == "__main__":
