@@ -1,6 +1,7 @@
 """The view search: blocks of origins, ranking and ties."""
 
 import numpy as np
+import pytest
 
 from nbv_prob_cnn.camera import DatasetDefaults, Sensor
 from nbv_prob_cnn.gain import ray_gains
@@ -38,3 +39,27 @@ def test_no_view_when_nothing_unknown():
     state = np.zeros(SMALL_3D.shape, dtype=np.int8)
     context = PlanningContext(SMALL_3D)
     assert search_best_view(state, probability_with_constant(state, 0.15), np.argwhere(state == 0), context) is None
+
+
+def test_cnn_methods_refuse_missing_weights(rng, monkeypatch, tmp_path):
+    from nbv_prob_cnn.completion import WeightsError, inference
+    from nbv_prob_cnn.planners import make_planner
+
+    missing = tmp_path / "3du.pt"
+    monkeypatch.setattr(inference, "default_weights_path", lambda dataset: missing)
+    state, _ = _grid(rng)
+    for method in ("cnn_prob", "cnn_prob_d"):
+        with pytest.raises(WeightsError) as info:
+            make_planner(method).plan(state, PlanningContext(SMALL_3D))
+        assert str(missing) in str(info.value) and "nbv train --dataset 3du" in str(info.value)
+
+
+def test_downsampled_method_evaluates_a_fixed_number_of_origins(rng):
+    from nbv_prob_cnn.planners.methods import DOWNSAMPLED_ORIGINS, GAIN_METHODS, method_origins
+
+    state = np.zeros((30, 30, 30), dtype=np.int8)
+    context = PlanningContext(DatasetDefaults("3du", 3, (30, 30, 30), 0.01, Sensor(60.0, 46.0, 8), 4, 3))
+    sub = method_origins(GAIN_METHODS["cnn_prob_d"], state, context)
+    full = method_origins(GAIN_METHODS["cnn_prob"], state, context)
+    assert sub.shape == (DOWNSAMPLED_ORIGINS[3], 3) == (500, 3) and full.shape[0] == 27000
+    assert len({tuple(c) for c in sub}) == 500 and np.all(state[tuple(sub.T)] == 0)
