@@ -208,6 +208,13 @@ def _card_markdown(card: dict) -> str:
     for key, label in labels.items():
         if key in card:
             lines.append(f"* **{label}**: {card[key]}")
+    if card.get("crop"):
+        lines += [
+            "",
+            f"Trained on random {card['crop']}-cell crops of the simulated grids: the network is fully "
+            "convolutional, so the weights apply to grids of any size (crops keep a training step "
+            "within this machine's budget).",
+        ]
     lines += ["", "Retrain with:", "", "```", card["command"], "```", ""]
     return "\n".join(lines)
 
