@@ -196,6 +196,23 @@ def test_planner_plans_through_the_servers(ros):
     assert not bad.success and "unknown method" in bad.message
     assert call(node, context, PlanNextBestView, "/nbv/plan", request).success  # still serving
 
+    # the default method changes at run time; a bad value is refused with a reason
+    from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue
+    from rcl_interfaces.srv import SetParameters
+
+    def set_method(value: str):
+        param = Parameter(name="method", value=ParameterValue(type=ParameterType.PARAMETER_STRING, string_value=value))
+        return call(
+            node, context, SetParameters, "/nbv_planner/set_parameters", SetParameters.Request(parameters=[param])
+        )
+
+    refused = set_method("nope").results[0]
+    assert not refused.successful and "unknown method" in refused.reason
+    assert set_method("ig").results[0].successful
+    reply = call(node, context, PlanNextBestView, "/nbv/plan", request)
+    core = GainPlanner(GAIN_METHODS["ig"]).rank(state, PlanningContext(dataset_defaults("3du"), backend="opencl"), 5)
+    np.testing.assert_allclose([v.gain for v in reply.ranked], [c.gain for c in core], rtol=1e-6)
+
 
 def test_colcon_builds_both_packages_and_runs_a_node(ros, tmp_path):
     node, graph, context = ros

@@ -56,6 +56,33 @@ def declare(
     return node.declare_parameter(name, default, desc).value
 
 
+def positive_seconds(value) -> None:
+    """Validator of :func:`allow_updates` for durations."""
+    if not (isinstance(value, float) and value > 0):
+        raise ValueError(f"expected a positive number of seconds, got {value!r}")
+
+
+def allow_updates(node: Node, validators: dict[str, Callable[[object], None]]) -> None:
+    """Let the named parameters change at run time: each new value is checked by its
+    validator (which raises ``ValueError`` to refuse it) and then set as the node attribute
+    of the same name; other parameters stay fixed."""
+    from rcl_interfaces.msg import SetParametersResult
+
+    def on_set(params) -> SetParametersResult:
+        for param in params:
+            if param.name not in validators:
+                return SetParametersResult(successful=False, reason=f"{param.name} cannot change at run time")
+            try:
+                validators[param.name](param.value)
+            except ValueError as exc:
+                return SetParametersResult(successful=False, reason=str(exc))
+        for param in params:
+            setattr(node, param.name, param.value)
+        return SetParametersResult(successful=True)
+
+    node.add_on_set_parameters_callback(on_set)
+
+
 def call_service(node: Node, client, request, timeout_s: float):
     """Call a service from inside a callback (needs a multi-threaded executor and a reentrant
     callback group on the client). Returns the response.

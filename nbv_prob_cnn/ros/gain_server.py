@@ -24,7 +24,7 @@ from nbv_prob_cnn.planners import GainPlanner, PlanningContext
 from nbv_prob_cnn.planners.methods import GainMethod, cnn_completion, probability_map
 from nbv_prob_cnn.planners.requests import gain_method, origin_filter, planning_context, view_pose
 from nbv_prob_cnn.pose_scoring import INVALID_POSE, score_poses
-from nbv_prob_cnn.ros.common import GRID_QOS, call_service, declare, run_node
+from nbv_prob_cnn.ros.common import GRID_QOS, allow_updates, call_service, declare, positive_seconds, run_node
 from nbv_prob_cnn.ros.conversions import (
     arrays_to_pose_stamped,
     grid_to_msg,
@@ -43,7 +43,7 @@ class GainServer(Node):
     def __init__(self) -> None:
         super().__init__("gain_server")
         self.dataset = declare(self, "dataset", "3dt", f"sensor/ray defaults and CNN weights: {sorted(DATASETS)}")
-        self.default_method = declare(self, "method", "prob_ig", "method when a request names none")
+        self.method = declare(self, "method", "prob_ig", "method when a request names none")
         self.backend = declare(self, "backend", "auto", f"ray-casting backend: {BACKENDS}")
         self.n_rays = declare(
             self, "n_rays", 0, "ray sub-cells per side (0 = data set default)", min_value=0, max_value=64
@@ -57,6 +57,14 @@ class GainServer(Node):
             raise ValueError(f"bad parameters: dataset={self.dataset!r}, backend={self.backend!r}")
         if self.completion_mode not in ("service", "in_process"):
             raise ValueError(f"completion: expected 'service' or 'in_process', got {self.completion_mode!r}")
+        gain_method(self.method, self.method)  # validates the default
+        allow_updates(
+            self,
+            {
+                "method": lambda value: gain_method(value, value),
+                "completion_timeout_s": positive_seconds,
+            },
+        )
         self._rng = np.random.default_rng()
         self._lock = threading.Lock()
         self._grid: VoxelGrid | None = None
@@ -65,7 +73,7 @@ class GainServer(Node):
         self._complete_client = self.create_client(CompleteGrid, "/nbv/complete", callback_group=group)
         self.create_service(EvaluateViews, "/nbv/evaluate_views", self._evaluate_views, callback_group=group)
         self.create_service(RankViews, "/nbv/rank_views", self._rank_views, callback_group=group)
-        self.get_logger().info(f"gain_server ready: dataset {self.dataset}, method {self.default_method}")
+        self.get_logger().info(f"gain_server ready: dataset {self.dataset}, method {self.method}")
 
     def _on_grid(self, msg: VoxelGrid) -> None:
         with self._lock:
@@ -104,7 +112,7 @@ class GainServer(Node):
             grid = self._latest_grid()
             state, geometry = msg_to_grid(grid)
             frame = grid.header.frame_id or self.frame_id
-            method = gain_method(request.method, self.default_method)
+            method = gain_method(request.method, self.method)
             context = planning_context(
                 self.dataset, geometry, self.backend, self.n_rays, self._rng,
                 request.hfov_deg, request.vfov_deg, request.max_range_m,
@@ -146,7 +154,7 @@ class GainServer(Node):
                     raise ValueError(f"probability grid {prob_geometry.shape} does not match grid {geometry.shape}")
                 planner = GainPlanner(GIVEN_PROBABILITY, completion=lambda state, context: given)
             else:
-                method = gain_method(request.method, self.default_method)
+                method = gain_method(request.method, self.method)
                 planner = GainPlanner(method, completion=self._completion(grid.header, geometry))
             keep = origin_filter(
                 geometry, request.use_workspace,

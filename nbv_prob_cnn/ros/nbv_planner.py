@@ -29,7 +29,7 @@ from nbv_prob_cnn.grid import unknown_fraction_all
 from nbv_prob_cnn.planners import GainPlanner
 from nbv_prob_cnn.planners.methods import DOWNSAMPLED_ORIGINS
 from nbv_prob_cnn.planners.requests import gain_method, origin_filter, planning_context, view_pose
-from nbv_prob_cnn.ros.common import GRID_QOS, call_service, declare, run_node
+from nbv_prob_cnn.ros.common import GRID_QOS, allow_updates, call_service, declare, positive_seconds, run_node
 from nbv_prob_cnn.ros.conversions import arrays_to_pose_stamped, msg_to_grid, pose_to_arrays
 from nbv_prob_cnn.ros.markers import planning_markers
 
@@ -44,7 +44,7 @@ class NbvPlanner(Node):
     def __init__(self) -> None:
         super().__init__("nbv_planner")
         self.dataset = declare(self, "dataset", "3dt", f"sensor/ray defaults and CNN weights: {sorted(DATASETS)}")
-        self.default_method = declare(self, "method", "cnn_prob", "method when a request names none")
+        self.method = declare(self, "method", "cnn_prob", "method when a request names none")
         self.in_process = declare(self, "in_process", False, "complete and ray-cast here instead of via the servers")
         self.backend = declare(self, "backend", "auto", f"ray-casting backend (in-process mode): {BACKENDS}")
         self.n_rays = declare(self, "n_rays", 0, "ray sub-cells per side (0 = default)", min_value=0, max_value=64)
@@ -69,7 +69,14 @@ class NbvPlanner(Node):
             raise ValueError(
                 f"bad parameters: dataset={self.dataset!r} backend={self.backend!r} move_mode={self.move_mode!r}"
             )
-        gain_method(self.default_method, self.default_method)  # validates the default
+        gain_method(self.method, self.method)  # validates the default
+        allow_updates(
+            self,
+            {
+                "method": lambda value: gain_method(value, value),
+                "service_timeout_s": positive_seconds,
+            },
+        )
         self._rng = np.random.default_rng()
         self._grid_lock = threading.Condition()
         self._grid: VoxelGrid | None = None
@@ -91,7 +98,7 @@ class NbvPlanner(Node):
             goal_callback=self._accept_goal, cancel_callback=lambda _: CancelResponse.ACCEPT, callback_group=group,
         )  # fmt: skip
         mode = "in-process" if self.in_process else "via /nbv/complete and /nbv/rank_views"
-        self.get_logger().info(f"nbv_planner ready: dataset {self.dataset}, method {self.default_method}, {mode}")
+        self.get_logger().info(f"nbv_planner ready: dataset {self.dataset}, method {self.method}, {mode}")
 
     # -- inputs -------------------------------------------------------------------------------
     def _on_grid(self, msg: VoxelGrid) -> None:
@@ -128,7 +135,7 @@ class NbvPlanner(Node):
             grid = self._latest_grid()
             state, geometry = msg_to_grid(grid)
             frame = grid.header.frame_id or self.frame_id
-            method = gain_method(request.method, self.default_method)
+            method = gain_method(request.method, self.method)
             context = planning_context(self.dataset, geometry, self.backend, self.n_rays, self._rng)
             box_min = np.array([request.workspace_min.x, request.workspace_min.y, request.workspace_min.z])
             box_max = np.array([request.workspace_max.x, request.workspace_max.y, request.workspace_max.z])
