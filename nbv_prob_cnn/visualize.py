@@ -25,12 +25,21 @@ def _state_image_2d(state: np.ndarray, truth: np.ndarray | None) -> np.ndarray:
 
 def _projection_image(state: np.ndarray, hidden_axis: int) -> np.ndarray:
     """RGB projection along one axis: brightness = share of known cells along the line of
-    sight, red where an observed occupied cell lies on it."""
+    sight, red where an observed occupied cell lies on it. Seen from above (along z), occupied
+    columns are coloured by the height of their highest observed occupied cell instead."""
+    from matplotlib import colormaps
+
     known = 1.0 - np.mean(state == -1, axis=hidden_axis)
     occupied = np.any(state == 1, axis=hidden_axis)
     grey = 0.15 + 0.85 * known
     rgb = np.stack([grey, grey, grey], axis=-1)
-    rgb[occupied] = np.stack([0.5 + 0.5 * grey[occupied], 0.15 * grey[occupied], 0.15 * grey[occupied]], axis=-1)
+    if hidden_axis == 2:
+        top = state.shape[2] - 1 - np.argmax((state == 1)[:, :, ::-1], axis=2)
+        heights = top[occupied].astype(float)
+        span = max(1.0, heights.max() - heights.min()) if heights.size else 1.0
+        rgb[occupied] = colormaps["plasma"]((heights - (heights.min() if heights.size else 0)) / span)[:, :3]
+    else:
+        rgb[occupied] = np.stack([0.5 + 0.5 * grey[occupied], 0.15 * grey[occupied], 0.15 * grey[occupied]], axis=-1)
     return rgb
 
 
@@ -68,7 +77,8 @@ def plot_views(
             ax.plot(cells[:, a], cells[:, b], "o", color="gold", ms=3)
             ax.set_xlabel(f"{_AXES[a]} (cells)")
             ax.set_ylabel(f"{_AXES[b]} (cells)")
-            ax.set_title(f"along {_AXES[hidden]}: bright = known, red = seen occupied", fontsize=9)
+            seen = "colour = height of seen occupied" if hidden == 2 else "red = seen occupied"
+            ax.set_title(f"along {_AXES[hidden]}: bright = known, {seen}", fontsize=9)
     if curve is not None:
         ax = axes[-1]
         ax.plot(curve[0], [100 * f for f in curve[1]], "-o", ms=3)
