@@ -1,15 +1,20 @@
 """Install script for nbv_prob_cnn (ament_python layout, also a plain pip package)."""
 
+import runpy
+from pathlib import Path
+
 from setuptools import find_packages, setup
 
 PACKAGE = "nbv_prob_cnn"
-NODES = ("sim_camera", "integrator", "bag_replay", "bag_record", "completion_server", "gain_server", "nbv_planner")
+NODES = runpy.run_path(str(Path(__file__).parent / PACKAGE / "ros" / "__init__.py"))["NODES"]
 
 setup(
     name=PACKAGE,
     version="0.1.0",
     packages=find_packages(exclude=["test", "test.*"]),
-    package_data={PACKAGE: ["*.cl", "gain/*.cl", "ros/*.xml", "weights/*.pt", "weights/*.md", "weights/*.csv", "weights/*.png"]},
+    package_data={
+        PACKAGE: ["*.cl", "gain/*.cl", "ros/*.xml", "weights/*.pt", "weights/*.md", "weights/*.csv", "weights/*.png"]
+    },
     data_files=[
         ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
         (f"share/{PACKAGE}", ["package.xml"]),

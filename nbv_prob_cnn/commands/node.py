@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import argparse
 import importlib
-import pkgutil
 import sys
 
 NAME = "node"
@@ -12,12 +11,9 @@ HELP = "Run a ROS 2 node of this package, e.g. `nbv node nbv_planner --ros-args 
 
 
 def available_nodes() -> list[str]:
-    import nbv_prob_cnn.ros as ros
+    from nbv_prob_cnn.ros import NODES
 
-    skip = {"common", "conversions", "explore_client", "graph", "latency_benchmark", "markers"}
-    return sorted(
-        m.name for m in pkgutil.iter_modules(ros.__path__) if m.name not in skip and not m.name.startswith("_")
-    )
+    return sorted(NODES)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
