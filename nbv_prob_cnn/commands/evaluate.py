@@ -15,7 +15,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     from nbv_prob_cnn.evaluation import DEFAULT_SEEDS
 
     parser.add_argument("--dataset", choices=sorted(DATASETS), required=True)
-    parser.add_argument("--methods", nargs="+", default=["random", "prob_ig", "cnn_prob", "cnn_prob_d", "omniscient"])
+    parser.add_argument(
+        "--methods", nargs="+", default=["random", "ig", "prob_ig", "cnn_prob", "cnn_prob_d", "omniscient"]
+    )
     parser.add_argument("--seeds", nargs="+", type=int, default=list(DEFAULT_SEEDS), help="environment seeds")
     parser.add_argument("--views", type=int, default=50)
     parser.add_argument("--at", nargs="+", type=int, default=[20, 50], help="table columns: after N views")
