@@ -33,6 +33,9 @@ from nbv_prob_cnn.grid import EMPTY, OCCUPIED, UNKNOWN
 #: original implementation ran with).
 LEAKY_SLOPE = 0.3
 
+#: Initial bias of the final 1×1 conv: logit(0.15), so an untrained network outputs P0.
+PRIOR_LOGIT = float(np.log(0.15 / 0.85))
+
 #: Default width of the first conv block per dimensionality (SPEC §3).
 DEFAULT_FIRST_CHANNELS = {2: 8, 3: 16}
 
@@ -112,6 +115,11 @@ class CompletionNet(nn.Module):
             )
             c_in = widths[i] + skip_channels[i]
         self.final = conv(c_in, 1, kernel_size=1)
+        # Start at the prior occupancy (the P0 of Prob. IG) instead of 0.5: with a sigmoid under
+        # an MSE loss, the first Adam steps otherwise push the sparse-occupancy 3D grids into a
+        # saturated all-empty output whose gradients vanish (seen on 3DU: training stalled at
+        # the MSE of predicting 0 everywhere).
+        nn.init.constant_(self.final.bias, PRIOR_LOGIT)
 
     @property
     def multiple(self) -> int:
