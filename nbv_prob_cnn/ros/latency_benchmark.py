@@ -17,8 +17,8 @@ from nbv_prob_cnn.ros.graph import NodeGraph, ros_environment, wait_for
 
 
 def ros_latency_benchmark(dataset: str = "3du", method: str = "cnn_prob", seed: int = 1000, repeats: int = 5) -> str:
-    """Median ``/nbv/plan`` round trip vs in-process planning on a ~50 % explored grid; a
-    markdown table."""
+    """Median ``/nbv/plan`` round trip vs in-process planning on a ~50 % explored grid, measured
+    alternately; a markdown table."""
     import rclpy
     from nbv_prob_cnn_msgs.msg import VoxelGrid
     from nbv_prob_cnn_msgs.srv import PlanNextBestView
@@ -35,11 +35,11 @@ def ros_latency_benchmark(dataset: str = "3du", method: str = "cnn_prob", seed: 
     planner = GainPlanner(GAIN_METHODS[method])
     context = PlanningContext(defaults, rng=np.random.default_rng(0), backend="opencl")
     planner.rank(state, context, 20)  # warm-up: model load, kernel build
-    local = []
-    for _ in range(repeats):
+
+    def in_process() -> float:
         start = time.perf_counter()
-        planner.rank(state, context, 20)
-        local.append(time.perf_counter() - start)
+        planner.rank(state, context, 20)  # the planner node asks the servers for its 20 markers too
+        return time.perf_counter() - start
 
     env = ros_environment()
     os.environ.update(env)
@@ -62,7 +62,11 @@ def ros_latency_benchmark(dataset: str = "3du", method: str = "cnn_prob", seed: 
         try:
             if not client.wait_for_service(timeout_sec=60) or not wait_for(lambda: round_trip()[1], 120, 0.5):
                 raise RuntimeError("the planning graph did not answer /nbv/plan")
-            remote = [t for t, _ in (round_trip() for _ in range(repeats))]
+            # alternate the two so that background load affects both alike
+            local, remote = [], []
+            for _ in range(repeats):
+                local.append(in_process())
+                remote.append(round_trip()[0])
         finally:
             node.destroy_node()
             rclpy.try_shutdown()
