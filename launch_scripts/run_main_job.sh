@@ -1,10 +1,11 @@
 #!/usr/bin/env bash
-# Set up (idempotent) and run the main job: a simulated exploration of a default 3D
-# tabletop scene with the probabilistic planner. Results go to out/main_job/.
+# Set up (idempotent) and run the main job: the full simulated ROS 2 graph
+# (sim_camera -> integrator -> nbv_planner + completion_server + gain_server) explores the
+# held-out tabletop scene of seed 1000 through the Explore action with the paper's method
+# (cnn_prob), 10 views. Results: out/main_job/views.csv, explored.png, grid.npz, logs/.
 set -euo pipefail
 repo="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 bash "$repo/launch_scripts/setup.sh"
 cd "$repo"
-mkdir -p out/main_job
-exec "$repo/.venv/bin/nbv" explore --dataset 3dt --method prob_ig --views 20 --seed 1000 \
-  --log out/main_job/explore.csv --png out/main_job/explore.png "$@"
+exec "$repo/.venv/bin/python" launch_scripts/explore_sim.py --dataset 3dt --seed 1000 --views 10 \
+  --method cnn_prob --out out/main_job "$@"

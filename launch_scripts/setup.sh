@@ -30,7 +30,8 @@ if [ ! -x "$venv/bin/python" ]; then
 fi
 echo "[setup] installing pinned dependencies (requirements.txt)"
 "$venv/bin/python" -m pip install -q --disable-pip-version-check -r requirements.txt
-"$venv/bin/python" -m pip install -q --disable-pip-version-check --no-deps -e .
+"$venv/bin/python" -m pip install -q --disable-pip-version-check --no-deps -e . 2>"$venv/.nbv_install.log" \
+  || { cat "$venv/.nbv_install.log"; exit 1; }
 VIRTUAL_ENV="$venv" bash "$repo/launch_scripts/build_interfaces.sh"
 echo "$want" > "$stamp"
 echo "[setup] done"
