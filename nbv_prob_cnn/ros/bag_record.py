@@ -20,7 +20,6 @@ from typing import Any
 
 from geometry_msgs.msg import TransformStamped
 from rclpy.node import Node
-from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import CameraInfo, Image
 
 from nbv_prob_cnn.perception.bags import (
@@ -33,7 +32,7 @@ from nbv_prob_cnn.perception.bags import (
     BagError,
     typestore,
 )
-from nbv_prob_cnn.ros.common import descriptor, run_node
+from nbv_prob_cnn.ros.common import declare_subscription_qos, descriptor, run_node
 
 NODE_NAME = "bag_record"
 #: topic -> (rclpy class, rosbag2 type name)
@@ -52,28 +51,13 @@ class BagRecord(Node):
         output = self.declare_parameter(
             "output", "", descriptor("new rosbag2 directory to create (required; never overwritten)")
         ).value
-        queue_size = self.declare_parameter(
-            "queue_size", 100, descriptor("depth of the subscriptions", int_range=(1, 10000))
-        ).value
-        reliability = self.declare_parameter(
-            "qos_reliability",
-            "reliable",
-            descriptor("subscriptions: 'reliable' or 'best_effort' (for sensor_data publishers)"),
-        ).value
+        qos = declare_subscription_qos(self, 100, "subscriptions")
         if not output:
             raise ValueError("parameter 'output' is required (path of the new bag directory)")
-        if reliability not in ("reliable", "best_effort"):
-            raise ValueError(f"qos_reliability: expected 'reliable' or 'best_effort', got {reliability!r}")
         self.path = Path(output).expanduser()
         self.counts: Counter[str] = Counter()
         self._writer = self._open_writer()
         self._connections: dict[str, Any] = {}
-        qos = QoSProfile(
-            history=HistoryPolicy.KEEP_LAST,
-            depth=int(queue_size),
-            reliability=ReliabilityPolicy.RELIABLE if reliability == "reliable" else ReliabilityPolicy.BEST_EFFORT,
-            durability=DurabilityPolicy.VOLATILE,
-        )
         store = typestore()
         for default_topic, (msg_class, msgtype) in TOPICS.items():
             topic = self.resolve_topic_name(default_topic)  # recorded under its remapped name

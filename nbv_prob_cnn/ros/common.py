@@ -83,6 +83,28 @@ def allow_updates(node: Node, validators: dict[str, Callable[[object], None]]) -
     node.add_on_set_parameters_callback(on_set)
 
 
+def declare_subscription_qos(node: Node, default_depth: int, what: str) -> QoSProfile:
+    """Declare ``queue_size`` and ``qos_reliability`` (``reliable``/``best_effort``) for a node's
+    input subscriptions and return the resulting volatile QoS profile.
+
+    Raises:
+        ValueError: an unknown reliability name.
+    """
+    depth = node.declare_parameter(
+        "queue_size", default_depth, descriptor(f"depth of the {what}", int_range=(1, 10000))
+    ).value
+    reliability = node.declare_parameter(
+        "qos_reliability", "reliable", descriptor(f"{what}: 'reliable' or 'best_effort' (for sensor_data publishers)")
+    ).value
+    if reliability not in ("reliable", "best_effort"):
+        raise ValueError(f"qos_reliability: expected 'reliable' or 'best_effort', got {reliability!r}")
+    return QoSProfile(
+        depth=int(depth),
+        reliability=ReliabilityPolicy.RELIABLE if reliability == "reliable" else ReliabilityPolicy.BEST_EFFORT,
+        durability=DurabilityPolicy.VOLATILE,
+    )
+
+
 def call_service(node: Node, client, request, timeout_s: float):
     """Call a service from inside a callback (needs a multi-threaded executor and a reentrant
     callback group on the client). Returns the response.

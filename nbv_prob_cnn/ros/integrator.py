@@ -51,7 +51,6 @@ from nbv_prob_cnn_msgs.msg import VoxelGrid
 from nbv_prob_cnn_msgs.srv import SaveGrid
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
 from rclpy.node import Node
-from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import CameraInfo, Image
 from std_srvs.srv import Trigger
 
@@ -78,7 +77,7 @@ from nbv_prob_cnn.perception.tsdf import (
     DEFAULT_VOXEL_M,
     TsdfIntegrator,
 )
-from nbv_prob_cnn.ros.common import descriptor, run_node
+from nbv_prob_cnn.ros.common import GRID_QOS, declare_subscription_qos, descriptor, run_node
 from nbv_prob_cnn.ros.conversions import grid_to_msg
 
 NODE_NAME = "integrator"
@@ -255,14 +254,7 @@ class Integrator(Node):
             True,
             descriptor("when integration falls behind, only the newest waiting frame is kept (false: all, in order)"),
         ).value
-        queue_size = self.declare_parameter(
-            "queue_size", 10, descriptor("depth of the camera subscriptions", int_range=(1, 10000))
-        ).value
-        reliability = self.declare_parameter(
-            "qos_reliability",
-            "reliable",
-            descriptor("camera subscriptions: 'reliable' or 'best_effort' (for sensor_data publishers)"),
-        ).value
+        camera_qos = declare_subscription_qos(self, 10, "camera subscriptions")
 
         if (
             not isinstance(origin, list | tuple)
@@ -272,8 +264,6 @@ class Integrator(Node):
             raise ValueError(f"origin: expected 3 numbers [m], got {origin!r}")
         if len(shape) != 3 or min(shape) < 1:
             raise ValueError(f"shape: expected 3 positive sizes, got {list(shape)}")
-        if reliability not in ("reliable", "best_effort"):
-            raise ValueError(f"qos_reliability: expected 'reliable' or 'best_effort', got {reliability!r}")
         self.geometry = GridGeometry(tuple(float(v) for v in origin), float(voxel), tuple(int(v) for v in shape))
         self._tsdf = TsdfIntegrator(
             origin_m=np.array(self.geometry.origin),
@@ -299,19 +289,7 @@ class Integrator(Node):
         self.counts = dict.fromkeys(("images", "integrated", "dropped_behind", "unpaired", "rejected", "grids"), 0)
         self._store = typestore()
 
-        grid_qos = QoSProfile(
-            history=HistoryPolicy.KEEP_LAST,
-            depth=1,
-            reliability=ReliabilityPolicy.RELIABLE,
-            durability=DurabilityPolicy.TRANSIENT_LOCAL,
-        )
-        self._grid_pub = self.create_publisher(VoxelGrid, TOPIC_GRID, grid_qos)
-        camera_qos = QoSProfile(
-            history=HistoryPolicy.KEEP_LAST,
-            depth=int(queue_size),
-            reliability=ReliabilityPolicy.RELIABLE if reliability == "reliable" else ReliabilityPolicy.BEST_EFFORT,
-            durability=DurabilityPolicy.VOLATILE,
-        )
+        self._grid_pub = self.create_publisher(VoxelGrid, TOPIC_GRID, GRID_QOS)
         inputs = MutuallyExclusiveCallbackGroup()
         services = MutuallyExclusiveCallbackGroup()
         self.create_subscription(Image, TOPIC_IMAGE, self._on_image, camera_qos, callback_group=inputs, raw=True)

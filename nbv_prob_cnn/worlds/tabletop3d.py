@@ -129,9 +129,7 @@ def generate(seed: int, generator_version: int) -> World:
     grid, table = make_table(rng)
     meshes = place_objects(rng, table["height_m"])
     origin = np.zeros(3)
-    for m in meshes:
-        lo, mask = ycb.voxelize(m.name, m.transform, SHAPE, RESOLUTION, origin)
-        ycb.paint(grid, lo, mask)
+    ycb.paint_meshes(grid, meshes, RESOLUTION, origin)
     return World(
         dataset="3dt",
         seed=seed,

@@ -53,9 +53,7 @@ def generate(seed: int, generator_version: int) -> World:
     meshes = place_objects(rng)
     grid = np.zeros(SHAPE, dtype=np.uint8)
     origin = np.zeros(3)
-    for m in meshes:
-        lo, mask = ycb.voxelize(m.name, m.transform, SHAPE, RESOLUTION, origin)
-        ycb.paint(grid, lo, mask)
+    ycb.paint_meshes(grid, meshes, RESOLUTION, origin)
     return World(
         dataset="3du",
         seed=seed,

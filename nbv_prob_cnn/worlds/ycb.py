@@ -166,6 +166,13 @@ def paint(grid: np.ndarray, lo: np.ndarray, mask: np.ndarray) -> None:
     grid[sl] |= mask.astype(grid.dtype)
 
 
+def paint_meshes(grid: np.ndarray, meshes, resolution: float, origin: np.ndarray) -> None:
+    """Solid-voxelize every :class:`PlacedMesh` into ``grid`` (set to 1)."""
+    for m in meshes:
+        lo, mask = voxelize(m.name, m.transform, grid.shape, resolution, origin)
+        paint(grid, lo, mask)
+
+
 def random_rotation(rng: np.random.Generator) -> np.ndarray:
     """A uniformly distributed random 3x3 rotation matrix (normalized 4-D Gaussian quaternion)."""
     q = rng.standard_normal(4)
