@@ -98,9 +98,9 @@ def save_plots(logs: dict[str, list[RunLog]], views: int, dataset: str, out: Pat
         curves = padded([r.unknown_fraction for r in runs], views) * 100
         x = np.arange(1, views + 1)
         ax_curve.plot(x, curves.mean(axis=0), label=method)
-        ax_curve.fill_between(
-            x, curves.mean(axis=0) - curves.std(axis=0), curves.mean(axis=0) + curves.std(axis=0), alpha=0.15
-        )
+        low = np.clip(curves.mean(axis=0) - curves.std(axis=0), 0, 100)
+        high = np.clip(curves.mean(axis=0) + curves.std(axis=0), 0, 100)
+        ax_curve.fill_between(x, low, high, alpha=0.15)
         explored = np.concatenate([100 * (1 - r.unknown_fraction_all[:-1]) for r in runs])
         times = np.concatenate([r.time_total_s[1:] for r in runs])
         ax_time.plot(explored, times, ".", ms=3, label=method)
