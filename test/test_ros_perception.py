@@ -27,7 +27,6 @@ from geometry_msgs.msg import PoseStamped, TransformStamped  # noqa: E402
 from nbv_prob_cnn_msgs.msg import VoxelGrid  # noqa: E402
 from nbv_prob_cnn_msgs.srv import MoveCamera, SaveGrid  # noqa: E402
 from rclpy.executors import SingleThreadedExecutor  # noqa: E402
-from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy  # noqa: E402
 from sensor_msgs.msg import CameraInfo, Image  # noqa: E402
 from std_srvs.srv import Trigger  # noqa: E402
 
@@ -49,6 +48,7 @@ from nbv_prob_cnn.perception.bags import (  # noqa: E402
     read_frames,
     typestore,
 )
+from nbv_prob_cnn.ros.common import GRID_QOS  # noqa: E402
 from nbv_prob_cnn.ros.conversions import msg_to_grid  # noqa: E402
 from nbv_prob_cnn.ros.graph import NodeGraph, leaked_segments, ros_environment, shm_segments, wait_for  # noqa: E402
 
@@ -113,13 +113,7 @@ class RosClient:
         self.executor.add_node(self.node)
         self.grid: VoxelGrid | None = None
         self.grids = 0
-        qos = QoSProfile(
-            history=HistoryPolicy.KEEP_LAST,
-            depth=1,
-            reliability=ReliabilityPolicy.RELIABLE,
-            durability=DurabilityPolicy.TRANSIENT_LOCAL,
-        )
-        self.node.create_subscription(VoxelGrid, "/nbv/grid", self._on_grid, qos)
+        self.node.create_subscription(VoxelGrid, "/nbv/grid", self._on_grid, GRID_QOS)
 
     def _on_grid(self, msg: VoxelGrid) -> None:
         self.grid = msg
