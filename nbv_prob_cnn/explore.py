@@ -11,7 +11,6 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from nbv_prob_cnn.camera import yaw_quaternion
 from nbv_prob_cnn.grid import unknown_fraction, unknown_fraction_all
 from nbv_prob_cnn.observe import observe
 from nbv_prob_cnn.planners import Planner, PlanningContext, ViewChoice
@@ -63,19 +62,6 @@ class ExplorationResult:
     stop_reason: str
 
 
-def cell_to_metres(world: World, cell: np.ndarray) -> np.ndarray:
-    """Centre of a cell in world metres, always 3 components (z = 0 in 2D)."""
-    xyz = np.zeros(3)
-    xyz[: world.dims] = np.asarray(world.origin, dtype=np.float64)[: world.dims] + (cell + 0.5) * world.resolution
-    return xyz
-
-
-def view_quaternion(context: PlanningContext, view_index: int) -> np.ndarray:
-    """Quaternion (x, y, z, w) of a candidate orientation (2D: the yaw about +z)."""
-    orientation = context.orientations[view_index]
-    return yaw_quaternion(float(orientation)) if context.defaults.dims == 2 else np.asarray(orientation, dtype=float)
-
-
 def first_view(world: World, context: PlanningContext) -> ViewChoice:
     """A random ground-truth-empty cell and a random candidate orientation."""
     free = np.argwhere(world.ground_truth == 0)
@@ -96,6 +82,7 @@ def explore(
     if views < 1:
         raise ValueError(f"views: expected at least 1 view, got {views}")
     state = np.full(world.shape, -1, dtype=np.int8)
+    geometry = world.geometry
     records: list[IterationRecord] = []
     stop_reason = f"reached {views} views"
     bar = tqdm(total=views, desc=f"{world.dataset} {planner.name}", unit="view", disable=not progress)
@@ -122,8 +109,8 @@ def explore(
                 time_raycast_s=choice.times["raycast"],
                 time_views_s=choice.times["views"],
                 cell=np.asarray(choice.cell).copy(),
-                position_m=cell_to_metres(world, choice.cell),
-                quaternion=view_quaternion(context, choice.view_index),
+                position_m=geometry.cell_centre(choice.cell),
+                quaternion=context.view_quaternion(choice.view_index),
             )
         )
         bar.update(1)

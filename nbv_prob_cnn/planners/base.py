@@ -8,7 +8,7 @@ from typing import Protocol
 
 import numpy as np
 
-from nbv_prob_cnn.camera import DatasetDefaults, Sensor, dataset_defaults, orientations
+from nbv_prob_cnn.camera import DatasetDefaults, Sensor, dataset_defaults, orientations, yaw_quaternion
 from nbv_prob_cnn.gain import empty_origins, ray_directions, ray_gains, view_membership
 
 #: Upper bound on origins × rays per ray-casting call (bounds memory for N_rays = 16).
@@ -50,6 +50,13 @@ class PlanningContext:
     @property
     def active_sensor(self) -> Sensor:
         return self.sensor or self.defaults.sensor
+
+    def view_quaternion(self, view_index: int) -> np.ndarray:
+        """Quaternion (x, y, z, w) of a candidate orientation (2D: the yaw about +z)."""
+        orientation = self.orientations[view_index]
+        if self.defaults.dims == 2:
+            return yaw_quaternion(float(orientation))
+        return np.asarray(orientation, dtype=np.float64)
 
     def candidate_origins(self, state: np.ndarray) -> np.ndarray:
         """Empty cells, on the data set's origin stride (1/8 of the cells on 3DT)."""

@@ -9,7 +9,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from nbv_prob_cnn.camera import dataset_defaults, yaw_quaternion
+from nbv_prob_cnn.camera import dataset_defaults
 from nbv_prob_cnn.geometry import GridGeometry
 from nbv_prob_cnn.planners import GAIN_METHODS, GainMethod, PlanningContext, ViewChoice
 
@@ -82,7 +82,4 @@ def origin_filter(
 
 def view_pose(choice: ViewChoice, context: PlanningContext, geometry: GridGeometry) -> tuple[np.ndarray, np.ndarray]:
     """Camera position (metres, cell centre) and optical-frame quaternion of a chosen view."""
-    position = geometry.cell_centre(choice.cell)
-    orientation = context.orientations[choice.view_index]
-    quat = yaw_quaternion(float(orientation)) if geometry.dims == 2 else np.asarray(orientation, dtype=np.float64)
-    return position, quat
+    return geometry.cell_centre(choice.cell), context.view_quaternion(choice.view_index)

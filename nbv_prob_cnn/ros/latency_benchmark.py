@@ -11,7 +11,6 @@ import numpy as np
 
 from nbv_prob_cnn.benchmark import half_explored
 from nbv_prob_cnn.camera import dataset_defaults
-from nbv_prob_cnn.geometry import GridGeometry
 from nbv_prob_cnn.planners import GAIN_METHODS, GainPlanner, PlanningContext
 from nbv_prob_cnn.ros.graph import NodeGraph, ros_environment, wait_for
 
@@ -30,7 +29,7 @@ def ros_latency_benchmark(dataset: str = "3du", method: str = "cnn_prob", seed: 
     world = load_or_generate(dataset, seed)
     defaults = dataset_defaults(dataset)
     state = half_explored(world, PlanningContext(defaults, rng=np.random.default_rng(seed)))
-    geometry = GridGeometry(tuple(float(v) for v in world.origin), world.resolution, world.shape)
+    geometry = world.geometry
 
     planner = GainPlanner(GAIN_METHODS[method])
     context = PlanningContext(defaults, rng=np.random.default_rng(0), backend="opencl")

@@ -55,6 +55,15 @@ class World:
     def dims(self) -> int:
         return self.ground_truth.ndim
 
+    @property
+    def geometry(self):
+        """The grid's :class:`~nbv_prob_cnn.geometry.GridGeometry` (origin padded to 3D with 0)."""
+        from nbv_prob_cnn.geometry import GridGeometry
+
+        origin = np.zeros(3)
+        origin[: self.dims] = np.asarray(self.origin, dtype=np.float64)[: self.dims]
+        return GridGeometry(tuple(float(v) for v in origin), float(self.resolution), self.shape)
+
     def triangle_meshes(self) -> list[trimesh.Trimesh]:
         """The scene as ``trimesh.Trimesh`` objects in world metres (for ray casting a depth camera):
         every placed object moved by its transform, plus, when there is a table, its surface with
