@@ -12,65 +12,20 @@ Conventions:
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 
 import numpy as np
 
+from nbv_prob_cnn.datasets import DATASET_SPECS, DatasetSpec, dataset_spec
+from nbv_prob_cnn.sensor import Sensor as Sensor  # re-exported
 
-@dataclass(frozen=True)
-class Sensor:
-    """Depth sensor parameters. Ranges are in cells."""
-
-    hfov_deg: float
-    vfov_deg: float | None
-    r_max: int
-    min_range: float = 0.0
-    width_px: int = 0
-    height_px: int = 0
-    focal_px: float = 0.0
+#: The data sets' parameters now live in :mod:`nbv_prob_cnn.datasets`; these names are kept for callers.
+DatasetDefaults = DatasetSpec
+DATASETS: dict[str, DatasetSpec] = DATASET_SPECS
 
 
-@dataclass(frozen=True)
-class DatasetDefaults:
-    """SPEC §7 defaults of one data set."""
-
-    name: str
-    dims: int
-    shape: tuple[int, ...]
-    resolution_m: float
-    sensor: Sensor
-    n_rays: int
-    n_conv: int
-    p0: float = 0.15
-    origin_stride: int = 1
-
-
-DATASETS: dict[str, DatasetDefaults] = {
-    "2d": DatasetDefaults(
-        "2d", 2, (400, 400), 1.2, Sensor(60.0, None, 128, width_px=520, height_px=1, focal_px=450.0), 16, 6
-    ),
-    "3du": DatasetDefaults(
-        "3du", 3, (64, 64, 64), 0.0116, Sensor(60.0, 46.0, 24, width_px=32, height_px=24, focal_px=28.0), 4, 3
-    ),
-    "3dt": DatasetDefaults(
-        "3dt",
-        3,
-        (128, 128, 96),
-        0.0116,
-        Sensor(60.0, 46.0, 128, width_px=128, height_px=96, focal_px=112.0),
-        4,
-        4,
-        origin_stride=2,
-    ),
-}
-
-
-def dataset_defaults(name: str) -> DatasetDefaults:
-    """Look up the defaults of a data set by name (``2d``, ``3du``, ``3dt``)."""
-    try:
-        return DATASETS[name]
-    except KeyError:
-        raise ValueError(f"dataset: unknown data set {name!r}; expected one of {sorted(DATASETS)}") from None
+def dataset_defaults(name: str) -> DatasetSpec:
+    """Look up the defaults of a data set by name (``2d``, ``3du``, ``3dt``); see :func:`dataset_spec`."""
+    return dataset_spec(name)
 
 
 def quaternion_from_matrix(rot: np.ndarray) -> np.ndarray:

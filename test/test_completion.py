@@ -191,7 +191,7 @@ def test_save_load_identical_output(tmp_path, tiny3d):
 
 
 def test_missing_weights(tmp_path):
-    path = tmp_path / "nowhere" / "3dt.pt"
+    path = tmp_path / "nowhere" / "3dt_cnn_prob.pt"
     with pytest.raises(WeightsError) as err:
         load_model(path)
     assert str(path) in str(err.value) and "nbv train --dataset 3dt" in str(err.value)
@@ -348,9 +348,10 @@ def test_sample_cache_round_trip(tmp_path, monkeypatch):
 
 
 def test_seed_split():
-    assert len(data_mod.TRAIN_SEEDS) == 120 and len(data_mod.TEST_SEEDS) == 60
-    assert not set(data_mod.TRAIN_SEEDS) & set(data_mod.TEST_SEEDS)
-    assert max(data_mod.TRAIN_SEEDS + data_mod.TEST_SEEDS) < data_mod.USER_SEED_START
+    train, val, test = data_mod.TRAIN_SEEDS, data_mod.VALIDATION_SEEDS, data_mod.TEST_SEEDS
+    assert (len(train), len(val), len(test)) == (100, 20, 60)
+    assert len(set(train) | set(val) | set(test)) == 180 == data_mod.N_ENVIRONMENTS
+    assert max(train + val + test) < data_mod.USER_SEED_START
 
 
 def test_train_end_to_end_and_resume(tmp_path, monkeypatch):

@@ -46,7 +46,7 @@ def test_cnn_methods_refuse_missing_weights(rng, monkeypatch, tmp_path):
     from nbv_prob_cnn.planners import make_planner
 
     missing = tmp_path / "3du.pt"
-    monkeypatch.setattr(inference, "default_weights_path", lambda dataset: missing)
+    monkeypatch.setattr(inference, "default_weights_path", lambda dataset, model="cnn_prob": missing)
     state, _ = _grid(rng)
     for method in ("cnn_prob", "cnn_prob_d"):
         with pytest.raises(WeightsError) as info:
@@ -63,3 +63,56 @@ def test_downsampled_method_evaluates_a_fixed_number_of_origins(rng):
     full = method_origins(GAIN_METHODS["cnn_prob"], state, context)
     assert sub.shape == (DOWNSAMPLED_ORIGINS[3], 3) == (500, 3) and full.shape[0] == 27000
     assert len({tuple(c) for c in sub}) == 500 and np.all(state[tuple(sub.T)] == 0)
+
+
+def test_registry_is_the_one_list_of_methods():
+    from nbv_prob_cnn.planners import METHODS, PLANNER_FACTORIES, make_planner, ros_method
+
+    paper = {"random", "ig", "prob_ig", "cnn_prob", "cnn_prob_d", "omniscient"}
+    paper |= {"flat_city_cnn", "b_city_cnn", "d_city_cnn"}
+    assert set(METHODS) == paper == set(PLANNER_FACTORIES)
+    assert all(make_planner(name).name == name for name in METHODS)
+    assert [n for n, s in METHODS.items() if s.needs_ground_truth] == ["omniscient"]
+    assert METHODS["cnn_prob_d"].weights == "cnn_prob" and METHODS["prob_ig"].weights is None
+    assert ros_method("", "prob").name == "cnn_prob" and ros_method("d_city_cnn", "ig").name == "d_city_cnn"
+    with pytest.raises(ValueError, match="unknown method 'omniscient'"):
+        ros_method("omniscient", "ig")
+
+
+@pytest.mark.parametrize("method", ["cnn_prob", "cnn_prob_d", "prob_ig"])
+def test_remote_hooks_give_the_core_result(rng, method):
+    """The ROS path (completion and ranking hooks, the gain server's function) equals the core path."""
+    from nbv_prob_cnn.planners import make_planner
+    from nbv_prob_cnn.planners.requests import rank_for_request
+
+    spec = DatasetDefaults("3du", 3, (30, 30, 30), 0.01, Sensor(60.0, 46.0, 6), 4, 3)
+    state = rng.choice(np.array([-1, 0, 1], dtype=np.int8), size=spec.shape, p=[0.3, 0.69, 0.01])
+    fake_cnn = rng.uniform(0.0, 1.0, spec.shape).astype(np.float32)
+    completion = lambda s, c: np.where(s == -1, fake_cnn, (s == 1).astype(np.float32))  # noqa: E731
+    box = lambda origins: origins[np.all(origins < 20, axis=1)]  # noqa: E731  (8000 cells > 500)
+    local = PlanningContext(spec, rng=np.random.default_rng(5), backend="opencl", completion=completion)
+    expected = make_planner(method).rank(state, local, 7, box)
+
+    sent = []
+
+    def ranker(name, grid, prob, top_k):
+        sent.append((name, prob))
+        server = PlanningContext(spec, rng=np.random.default_rng(5), backend="opencl")
+        return rank_for_request(name, "ig", grid, server, top_k, box, prob)
+
+    remote = PlanningContext(spec, backend="opencl", completion=completion, ranker=ranker)
+    got = make_planner(method).rank(state, remote, 7, None)
+    assert [(tuple(c.cell), c.view_index, c.gain) for c in got] == [
+        (tuple(c.cell), c.view_index, c.gain) for c in expected
+    ]
+    assert all(np.all(c.cell < 20) for c in got) and len(got) == 7
+    assert sent[0][0] == method and (sent[0][1] is None) == (method == "prob_ig")
+
+
+def test_downsampled_origins_are_drawn_inside_the_filter():
+    from nbv_prob_cnn.planners.methods import GAIN_METHODS, method_origins
+
+    state = np.zeros((30, 30, 30), dtype=np.int8)
+    context = PlanningContext(DatasetDefaults("3du", 3, (30, 30, 30), 0.01, Sensor(60.0, 46.0, 8), 4, 3))
+    kept = method_origins(GAIN_METHODS["cnn_prob_d"], state, context, lambda o: o[o[:, 0] < 10])
+    assert kept.shape == (500, 3) and np.all(kept[:, 0] < 10)

@@ -1,9 +1,12 @@
-"""Running the completion CNN: weights files, model cache and :func:`complete`.
+"""Running the trained networks: weights files, model cache and :func:`complete`.
 
 A weights file is a ``torch.save`` of ``{"state_dict", "config": {dims, n_conv,
-first_channels, dataset}, "card": {...}}``. The shipped weights live in
-``nbv_prob_cnn/weights/<dataset>.pt``. Missing or incompatible weights raise
-:class:`WeightsError` with the command that retrains them; there is no silent fallback.
+first_channels, dataset, [model, out_channels, head, removed_deconv, extra_deconv]}, "card": {...}}``.
+Weights are named per model: ``nbv_prob_cnn/weights/<dataset>_<model>.pt`` where ``<model>`` is
+a method's :attr:`~nbv_prob_cnn.planners.registry.MethodSpec.weights` (``cnn_prob`` for the
+completion CNN, ``flat_city_cnn``, ``b_city_cnn``, ``d_city_cnn``). Missing or incompatible
+weights raise :class:`WeightsError` with the command that retrains them; there is no silent
+fallback.
 """
 
 from __future__ import annotations
@@ -20,6 +23,9 @@ from nbv_prob_cnn.completion.model import CompletionNet, encode_state
 from nbv_prob_cnn.grid import OCCUPIED, UNKNOWN, check_state
 
 _CONFIG_KEYS = ("dims", "n_conv", "first_channels", "dataset")
+_ARCHITECTURE_KEYS = ("out_channels", "head", "removed_deconv", "extra_deconv")
+#: Model name of the completion CNN (the ``<model>`` of its weights file).
+COMPLETION_MODEL = "cnn_prob"
 _CACHE: dict[tuple[str, int, str], CompletionNet] = {}
 _CACHE_LOCK = threading.Lock()
 
@@ -28,24 +34,29 @@ class WeightsError(ValueError):
     """Completion weights are missing, unreadable or do not fit the request."""
 
 
-def default_weights_path(dataset: str) -> Path:
-    """``nbv_prob_cnn/weights/<dataset>.pt`` (the shipped weights)."""
+def default_weights_path(dataset: str, model: str = COMPLETION_MODEL) -> Path:
+    """``nbv_prob_cnn/weights/<dataset>_<model>.pt`` (the shipped weights of a model)."""
     if dataset not in DATASETS:
         raise ValueError(f"dataset: unknown data set {dataset!r}; expected one of {sorted(DATASETS)}")
-    return Path(__file__).resolve().parent.parent / "weights" / f"{dataset}.pt"
+    return Path(__file__).resolve().parent.parent / "weights" / f"{dataset}_{model}.pt"
 
 
-def retrain_command(dataset: str | None, path: str | Path | None = None) -> str:
+def retrain_command(dataset: str | None, path: str | Path | None = None, model: str | None = None) -> str:
     """The command that (re)creates a weights file."""
+    model = model or COMPLETION_MODEL
     name = dataset if dataset in DATASETS else "{2d,3du,3dt}"
     cmd = f"nbv train --dataset {name}"
-    if path is not None and dataset in DATASETS and Path(path).resolve() != default_weights_path(dataset):
+    if model != COMPLETION_MODEL:
+        cmd += f" --method {model}"
+    if path is not None and dataset in DATASETS and Path(path).resolve() != default_weights_path(dataset, model):
         cmd += f" --out {path}"
     return cmd
 
 
-def _dataset_from_path(path: Path) -> str | None:
-    return path.stem if path.stem in DATASETS else None
+def _names_from_path(path: Path) -> tuple[str | None, str | None]:
+    """``(dataset, model)`` guessed from a file name ``<dataset>_<model>.pt``."""
+    dataset, _, model = path.stem.partition("_")
+    return (dataset, model or None) if dataset in DATASETS else (None, None)
 
 
 def resolve_device(device: str | torch.device | None = None) -> torch.device:
@@ -55,13 +66,15 @@ def resolve_device(device: str | torch.device | None = None) -> torch.device:
     return torch.device(device)
 
 
-def save_weights(model: CompletionNet, path: str | Path, dataset: str, card: dict | None = None) -> Path:
-    """Write a weights file (atomically) and return its path."""
+def save_weights(
+    model: CompletionNet, path: str | Path, dataset: str, card: dict | None = None, name: str = COMPLETION_MODEL
+) -> Path:
+    """Write a weights file (atomically) and return its path; ``name`` is the model name."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     payload = {
         "state_dict": {k: v.detach().cpu() for k, v in model.state_dict().items()},
-        "config": {**model.config(), "dataset": dataset},
+        "config": {**model.config(), "dataset": dataset, "model": name},
         "card": dict(card or {}),
     }
     tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
@@ -70,17 +83,20 @@ def save_weights(model: CompletionNet, path: str | Path, dataset: str, card: dic
     return path
 
 
-def read_weights(path: str | Path, dataset: str | None = None) -> dict:
+def read_weights(path: str | Path, dataset: str | None = None, model: str | None = None) -> dict:
     """Read and validate a weights file (without building the model).
 
     Raises:
-        WeightsError: missing/unreadable file, missing keys, or a different data set than ``dataset``.
+        WeightsError: missing/unreadable file, missing keys, or another data set than
+            ``dataset`` or another model than ``model``.
     """
     path = Path(path)
-    hint_dataset = dataset or _dataset_from_path(path)
-    hint = f"train them with `{retrain_command(hint_dataset, path)}`"
+    path_dataset, path_model = _names_from_path(path)
+    hint_dataset, hint_model = dataset or path_dataset, model or path_model
+    hint = f"train them with `{retrain_command(hint_dataset, path, hint_model)}`"
+    what = f"{hint_model or COMPLETION_MODEL} weights"
     if not path.is_file():
-        raise WeightsError(f"{path}: completion CNN weights not found; {hint}")
+        raise WeightsError(f"{path}: {what} not found; {hint}")
     try:
         payload = torch.load(path, map_location="cpu", weights_only=True)
     except Exception as exc:  # noqa: BLE001 - any unpickling failure means an unusable file
@@ -93,25 +109,32 @@ def read_weights(path: str | Path, dataset: str | None = None) -> dict:
         raise WeightsError(f"{path}: weights config lacks {missing}; {hint}")
     if dataset is not None and config["dataset"] != dataset:
         raise WeightsError(f"{path}: weights were trained on data set {config['dataset']!r}, not {dataset!r}; {hint}")
+    if model is not None and config.get("model", COMPLETION_MODEL) != model:
+        raise WeightsError(f"{path}: weights of model {config.get('model')!r}, not {model!r}; {hint}")
     return payload
 
 
 def build_model(payload: dict, path: str | Path = "<weights>") -> CompletionNet:
     """A :class:`CompletionNet` with the weights of a payload from :func:`read_weights`."""
     config = payload["config"]
-    hint = f"train them with `{retrain_command(config.get('dataset'), path)}`"
+    hint = f"train them with `{retrain_command(config.get('dataset'), path, config.get('model'))}`"
     try:
-        model = CompletionNet(int(config["dims"]), int(config["n_conv"]), int(config["first_channels"]))
+        architecture = {k: config[k] for k in _ARCHITECTURE_KEYS if k in config}
+        model = CompletionNet(int(config["dims"]), int(config["n_conv"]), int(config["first_channels"]), **architecture)
         model.load_state_dict(payload["state_dict"], strict=True)
     except (RuntimeError, ValueError, TypeError, KeyError) as exc:
         raise WeightsError(f"{path}: weights do not fit the completion CNN ({exc}); {hint}") from exc
     model.dataset = str(config["dataset"])
+    model.model_name = str(config.get("model", COMPLETION_MODEL))
     model.card = dict(payload.get("card", {}))
     return model.eval()
 
 
 def load_model(
-    path: str | Path | None = None, dataset: str | None = None, device: str | torch.device | None = None
+    path: str | Path | None = None,
+    dataset: str | None = None,
+    device: str | torch.device | None = None,
+    model_name: str = COMPLETION_MODEL,
 ) -> CompletionNet:
     """Load (and cache per file version and device) a completion CNN in eval mode.
 
@@ -127,7 +150,7 @@ def load_model(
     if path is None:
         if dataset is None:
             raise ValueError("path: give a weights file or a dataset to use its shipped weights")
-        path = default_weights_path(dataset)
+        path = default_weights_path(dataset, model_name)
     path = Path(path).expanduser().resolve()
     dev = resolve_device(device)
     mtime = path.stat().st_mtime_ns if path.is_file() else -1
@@ -135,7 +158,7 @@ def load_model(
     with _CACHE_LOCK:
         model = _CACHE.get(key)
     if model is None:
-        model = build_model(read_weights(path, dataset), path).to(dev)
+        model = build_model(read_weights(path, dataset, model_name), path).to(dev)
         with _CACHE_LOCK:
             _CACHE[key] = model
     elif dataset is not None and getattr(model, "dataset", dataset) != dataset:
@@ -198,6 +221,8 @@ def complete(
         model = model.to(dev)
     if model.dims != dims:
         raise ValueError(f"state: a {dims}D grid does not fit a {model.dims}D completion model")
+    if model.head != "completion":
+        raise ValueError(f"model: a {getattr(model, 'model_name', model.head)} network is not a completion CNN")
 
     out = np.empty(grids.shape, dtype=np.float32)
     was_training = model.training

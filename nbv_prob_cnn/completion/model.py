@@ -18,6 +18,16 @@ decoder ``64→64 (+32 skip) , 96→32 (+16 skip), 48→16 (+2 skip)``; final ``
 Grids whose sizes are not multiples of ``2**n_conv`` are padded with *unknown* cells at the
 high end of each axis and the output is cropped back (:func:`pad_to_multiple` for numpy
 grids; :meth:`CompletionNet.forward` does the same on tensors).
+
+The same encoder-decoder serves the City-CNN baselines (SPEC §6, paper §III-D/§IV) through
+three options, with the completion network as the default:
+
+* ``out_channels`` and ``head``: ``"completion"`` (1 channel, ``P = U·P' + O``), ``"sigmoid"``
+  (gains in [0, 1]) or ``"tanh"`` (B-City-CNN's vectors in [−1, 1]);
+* ``removed_deconv``: the last (shallowest) deconv blocks dropped, so the output has one cell
+  per ``2**removed_deconv`` cells per axis (3DT City-CNNs: 3, i.e. an 8× stride);
+* ``extra_deconv``: deconv blocks added after the last one (no skip), each doubling the output
+  resolution (D-City-CNN: ``log2(N_rays)`` for its composite cells).
 """
 
 from __future__ import annotations
@@ -38,6 +48,9 @@ PRIOR_LOGIT = float(np.log(0.15 / 0.85))
 
 #: Default width of the first conv block per dimensionality (SPEC §3).
 DEFAULT_FIRST_CHANNELS = {2: 8, 3: 16}
+
+#: Output heads of :class:`CompletionNet`.
+HEADS = ("completion", "sigmoid", "tanh")
 
 
 def pad_to_multiple(state: np.ndarray, multiple: int, n_spatial: int | None = None) -> np.ndarray:
@@ -78,8 +91,26 @@ class CompletionNet(nn.Module):
         first_channels: width of the first conv block (8 in 2D, 16 in 3D by default).
     """
 
-    def __init__(self, dims: int, n_conv: int, first_channels: int | None = None) -> None:
+    def __init__(
+        self,
+        dims: int,
+        n_conv: int,
+        first_channels: int | None = None,
+        out_channels: int = 1,
+        head: str = "completion",
+        removed_deconv: int = 0,
+        extra_deconv: int = 0,
+    ) -> None:
         super().__init__()
+        if head not in HEADS:
+            raise ValueError(f"head: expected one of {HEADS}, got {head!r}")
+        if head == "completion" and out_channels != 1:
+            raise ValueError("out_channels: the completion head has exactly 1 output channel")
+        if not 0 <= removed_deconv < n_conv or extra_deconv < 0 or out_channels < 1:
+            raise ValueError(
+                f"removed_deconv must be in [0, n_conv), extra_deconv >= 0, out_channels >= 1; got "
+                f"{removed_deconv}, {extra_deconv}, {out_channels}"
+            )
         if dims not in (2, 3):
             raise ValueError(f"dims: expected 2 or 3, got {dims}")
         if n_conv < 1:
@@ -88,6 +119,8 @@ class CompletionNet(nn.Module):
         if first_channels < 1:
             raise ValueError(f"first_channels: expected >= 1, got {first_channels}")
         self.dims, self.n_conv, self.first_channels = dims, n_conv, first_channels
+        self.out_channels, self.head = out_channels, head
+        self.removed_deconv, self.extra_deconv = removed_deconv, extra_deconv
         conv = nn.Conv2d if dims == 2 else nn.Conv3d
         deconv = nn.ConvTranspose2d if dims == 2 else nn.ConvTranspose3d
         widths = [first_channels * 2**i for i in range(n_conv)]
@@ -103,9 +136,9 @@ class CompletionNet(nn.Module):
                     nn.LeakyReLU(LEAKY_SLOPE),
                 )
             )
-        self.decoder = nn.ModuleList()  # decoder[i] mirrors encoder[i]; run from deepest to 0
+        self.decoder = nn.ModuleList()  # decoder[j] mirrors encoder[removed + j]; run from deepest
         c_in = widths[-1]
-        for i in reversed(range(n_conv)):
+        for i in reversed(range(removed_deconv, n_conv)):
             self.decoder.insert(
                 0,
                 nn.Sequential(
@@ -114,32 +147,62 @@ class CompletionNet(nn.Module):
                 ),
             )
             c_in = widths[i] + skip_channels[i]
-        self.final = conv(c_in, 1, kernel_size=1)
+        self.extra = nn.ModuleList()
+        for _ in range(extra_deconv):
+            self.extra.append(
+                nn.Sequential(
+                    deconv(c_in, first_channels, kernel_size=3, stride=2, padding=1, output_padding=1),
+                    nn.LeakyReLU(LEAKY_SLOPE),
+                )
+            )
+            c_in = first_channels
+        self.final = conv(c_in, out_channels, kernel_size=1)
         # Start at the prior occupancy (the P0 of Prob. IG) instead of 0.5: with a sigmoid under
         # an MSE loss, the first Adam steps otherwise push the sparse-occupancy 3D grids into a
         # saturated all-empty output whose gradients vanish (seen on 3DU: training stalled at
         # the MSE of predicting 0 everywhere).
-        nn.init.constant_(self.final.bias, PRIOR_LOGIT)
+        if head == "completion":
+            nn.init.constant_(self.final.bias, PRIOR_LOGIT)
 
     @property
     def multiple(self) -> int:
         """Spatial sizes the layers need (``2**n_conv``); others are padded internally."""
         return 2**self.n_conv
 
+    @property
+    def output_scale(self) -> float:
+        """Output cells per input cell along each axis (``2**(extra - removed)``)."""
+        return 2.0 ** (self.extra_deconv - self.removed_deconv)
+
     def config(self) -> dict:
         """Constructor arguments, as stored in a weights file."""
-        return {"dims": self.dims, "n_conv": self.n_conv, "first_channels": self.first_channels}
+        return {
+            "dims": self.dims,
+            "n_conv": self.n_conv,
+            "first_channels": self.first_channels,
+            "out_channels": self.out_channels,
+            "head": self.head,
+            "removed_deconv": self.removed_deconv,
+            "extra_deconv": self.extra_deconv,
+        }
+
+    def output_shape(self, spatial: tuple[int, ...]) -> tuple[int, ...]:
+        """Spatial output shape for an input of shape ``spatial`` (strided outputs round up)."""
+        up, down = 2**self.extra_deconv, 2**self.removed_deconv
+        return tuple(-(-size * up // down) for size in spatial)
 
     def forward(self, x: torch.Tensor, return_raw: bool = False) -> torch.Tensor | tuple[torch.Tensor, torch.Tensor]:
         """Complete a batch.
 
         Args:
-            x: ``(B, 2, *spatial)`` float tensor of E and O (see :func:`encode_state`); any
-                spatial size (padded with unknown up to :attr:`multiple`, cropped back).
-            return_raw: also return the sigmoid output ``P'``.
+            x: ``(B, 2, *spatial)`` float tensor of E and O (see :func:`encode_state`; City-CNN
+                heads: E and F); any spatial size (padded with zeros up to :attr:`multiple`,
+                cropped back).
+            return_raw: also return the sigmoid output ``P'`` (completion head only).
 
         Returns:
-            ``P = U·P' + O`` of shape ``(B, 1, *spatial)``; with ``return_raw`` the pair ``(P, P')``.
+            completion head: ``P = U·P' + O`` of shape ``(B, 1, *spatial)``; with ``return_raw``
+            the pair ``(P, P')``. Other heads: ``(B, out_channels, *output_shape(spatial))``.
         """
         if x.ndim != self.dims + 2 or x.shape[1] != 2:
             axes = "X, Y" if self.dims == 2 else "X, Y, Z"
@@ -155,11 +218,16 @@ class CompletionNet(nn.Module):
         for block in self.encoder:
             skips.append(h)
             h = block(h)
-        for i in reversed(range(self.n_conv)):
-            h = torch.cat([self.decoder[i](h), skips[i]], dim=1)
-        raw = torch.sigmoid(self.final(h))
-        crop = (slice(None), slice(None), *(slice(0, s) for s in spatial))
+        for j in reversed(range(len(self.decoder))):
+            h = torch.cat([self.decoder[j](h), skips[self.removed_deconv + j]], dim=1)
+        for block in self.extra:
+            h = block(h)
+        out = self.final(h)
+        raw = torch.tanh(out) if self.head == "tanh" else torch.sigmoid(out)
+        crop = (slice(None), slice(None), *(slice(0, s) for s in self.output_shape(spatial)))
         raw = raw[crop]
+        if self.head != "completion":
+            return raw
         empty, occupied = x[:, 0:1], x[:, 1:2]
         prob = (1.0 - empty - occupied) * raw + occupied
         return (prob, raw) if return_raw else prob

@@ -1,40 +1,38 @@
-"""Next-best-view methods behind one interface, selectable by name (SPEC §6)."""
+"""Next-best-view methods behind one interface, selectable by name (SPEC §6); the registry is
+:mod:`nbv_prob_cnn.planners.registry`."""
 
 from __future__ import annotations
 
 from collections.abc import Callable
 
-from nbv_prob_cnn.planners.base import Planner, PlanningContext, ViewChoice, search_best_view, search_views
-from nbv_prob_cnn.planners.classic import RandomPlanner
+from nbv_prob_cnn.planners.base import (
+    Planner,
+    PlanningContext,
+    RankingPlanner,
+    ViewChoice,
+    search_best_view,
+    search_views,
+)
 from nbv_prob_cnn.planners.methods import GAIN_METHODS, GainMethod, GainPlanner
+from nbv_prob_cnn.planners.registry import METHODS, MethodSpec, make_planner, method_spec, ros_method
 
-#: name -> factory. The City-CNN methods register here too.
-PLANNER_FACTORIES: dict[str, Callable[[], Planner]] = {"random": RandomPlanner}
-PLANNER_FACTORIES.update({name: (lambda m=method: GainPlanner(m)) for name, method in GAIN_METHODS.items()})
-
-
-def make_planner(name: str) -> Planner:
-    """The planner called ``name``.
-
-    Raises:
-        ValueError: unknown method name (the message lists the known ones).
-    """
-    try:
-        factory = PLANNER_FACTORIES[name]
-    except KeyError:
-        raise ValueError(f"method: unknown method {name!r}; expected one of {sorted(PLANNER_FACTORIES)}") from None
-    return factory()
-
+#: name -> factory, derived from :data:`METHODS` (kept for existing callers).
+PLANNER_FACTORIES: dict[str, Callable[[], Planner]] = {name: spec.factory for name, spec in METHODS.items()}
 
 __all__ = [
     "GAIN_METHODS",
+    "METHODS",
     "PLANNER_FACTORIES",
     "GainMethod",
     "GainPlanner",
+    "MethodSpec",
     "Planner",
     "PlanningContext",
+    "RankingPlanner",
     "ViewChoice",
     "make_planner",
+    "method_spec",
+    "ros_method",
     "search_best_view",
     "search_views",
 ]

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Protocol
 
@@ -13,6 +14,14 @@ from nbv_prob_cnn.gain import empty_origins, ray_directions, ray_gains, view_mem
 
 #: Upper bound on origins × rays per ray-casting call (bounds memory for N_rays = 16).
 MAX_RAYS_PER_CALL = 8_000_000
+
+
+#: ``completion(state, context) -> P``: a probabilistic map of ``state`` (SPEC §3).
+CompletionHook = Callable[[np.ndarray, "PlanningContext"], np.ndarray]
+#: ``ranker(method, state, prob, top_k) -> views``: the ``top_k`` best views of a method, best first.
+RankHook = Callable[[str, np.ndarray, "np.ndarray | None", int], "list[ViewChoice]"]
+#: Narrows candidate origins (e.g. to a reachable box): ``(N, dims) -> (M, dims)``.
+OriginFilter = Callable[[np.ndarray], np.ndarray]
 
 
 @dataclass
@@ -27,6 +36,11 @@ class PlanningContext:
         n_rays: sub-cells per side of the ray square/cube (default: the data set's).
         sensor: overrides the data set's sensor.
         eps: early-stop tolerance of the kernel (0 = exact).
+        completion: hook ``completion(state, context) -> P`` that replaces the local completion
+            CNN (e.g. a call to the ``/nbv/complete`` server). None: the CNN in this process.
+        ranker: hook ``ranker(method, state, prob, top_k) -> [ViewChoice]`` that replaces the
+            local view search (e.g. a call to ``/nbv/rank_views``); ``prob`` is the completed map
+            for CNN-probability methods, else None. None: search in this process.
     """
 
     defaults: DatasetDefaults
@@ -36,6 +50,8 @@ class PlanningContext:
     n_rays: int | None = None
     sensor: Sensor | None = None
     eps: float = 0.0
+    completion: CompletionHook | None = None
+    ranker: RankHook | None = None
 
     def __post_init__(self) -> None:
         sensor = self.active_sensor
@@ -75,11 +91,39 @@ class ViewChoice:
 
 
 class Planner(Protocol):
-    """A next-best-view method. ``plan`` returns None when no view has positive gain."""
+    """A next-best-view method. ``rank`` returns the ``top_k`` best views, best first (empty when
+    no view has positive gain); ``plan`` the best one or None."""
 
     name: str
 
+    def rank(
+        self, state: np.ndarray, context: PlanningContext, top_k: int = 1, origin_filter: OriginFilter | None = None
+    ) -> list[ViewChoice]: ...
+
     def plan(self, state: np.ndarray, context: PlanningContext) -> ViewChoice | None: ...
+
+
+class RankingPlanner:
+    """Base of the planners: ``rank`` goes to ``context.ranker`` when one is set (the remote
+    path), else to :meth:`rank_here`; ``plan`` is the first ranked view."""
+
+    name: str = ""
+
+    def rank(
+        self, state: np.ndarray, context: PlanningContext, top_k: int = 1, origin_filter: OriginFilter | None = None
+    ) -> list[ViewChoice]:
+        if context.ranker is not None:
+            return context.ranker(self.name, state, None, top_k)
+        return self.rank_here(state, context, top_k, origin_filter)
+
+    def rank_here(
+        self, state: np.ndarray, context: PlanningContext, top_k: int, origin_filter: OriginFilter | None
+    ) -> list[ViewChoice]:
+        raise NotImplementedError
+
+    def plan(self, state: np.ndarray, context: PlanningContext) -> ViewChoice | None:
+        found = self.rank(state, context)
+        return found[0] if found else None
 
 
 def search_views(

@@ -8,21 +8,23 @@ method         gain    occupancy probability of unknown cells  candidate origins
 ``ig``         ``ig``  — (rays stop at the first non-empty)    all (3DT: stride 2)
 ``prob_ig``    prob    constant ``P0``                         all
 ``cnn_prob``   prob    completion CNN                          all
-``cnn_prob_d`` prob    completion CNN                          random 2000 (2D) / 500 (3D)
+``cnn_prob_d`` prob    completion CNN                          random 2000 (2D) / 500 (3D) [*]
 ``omniscient`` prob    ground truth                            all
 =============  ======  =====================================  ===========================
+
+[*] drawn after any origin filter (workspace box, origin budget), so that a filtered request
+still evaluates up to the full budget inside the box.
 """
 
 from __future__ import annotations
 
 import time
-from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
 
 from nbv_prob_cnn.grid import probability_from_truth, probability_with_constant
-from nbv_prob_cnn.planners.base import PlanningContext, ViewChoice, search_views
+from nbv_prob_cnn.planners.base import OriginFilter, PlanningContext, RankingPlanner, ViewChoice, search_views
 
 #: Origins evaluated by the downsampled method, per dimensionality (SPEC §5).
 DOWNSAMPLED_ORIGINS = {2: 2000, 3: 500}
@@ -51,19 +53,16 @@ GAIN_METHODS: dict[str, GainMethod] = {
 
 
 def cnn_completion(state: np.ndarray, context: PlanningContext) -> np.ndarray:
-    """The completion CNN of the context's data set, in this process (shipped weights)."""
+    """The completion CNN of the context's data set, in this process (shipped weights
+    ``<dataset>_cnn_prob.pt``)."""
     from nbv_prob_cnn.completion import complete
 
     return complete(state, dataset=context.defaults.name)
 
 
-def probability_map(
-    method: GainMethod,
-    state: np.ndarray,
-    context: PlanningContext,
-    completion: Callable[[np.ndarray, PlanningContext], np.ndarray] = cnn_completion,
-) -> np.ndarray | None:
-    """The probabilistic map ``P`` the method ray-casts on (None for ``ig``)."""
+def probability_map(method: GainMethod, state: np.ndarray, context: PlanningContext) -> np.ndarray | None:
+    """The probabilistic map ``P`` the method ray-casts on (None for ``ig``); CNN maps come from
+    ``context.completion`` when set, else from the CNN in this process."""
     if method.probability is None:
         return None
     if method.probability == "constant":
@@ -72,12 +71,20 @@ def probability_map(
         if context.ground_truth is None:
             raise ValueError(f"{method.name}: needs the ground truth (context.ground_truth)")
         return probability_from_truth(state, context.ground_truth)
-    return completion(state, context)
+    return (context.completion or cnn_completion)(state, context)
 
 
-def method_origins(method: GainMethod, state: np.ndarray, context: PlanningContext) -> np.ndarray:
-    """Candidate origins of the method: the context's, or a random fixed-size subset."""
+def method_origins(
+    method: GainMethod,
+    state: np.ndarray,
+    context: PlanningContext,
+    origin_filter: OriginFilter | None = None,
+) -> np.ndarray:
+    """Candidate origins of the method: the context's, narrowed by ``origin_filter`` (e.g. a
+    reachable box), then for the downsampled method a random subset of fixed size."""
     origins = context.candidate_origins(state)
+    if origin_filter is not None:
+        origins = origin_filter(origins)
     count = DOWNSAMPLED_ORIGINS[state.ndim]
     if method.downsampled and origins.shape[0] > count:
         keep = np.sort(context.rng.choice(origins.shape[0], size=count, replace=False))
@@ -85,40 +92,31 @@ def method_origins(method: GainMethod, state: np.ndarray, context: PlanningConte
     return origins
 
 
-class GainPlanner:
-    """Any gain-based method: probability map (timed as ``cnn``), then the view search."""
+class GainPlanner(RankingPlanner):
+    """Any gain-based method: probability map (timed as ``cnn``), then the view search, here or
+    through ``context.ranker`` (which then receives the CNN map, if the method uses one)."""
 
-    def __init__(
-        self,
-        method: GainMethod,
-        completion: Callable[[np.ndarray, PlanningContext], np.ndarray] = cnn_completion,
-    ) -> None:
+    def __init__(self, method: GainMethod) -> None:
         self.method = method
         self.name = method.name
-        self._completion = completion
 
     def rank(
         self,
         state: np.ndarray,
         context: PlanningContext,
         top_k: int = 1,
-        origin_filter: Callable[[np.ndarray], np.ndarray] | None = None,
+        origin_filter: OriginFilter | None = None,
     ) -> list[ViewChoice]:
-        """The ``top_k`` best views, best first (empty if no view has positive gain).
-
-        ``origin_filter`` may narrow the method's candidate origins (e.g. to a reachable box).
-        """
+        """The ``top_k`` best views, best first (empty if no view has positive gain)."""
+        uses_cnn = self.method.probability == "cnn"
         start = time.perf_counter()
-        prob = probability_map(self.method, state, context, self._completion)
+        prob = probability_map(self.method, state, context) if (uses_cnn or context.ranker is None) else None
         t_prob = time.perf_counter() - start
-        origins = method_origins(self.method, state, context)
-        if origin_filter is not None:
-            origins = origin_filter(origins)
-        found = search_views(state, prob, origins, context, self.method.mode, top_k)
+        if context.ranker is not None:
+            found = context.ranker(self.name, state, prob, top_k)
+        else:
+            origins = method_origins(self.method, state, context, origin_filter)
+            found = search_views(state, prob, origins, context, self.method.mode, top_k)
         for choice in found:
-            choice.times["cnn"] = t_prob if self.method.probability == "cnn" else 0.0
+            choice.times["cnn"] = t_prob if uses_cnn else 0.0
         return found
-
-    def plan(self, state: np.ndarray, context: PlanningContext) -> ViewChoice | None:
-        found = self.rank(state, context)
-        return found[0] if found else None

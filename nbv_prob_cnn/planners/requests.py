@@ -11,11 +11,13 @@ import numpy as np
 
 from nbv_prob_cnn.camera import dataset_defaults
 from nbv_prob_cnn.geometry import GridGeometry
-from nbv_prob_cnn.planners import GAIN_METHODS, GainMethod, PlanningContext, ViewChoice
+from nbv_prob_cnn.planners import GAIN_METHODS, GainMethod, PlanningContext, ViewChoice, make_planner, ros_method
+from nbv_prob_cnn.planners.base import OriginFilter
 
 
 def gain_method(name: str, default: str) -> GainMethod:
     """The gain-based method called ``name`` (``""`` = ``default``); the oracle is refused.
+    (Scoring given poses needs per-ray gains: only the gain-based methods can.)
 
     Raises:
         ValueError: unknown method or one that needs the ground truth.
@@ -83,3 +85,46 @@ def origin_filter(
 def view_pose(choice: ViewChoice, context: PlanningContext, geometry: GridGeometry) -> tuple[np.ndarray, np.ndarray]:
     """Camera position (metres, cell centre) and optical-frame quaternion of a chosen view."""
     return geometry.cell_centre(choice.cell), context.view_quaternion(choice.view_index)
+
+
+def choice_from_pose(
+    position: np.ndarray, quaternion: np.ndarray, gain: float, context: PlanningContext, geometry: GridGeometry
+) -> ViewChoice:
+    """The inverse of :func:`view_pose`: the cell containing ``position`` and the candidate
+    orientation nearest to ``quaternion`` (exact for poses made by :func:`view_pose`).
+
+    Raises:
+        ValueError: a position outside the grid.
+    """
+    cells, inside = geometry.containing_cell(np.asarray(position, dtype=np.float64).reshape(1, 3))
+    if not inside[0]:
+        raise ValueError(f"view position {list(position)} lies outside the grid")
+    candidates = np.array([context.view_quaternion(i) for i in range(len(context.orientations))])
+    q = np.asarray(quaternion, dtype=np.float64)
+    view = int(np.argmax(np.abs(candidates @ (q / np.linalg.norm(q)))))
+    return ViewChoice(cells[0].copy(), view, float(gain))
+
+
+def rank_for_request(
+    method: str,
+    default: str,
+    state: np.ndarray,
+    context: PlanningContext,
+    top_k: int,
+    origin_filter: OriginFilter | None,
+    given_probability: np.ndarray | None = None,
+) -> list[ViewChoice]:
+    """What ``/nbv/rank_views`` runs: the registry planner of ``method`` in this process, with
+    ``given_probability`` (the map the planner node got from ``/nbv/complete``) as its
+    completion when one is sent.
+
+    Raises:
+        ValueError: unknown method, an oracle, or a probability map of another shape.
+    """
+    spec = ros_method(method, default)
+    if given_probability is not None:
+        if given_probability.shape != state.shape:
+            raise ValueError(f"probability grid {given_probability.shape} does not match grid {state.shape}")
+        context.completion = lambda _state, _context: given_probability
+    context.ranker = None  # rank here
+    return make_planner(spec.name).rank(state, context, max(1, int(top_k)), origin_filter)

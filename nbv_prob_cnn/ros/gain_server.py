@@ -20,9 +20,9 @@ from rclpy.node import Node
 from nbv_prob_cnn.camera import DATASETS
 from nbv_prob_cnn.gain import BACKENDS
 from nbv_prob_cnn.geometry import GridGeometry
-from nbv_prob_cnn.planners import GainPlanner, PlanningContext
-from nbv_prob_cnn.planners.methods import GainMethod, cnn_completion, probability_map
-from nbv_prob_cnn.planners.requests import gain_method, origin_filter, planning_context, view_pose
+from nbv_prob_cnn.planners import PlanningContext, ros_method
+from nbv_prob_cnn.planners.methods import cnn_completion, probability_map
+from nbv_prob_cnn.planners.requests import gain_method, origin_filter, planning_context, rank_for_request, view_pose
 from nbv_prob_cnn.pose_scoring import INVALID_POSE, score_poses
 from nbv_prob_cnn.ros.common import GRID_QOS, allow_updates, call_service, declare, positive_seconds, run_node
 from nbv_prob_cnn.ros.conversions import (
@@ -33,8 +33,6 @@ from nbv_prob_cnn.ros.conversions import (
 )
 
 MAX_POSES = 100_000
-#: Ray-casts a probability map sent with the request.
-GIVEN_PROBABILITY = GainMethod("prob", "prob", "cnn")
 
 
 class GainServer(Node):
@@ -57,11 +55,11 @@ class GainServer(Node):
             raise ValueError(f"bad parameters: dataset={self.dataset!r}, backend={self.backend!r}")
         if self.completion_mode not in ("service", "in_process"):
             raise ValueError(f"completion: expected 'service' or 'in_process', got {self.completion_mode!r}")
-        gain_method(self.method, self.method)  # validates the default
+        ros_method(self.method, self.method)  # validates the default
         allow_updates(
             self,
             {
-                "method": lambda value: gain_method(value, value),
+                "method": lambda value: ros_method(value, value),
                 "completion_timeout_s": positive_seconds,
             },
         )
@@ -122,7 +120,8 @@ class GainServer(Node):
             quats = np.array([[q.x, q.y, q.z, q.w] for q in o])
             wrong_frame = np.array([bool(p.header.frame_id) and p.header.frame_id != frame for p in request.poses])
             positions[wrong_frame] = np.nan  # scored as invalid below, with its own reason
-            prob = probability_map(method, state, context, self._completion(grid.header, geometry))
+            context.completion = self._completion(grid.header, geometry)
+            prob = probability_map(method, state, context)
             scores = score_poses(state, prob, geometry, positions, quats, context, method.mode)
             reasons = list(scores.reasons)
             for i in np.flatnonzero(wrong_frame):
@@ -146,16 +145,12 @@ class GainServer(Node):
             state, geometry = msg_to_grid(grid)
             frame = grid.header.frame_id or self.frame_id
             context = planning_context(self.dataset, geometry, self.backend, self.n_rays, self._rng)
-            if request.method == "prob":
-                if not request.probability.size_x:
-                    raise ValueError("method 'prob' needs a probability grid")
-                given, prob_geometry = msg_to_probability(request.probability)
-                if prob_geometry.shape != geometry.shape:
-                    raise ValueError(f"probability grid {prob_geometry.shape} does not match grid {geometry.shape}")
-                planner = GainPlanner(GIVEN_PROBABILITY, completion=lambda state, context: given)
-            else:
-                method = gain_method(request.method, self.method)
-                planner = GainPlanner(method, completion=self._completion(grid.header, geometry))
+            given = None
+            if request.probability.size_x:
+                given, _ = msg_to_probability(request.probability)
+            elif request.method == "prob":
+                raise ValueError("method 'prob' needs a probability grid")
+            context.completion = self._completion(grid.header, geometry)
             keep = origin_filter(
                 geometry, request.use_workspace,
                 np.array([request.workspace_min.x, request.workspace_min.y, request.workspace_min.z]),
@@ -169,7 +164,7 @@ class GainServer(Node):
                 evaluated.append(kept.shape[0])
                 return kept
 
-            ranked = planner.rank(state, context, max(1, int(request.top_k)), counting)
+            ranked = rank_for_request(request.method, self.method, state, context, request.top_k, counting, given)
             response.ranked = [
                 ViewScore(pose=arrays_to_pose_stamped(*view_pose(c, context, geometry), frame), gain=float(c.gain))
                 for c in ranked

@@ -26,11 +26,16 @@ from visualization_msgs.msg import MarkerArray
 from nbv_prob_cnn.camera import DATASETS
 from nbv_prob_cnn.gain import BACKENDS
 from nbv_prob_cnn.grid import unknown_fraction_all
-from nbv_prob_cnn.planners import GainPlanner
-from nbv_prob_cnn.planners.methods import DOWNSAMPLED_ORIGINS
-from nbv_prob_cnn.planners.requests import gain_method, origin_filter, planning_context, view_pose
+from nbv_prob_cnn.planners import make_planner, ros_method
+from nbv_prob_cnn.planners.requests import choice_from_pose, origin_filter, planning_context, view_pose
 from nbv_prob_cnn.ros.common import GRID_QOS, allow_updates, call_service, declare, positive_seconds, run_node
-from nbv_prob_cnn.ros.conversions import arrays_to_pose_stamped, msg_to_grid, pose_to_arrays
+from nbv_prob_cnn.ros.conversions import (
+    arrays_to_pose_stamped,
+    msg_to_grid,
+    msg_to_probability,
+    pose_to_arrays,
+    probability_to_msg,
+)
 from nbv_prob_cnn.ros.markers import planning_markers
 
 
@@ -69,11 +74,11 @@ class NbvPlanner(Node):
             raise ValueError(
                 f"bad parameters: dataset={self.dataset!r} backend={self.backend!r} move_mode={self.move_mode!r}"
             )
-        gain_method(self.method, self.method)  # validates the default
+        ros_method(self.method, self.method)  # validates the default
         allow_updates(
             self,
             {
-                "method": lambda value: gain_method(value, value),
+                "method": lambda value: ros_method(value, value),
                 "service_timeout_s": positive_seconds,
             },
         )
@@ -135,26 +140,19 @@ class NbvPlanner(Node):
             grid = self._latest_grid()
             state, geometry = msg_to_grid(grid)
             frame = grid.header.frame_id or self.frame_id
-            method = gain_method(request.method, self.method)
+            method = ros_method(request.method, self.method)
             context = planning_context(self.dataset, geometry, self.backend, self.n_rays, self._rng)
             box_min = np.array([request.workspace_min.x, request.workspace_min.y, request.workspace_min.z])
             box_max = np.array([request.workspace_max.x, request.workspace_max.y, request.workspace_max.z])
             top_k = max(1, int(request.top_k), self.markers_top_k)
-            if self.in_process:
-                keep = origin_filter(
-                    geometry, request.use_workspace, box_min, box_max, int(request.max_origins), self._rng
-                )
-                ranked = GainPlanner(method).rank(state, context, top_k, keep)
-                views = [(*view_pose(c, context, geometry), c.gain) for c in ranked]
-                if ranked:
-                    t = ranked[0].times
-                    response.time_cnn_s, response.time_raycast_s, response.time_views_s = (
-                        t["cnn"],
-                        t["raycast"],
-                        t["views"],
-                    )
-            else:
-                views = self._plan_via_servers(grid, method, request, top_k, response)
+            keep = origin_filter(geometry, request.use_workspace, box_min, box_max, int(request.max_origins), self._rng)
+            if not self.in_process:
+                context.completion, context.ranker = self._server_hooks(grid, geometry, request, context)
+            ranked = make_planner(method.name).rank(state, context, top_k, keep)
+            views = [(*view_pose(c, context, geometry), c.gain) for c in ranked]
+            if ranked:
+                t = ranked[0].times
+                response.time_cnn_s, response.time_raycast_s, response.time_views_s = t["cnn"], t["raycast"], t["views"]
             if not views:
                 raise ValueError("no view with positive gain")
             ranked_msgs = [
@@ -178,31 +176,38 @@ class NbvPlanner(Node):
         response.time_total_s = time.perf_counter() - start
         return response
 
-    def _plan_via_servers(self, grid, method, request, top_k, response) -> list:
-        rank = RankViews.Request(grid=grid, top_k=top_k, use_workspace=request.use_workspace)
-        rank.workspace_min, rank.workspace_max = request.workspace_min, request.workspace_max
-        rank.max_origins = request.max_origins
-        if method.probability == "cnn":
-            completion = call_service(
-                self,
-                self._complete_client,
-                CompleteGrid.Request(grid=grid, dataset=self.dataset),
-                self.service_timeout_s,
-            )
-            if not completion.success:
-                raise ValueError(f"completion failed: {completion.message}")
-            response.time_cnn_s = completion.inference_time_s
-            rank.probability, rank.method = completion.probability, "prob"
-            if method.downsampled:
-                budget = DOWNSAMPLED_ORIGINS[3 if grid.size_z > 1 else 2]
-                rank.max_origins = min(int(request.max_origins) or budget, budget)
-        else:
-            rank.method = method.name
-        ranked = call_service(self, self._rank_client, rank, self.service_timeout_s)
-        if not ranked.success:
-            raise ValueError(f"ranking failed: {ranked.message}")
-        response.time_raycast_s, response.time_views_s = ranked.time_raycast_s, ranked.time_views_s
-        return [(*pose_to_arrays(v.pose.pose), v.gain) for v in ranked.ranked]
+    def _server_hooks(self, grid: VoxelGrid, geometry, request: PlanNextBestView.Request, context):
+        """Completion (``/nbv/complete``) and ranking (``/nbv/rank_views``) hooks of the core planner."""
+        completed = {}
+
+        def complete(state: np.ndarray, context) -> np.ndarray:
+            call = CompleteGrid.Request(grid=grid, dataset=self.dataset)
+            reply = call_service(self, self._complete_client, call, self.service_timeout_s)
+            if not reply.success:
+                raise ValueError(f"completion failed: {reply.message}")
+            prob, _ = msg_to_probability(reply.probability)
+            completed["msg"], completed["prob"] = reply.probability, prob
+            return prob
+
+        def rank(method: str, state: np.ndarray, prob, top_k: int) -> list:
+            call = RankViews.Request(grid=grid, method=method, top_k=top_k, use_workspace=request.use_workspace)
+            call.workspace_min, call.workspace_max = request.workspace_min, request.workspace_max
+            call.max_origins = request.max_origins
+            if prob is not None:
+                call.probability = (
+                    completed["msg"]
+                    if prob is completed.get("prob")
+                    else probability_to_msg(prob, geometry, grid.header.frame_id, grid.header.stamp)
+                )
+            reply = call_service(self, self._rank_client, call, self.service_timeout_s)
+            if not reply.success:
+                raise ValueError(f"ranking failed: {reply.message}")
+            choices = [choice_from_pose(*pose_to_arrays(v.pose.pose), v.gain, context, geometry) for v in reply.ranked]
+            for choice in choices:
+                choice.times.update(raycast=reply.time_raycast_s, views=reply.time_views_s)
+            return choices
+
+        return complete, rank
 
     def _plan_service(self, request, response):
         result = self.plan(request)

@@ -19,6 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
+from nbv_prob_cnn.datasets import DATASET_SPECS
 from nbv_prob_cnn.worlds.city2d import crop, generate_city_map
 from nbv_prob_cnn.worlds.world import PlacedMesh, World
 
@@ -39,11 +40,11 @@ __all__ = [
 #: Bump whenever a generator's output for a given seed changes (invalidates the cache).
 GENERATOR_VERSION = 2  # 2: 3DT table at the bottom of the grid, table mesh matches the grid
 
-#: Data set names accepted by :func:`generate_world`.
-DATASETS: tuple[str, ...] = ("2d", "3du", "3dt")
+#: Data set names accepted by :func:`generate_world` (from :data:`nbv_prob_cnn.datasets.DATASET_SPECS`).
+DATASETS: tuple[str, ...] = tuple(DATASET_SPECS)
 
-CITY_CROP = 400
-CITY_RESOLUTION = 1.2
+CITY_CROP = DATASET_SPECS["2d"].shape[0]
+CITY_RESOLUTION = DATASET_SPECS["2d"].resolution_m
 
 
 def _check(dataset: str, seed: int) -> None:
