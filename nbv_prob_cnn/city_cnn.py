@@ -130,30 +130,46 @@ def omniscient_ray_gains(
 
 
 def city_targets(
-    method: str, state: np.ndarray, truth: np.ndarray, spec: DatasetSpec, backend: str = "auto"
+    method: str,
+    state: np.ndarray,
+    truth: np.ndarray,
+    spec: DatasetSpec,
+    box: tuple[slice, ...] | None = None,
+    backend: str = "auto",
 ) -> np.ndarray:
     """Training target of a City-CNN variant: ``(C, *out_spatial)`` float32 (see module docs).
 
+    Args:
+        box: a crop of the grid (starts on the output lattice): targets of the lattice cells
+            inside it only, their rays still cast through the whole grid.
+
     Raises:
-        ValueError: bad grids or a ground truth of another shape.
+        ValueError: bad grids, a ground truth of another shape or a box off the lattice.
     """
     state = check_state(state)
     truth = check_ground_truth(truth, state.shape, name="truth")
     geometry = CityGeometry.of(method, spec)
     s = geometry.stride
-    lattice = tuple(-(-n // s) for n in state.shape)
+    box = box or tuple(slice(0, n) for n in state.shape)
+    start = np.array([b.start for b in box], dtype=np.int64)
+    if np.any(start % s):
+        raise ValueError(f"box: starts {start.tolist()} are not on the {s}-cell output lattice")
+    lattice = tuple(-(-(b.stop - b.start) // s) for b in box)
     origins = geometry.origins(state)
+    inside = np.all((origins >= start) & (origins < np.array([b.stop for b in box])), axis=1)
+    origins = origins[inside]
     gains = omniscient_ray_gains(state, truth, geometry, origins, backend) if origins.size else None
-    cells = tuple((origins // s).T)
+    local = (origins - start) // s  # lattice cells inside the box
     if method == "d_city_cnn":
         n = geometry.n_rays
         target = np.zeros(tuple(size * n for size in lattice), dtype=np.float32)
         if gains is not None:
             sub = boundary_subcells(state.ndim, n)  # (R, dims)
-            index = (origins // s)[:, None, :] * n + sub[None, :, :]  # (N, R, dims)
+            index = local[:, None, :] * n + sub[None, :, :]  # (N, R, dims)
             target[tuple(index.reshape(-1, state.ndim).T)] = gains.reshape(-1)
         return target[None]
     views = (gains @ geometry.membership) / geometry.view_scale if gains is not None else None
+    cells = tuple(local.T)
     if method == "flat_city_cnn":
         target = np.zeros((geometry.membership.shape[1], *lattice), dtype=np.float32)
         if views is not None:

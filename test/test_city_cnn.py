@@ -1,0 +1,133 @@
+"""City-CNN baselines: targets against hand-worked and independently computed omniscient gains,
+network shapes and masks, decoding, and the planners."""
+
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from nbv_prob_cnn.camera import Sensor, orientations
+from nbv_prob_cnn.city_cnn import (
+    CityGeometry,
+    boundary_subcells,
+    build_network,
+    city_targets,
+    decode_views,
+    encode_city_input,
+    output_mask,
+)
+from nbv_prob_cnn.datasets import DatasetSpec
+from nbv_prob_cnn.gain import ray_directions
+
+# 2D, range 3 cells, 4 sub-cells per side for every variant: 12 rays, small enough to work by hand.
+TINY_2D = DatasetSpec("2d", 2, (8, 6), 1.0, Sensor(60.0, None, 3), 4, 2, city_n_rays=4)
+TINY_3D = DatasetSpec("3du", 3, (10, 9, 8), 1.0, Sensor(60.0, 46.0, 4), 4, 2, city_n_rays=4)
+
+
+def slow_observed_gain(state, truth, origin, direction, r_max):
+    """Independent reference: walk the ray sample by sample; count the unknown cells it would
+    observe (up to and including the first occupied one), weighted t^nu, over sum t^nu."""
+    nu = state.ndim - 1
+    seen = 0.0
+    for t in range(r_max + 1):
+        cell = tuple(int(math.floor(o + t * d + 0.5)) for o, d in zip(origin, direction, strict=True))
+        if any(c < 0 or c >= n for c, n in zip(cell, state.shape, strict=True)) or state[cell] == 1:
+            break
+        if state[cell] == -1:
+            seen += t**nu
+            if truth[cell] == 1:
+                break
+    return seen / sum(t**nu for t in range(r_max + 1))
+
+
+def test_subcells_follow_the_ray_order():
+    for dims, n in ((2, 4), (2, 16), (3, 4)):
+        sub = boundary_subcells(dims, n) + 0.5 - n / 2
+        np.testing.assert_allclose(sub / np.linalg.norm(sub, axis=1, keepdims=True), ray_directions(dims, n))
+
+
+def test_d_city_targets_by_hand():
+    state = np.full((8, 6), -1, dtype=np.int8)
+    state[1, 1] = 0  # the only known (empty) cell: the only origin
+    truth = np.zeros((8, 6), dtype=np.uint8)
+    truth[3, 2] = 1
+    target = city_targets("d_city_cnn", state, truth, TINY_2D, backend="numpy")
+    assert target.shape == (1, 32, 24)
+    # sub-cell (3, 2) = direction (1.5, 0.5): samples (2, 1), (3, 2) = wall, stop -> (1 + 2) / (0+1+2+3)
+    assert target[0, 4 + 3, 4 + 2] == pytest.approx(0.5)
+    # sub-cell (3, 1) = (1.5, -0.5): (2, 1), (3, 0), (4, 0), all unknown and empty -> 6 / 6
+    assert target[0, 4 + 3, 4 + 1] == pytest.approx(1.0)
+    # sub-cell (0, 1) = (-1.5, -0.5): (0, 1), then (-1, 0) outside the grid -> 1 / 6
+    assert target[0, 4 + 0, 4 + 1] == pytest.approx(1 / 6)
+    assert np.all(target[0, 5:7, 5:7] == 0)  # central sub-cells
+    assert np.count_nonzero(target[0, :4]) == 0 and np.count_nonzero(target[0, 8:]) == 0  # other cells
+
+
+@pytest.mark.parametrize("spec", [TINY_2D, TINY_3D], ids=["2d", "3d"])
+def test_targets_equal_omniscient_gains(rng, spec):
+    state = rng.choice(np.array([-1, 0, 1], dtype=np.int8), size=spec.shape, p=[0.6, 0.35, 0.05])
+    truth = np.where(state == -1, rng.random(spec.shape) < 0.2, state == 1).astype(np.uint8)
+    geometry = CityGeometry.of("d_city_cnn", spec)
+    origins = np.argwhere(state == 0)
+    expected = np.array(
+        [[slow_observed_gain(state, truth, o, d, spec.sensor.r_max) for d in geometry.directions] for o in origins]
+    )
+    target = city_targets("d_city_cnn", state, truth, spec, backend="numpy")[0]
+    sub = boundary_subcells(spec.dims, 4)
+    got = np.array([[target[tuple(o * 4 + s)] for s in sub] for o in origins])
+    np.testing.assert_allclose(got, expected, atol=1e-5)
+    views = expected @ geometry.membership  # view gains of the omniscient method
+    flat = city_targets("flat_city_cnn", state, truth, spec, backend="numpy")
+    np.testing.assert_allclose(flat[(slice(None), *origins.T)].T * geometry.view_scale, views, atol=1e-4)
+    b = city_targets("b_city_cnn", state, truth, spec, backend="numpy")[(slice(None), *origins.T)].T
+    np.testing.assert_allclose(np.linalg.norm(b, axis=1) * geometry.view_scale, views.max(axis=1), atol=1e-4)
+    for method in ("flat_city_cnn", "d_city_cnn", "b_city_cnn"):  # a perfect network picks the oracle's view
+        output = city_targets(method, state, truth, spec, backend="numpy")
+        decoded = decode_views(method, output, state, spec, origins)
+        assert decoded.max() == pytest.approx(views.max(), abs=1e-4)
+        best = np.unravel_index(np.argmax(decoded), decoded.shape)
+        assert views[best] == pytest.approx(views.max(), abs=1e-4)
+
+
+def test_flat_target_by_hand():
+    state = np.full((8, 6), -1, dtype=np.int8)
+    state[1, 1] = 0
+    truth = np.zeros((8, 6), dtype=np.uint8)
+    truth[3, 2] = 1
+    flat = city_targets("flat_city_cnn", state, truth, TINY_2D, backend="numpy")
+    # view 0 looks along +x: rays (1.5, ±0.5) (18.4° off axis) only: 0.5 + 1.0; at most 3 rays per view
+    assert CityGeometry.of("flat_city_cnn", TINY_2D).view_scale == 3
+    assert flat[0, 1, 1] == pytest.approx(1.5 / 3)
+
+
+def test_crops_and_3dt_lattice(rng):
+    spec = DatasetSpec("3dt", 3, (32, 32, 24), 1.0, Sensor(60.0, 46.0, 6), 4, 4, city_output_stride=8)
+    state = rng.choice(np.array([-1, 0], dtype=np.int8), size=spec.shape, p=[0.5, 0.5])
+    truth = (rng.random(spec.shape) < 0.1).astype(np.uint8) * (state == -1)
+    full = city_targets("flat_city_cnn", state, truth, spec, backend="numpy")
+    assert full.shape == (52, 4, 4, 3)
+    box = (slice(8, 24), slice(0, 16), slice(8, 24))
+    part = city_targets("flat_city_cnn", state, truth, spec, box, backend="numpy")
+    np.testing.assert_allclose(part, full[:, 1:3, 0:2, 1:3], atol=1e-6)
+    with pytest.raises(ValueError, match="lattice"):
+        city_targets("flat_city_cnn", state, truth, spec, (slice(1, 9),) * 3, backend="numpy")
+    shapes = {"flat_city_cnn": (52, 4, 4, 3), "b_city_cnn": (4, 4, 4, 3), "d_city_cnn": (1, 16, 16, 12)}
+    for method, shape in shapes.items():
+        net = build_network(method, spec, first_channels=2)
+        out = net(encode_city_input(state[None]))
+        assert tuple(out.shape[1:]) == shape
+        assert output_mask(CityGeometry.of(method, spec), state).shape == shape[1:]
+        assert (len(net.decoder), len(net.extra)) == ((1, 2) if method == "d_city_cnn" else (1, 0))
+    b = build_network("b_city_cnn", spec, first_channels=2)(encode_city_input(state[None]))
+    assert torch.all(b.abs() <= 1)
+
+
+def test_mask_zeroes_non_empty_cells_and_centres():
+    state = np.full((8, 6), -1, dtype=np.int8)
+    state[2, 3] = 0
+    mask = output_mask(CityGeometry.of("d_city_cnn", TINY_2D), state)
+    assert mask.shape == (32, 24) and mask.sum() == 12
+    assert mask[8:12, 12:16].sum() == 12 and mask[9:11, 13:15].sum() == 0
+    assert output_mask(CityGeometry.of("flat_city_cnn", TINY_2D), state).sum() == 1
+    assert len(orientations(2)) == 60
