@@ -131,3 +131,61 @@ def test_mask_zeroes_non_empty_cells_and_centres():
     assert mask[8:12, 12:16].sum() == 12 and mask[9:11, 13:15].sum() == 0
     assert output_mask(CityGeometry.of("flat_city_cnn", TINY_2D), state).sum() == 1
     assert len(orientations(2)) == 60
+
+
+def test_reliability_by_hand():
+    from nbv_prob_cnn.completion.calibration import reliability
+
+    table = reliability(np.array([0.05, 0.05, 0.95, 0.95]), np.array([0, 1, 1, 1]))
+    assert table.counts[0] == 2 and table.counts[9] == 2 and table.counts[1:9].sum() == 0
+    assert table.observed[0] == pytest.approx(0.5) and table.mean_predicted[9] == pytest.approx(0.95)
+    assert table.ece == pytest.approx(0.5 * 0.45 + 0.5 * 0.05)
+    assert reliability(np.array([1.0, 0.0]), np.array([1, 0])).ece == 0.0  # p = 1 falls in the last bin
+    with pytest.raises(ValueError):
+        reliability(np.array([1.5]), np.array([1]))
+
+
+@pytest.mark.parametrize("method", ["flat_city_cnn", "b_city_cnn", "d_city_cnn"])
+def test_train_and_plan_with_a_tiny_city_cnn(tmp_path, monkeypatch, method):
+    """`train --method` on tiny grids, then the registry planner uses the weights; missing
+    weights name the training command."""
+    from nbv_prob_cnn.completion import WeightsError, inference
+    from nbv_prob_cnn.completion import data as data_mod
+    from nbv_prob_cnn.completion.train import train
+    from nbv_prob_cnn.planners import PlanningContext, make_planner
+
+    def boxes(dataset, seed):
+        grid = np.zeros((40, 40), dtype=np.uint8)
+        r = np.random.default_rng(seed)
+        for x, y in r.integers(0, 34, size=(6, 2)):
+            grid[x : x + 5, y : y + 4] = 1
+        return grid, 1
+
+    monkeypatch.setenv("NBV_CACHE_DIR", str(tmp_path / "cache"))
+    monkeypatch.setattr(data_mod, "load_environment", boxes)
+    monkeypatch.setattr(data_mod, "current_generator_version", lambda: 1)
+    out = tmp_path / f"2d_{method}.pt"
+    kwargs = dict(n_train_envs=2, n_val_envs=1, n_test_envs=1, crop=16, test_crop=24, progress=False, threads=2)
+    result = train("2d", 1, out, method=method, device="cpu", first_channels=2, backend="numpy", **kwargs)
+    assert result.ece is None and np.isfinite(result.test_mse) and out.is_file()
+    assert f"nbv train --dataset 2d --method {method} --epochs 1" in out.with_suffix(".md").read_text()
+
+    monkeypatch.setattr(inference, "default_weights_path", lambda dataset, model="cnn_prob": out)
+    truth, _ = boxes("2d", 7)
+    state = np.full(truth.shape, -1, dtype=np.int8)
+    state[5:30, 5:30] = truth[5:30, 5:30]
+    context = PlanningContext.for_dataset("2d", backend="numpy")
+    ranked = make_planner(method).rank(state, context, top_k=5)
+    assert 1 <= len(ranked) <= 5 and all(state[tuple(c.cell)] == 0 for c in ranked)
+    gains = [c.gain for c in ranked]
+    assert gains == sorted(gains, reverse=True) and gains[-1] > 0
+    from nbv_prob_cnn.planners.city_cnn import predict
+
+    origins = np.argwhere(state == 0)
+    assert gains[0] == pytest.approx(
+        decode_views(method, predict(method, state, context), state, context.defaults, origins).max()
+    )
+
+    monkeypatch.setattr(inference, "default_weights_path", lambda dataset, model="cnn_prob": tmp_path / "none.pt")
+    with pytest.raises(WeightsError, match=f"nbv train --dataset 2d --method {method}"):
+        make_planner(method).plan(state, context)

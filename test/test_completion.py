@@ -16,7 +16,9 @@ from nbv_prob_cnn.completion import data as data_mod
 from nbv_prob_cnn.completion.data import ROTATIONS, crop_box, rotations
 from nbv_prob_cnn.completion.inference import save_weights
 from nbv_prob_cnn.completion.model import encode_state
+from nbv_prob_cnn.completion.tasks import TrainingTask
 from nbv_prob_cnn.completion.train import side_paths, train, train_step
+from nbv_prob_cnn.datasets import dataset_spec
 from nbv_prob_cnn.grid import UNKNOWN
 
 torch.set_num_threads(2)
@@ -171,9 +173,12 @@ def test_tiny_model_overfits_tiny_dataset():
     optimizer = torch.optim.Adam(model.parameters(), lr=3e-3)
     truths = np.stack([random_boxes((16, 16), 5, s) for s in range(4)])
     states = np.stack([partial_state(t, 0.5, 100 + i) for i, t in enumerate(truths)])
-    losses = [train_step(model, optimizer, states, truths, torch.device("cpu"))]
+    task = TrainingTask("cnn_prob", dataset_spec("2d"))
+    box = (slice(0, 16), slice(0, 16))
+    examples = [task.example(s, t, box) for s, t in zip(states, truths, strict=True)]
+    losses = [train_step(model, optimizer, examples, torch.device("cpu"))]
     while len(losses) < 600 and losses[-1] >= losses[0] / 10:  # bounded: at most 600 steps
-        losses.append(train_step(model, optimizer, states, truths, torch.device("cpu")))
+        losses.append(train_step(model, optimizer, examples, torch.device("cpu")))
     assert losses[-1] < losses[0] / 10, (losses[0], losses[-1], len(losses))
 
 
@@ -358,16 +363,20 @@ def test_train_end_to_end_and_resume(tmp_path, monkeypatch):
     monkeypatch.setenv("NBV_CACHE_DIR", str(tmp_path / "cache"))
     monkeypatch.setattr(data_mod, "load_environment", lambda dataset, seed: (random_boxes((40, 40), 6, seed), 1))
     monkeypatch.setattr(data_mod, "current_generator_version", lambda: 1)
-    out = tmp_path / "w" / "2d.pt"
-    kwargs = dict(n_train_envs=2, n_test_envs=1, crop=32, test_crop=32, progress=False, threads=2, device="cpu")
+    out = tmp_path / "w" / "2d_cnn_prob.pt"
+    kwargs = dict(
+        n_train_envs=2, n_val_envs=1, n_test_envs=1, crop=32, test_crop=32, progress=False, threads=2, device="cpu"
+    )
     result = train("2d", 1, out, **kwargs)
     paths = side_paths(out)
-    for key in ("weights", "last", "csv", "png", "card"):
+    for key in ("weights", "last", "csv", "png", "card", "calibration"):
         assert paths[key].is_file(), key
     card = paths["card"].read_text()
-    assert "nbv train --dataset 2d --epochs 1" in card and "0..1" in card and "120..120" in card
+    assert "nbv train --dataset 2d --epochs 1" in card and "0..1" in card and "100..100" in card and "120..120" in card
     model = load_model(out, dataset="2d", device="cpu")
-    assert model.card["epochs"] == 1 and model.card["test_mse"] == pytest.approx(result.best_test_loss, abs=1e-6)
+    assert model.card["epochs"] == 1 and model.card["test_mse"] == pytest.approx(result.test_mse, abs=1e-6)
+    assert model.card["validation_mse"] == pytest.approx(result.validation_mse, abs=1e-6)
+    assert 0.0 <= model.card["ece"] <= 1.0 and model.card["ece"] == pytest.approx(result.ece, abs=1e-5)
     result = train("2d", 2, out, **kwargs)  # resumes after epoch 1
     with open(paths["csv"]) as fh:
         rows = list(csv.DictReader(fh))
@@ -384,6 +393,9 @@ def test_retrain_command_omits_default_out(tmp_path):
     assert retrain_args("3dt", 25, default_weights_path("3dt"), None, None, 64, 4) == (
         "nbv train --dataset 3dt --epochs 25 --crop 64"
     )
+    assert retrain_args(
+        "3du", 2, default_weights_path("3du", "b_city_cnn"), 3, None, None, 4, method="b_city_cnn", n_val_envs=2
+    ) == ("nbv train --dataset 3du --method b_city_cnn --epochs 2 --train-envs 3 --val-envs 2")
     assert f"--out {tmp_path / 'x.pt'}" in retrain_args("3du", 2, tmp_path / "x.pt", 3, None, None, 4)
 
 

@@ -1,12 +1,16 @@
-"""``nbv train``: train the completion CNN of a data set (SPEC §3)."""
+"""``nbv train``: train a network of a data set: the completion CNN (SPEC §3) or a City-CNN
+baseline (SPEC §6)."""
 
 from __future__ import annotations
 
 import argparse
 from pathlib import Path
 
+from nbv_prob_cnn.completion.tasks import TRAINABLE_MODELS
+from nbv_prob_cnn.datasets import DATASET_SPECS
+
 NAME = "train"
-HELP = "Train the completion CNN of a data set (writes weights, loss CSV/plot and a model card)."
+HELP = "Train a network (completion CNN or City-CNN) of a data set: weights, loss CSV/plot, model card."
 
 
 def _positive(text: str) -> int:
@@ -16,55 +20,62 @@ def _positive(text: str) -> int:
     return value
 
 
+def _defaults(field: str) -> str:
+    return ", ".join(f"{name} {getattr(spec.training, field)}" for name, spec in DATASET_SPECS.items())
+
+
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--dataset", required=True, choices=["2d", "3du", "3dt"], help="data set to train on")
-    parser.add_argument("--epochs", type=_positive, default=None, help="total epochs (default: 2d 120, 3du 15, 3dt 25)")
+    parser.add_argument("--dataset", required=True, choices=sorted(DATASET_SPECS), help="data set to train on")
     parser.add_argument(
-        "--out", type=Path, default=None, help="weights file (default: the shipped nbv_prob_cnn/weights/<dataset>.pt)"
+        "--method", default="cnn_prob", choices=TRAINABLE_MODELS, help="network to train (default: cnn_prob)"
+    )
+    parser.add_argument("--epochs", type=_positive, default=None, help=f"total epochs (default: {_defaults('epochs')})")
+    parser.add_argument(
+        "--out", type=Path, default=None, help="weights file (default: nbv_prob_cnn/weights/<dataset>_<method>.pt)"
     )
     parser.add_argument("--train-envs", type=_positive, default=None, help="use the first N training environments")
+    parser.add_argument("--val-envs", type=_positive, default=None, help="use the first N validation environments")
     parser.add_argument("--test-envs", type=_positive, default=None, help="use the first N test environments")
     parser.add_argument(
         "--crop",
         type=_positive,
         default=None,
-        help="random training crop edge in cells (default: 2d 256, 3du none, 3dt 64)",
+        help=f"random training crop edge (default: {_defaults('crop')})",
     )
     parser.add_argument(
-        "--batch-size", type=_positive, default=None, help="grids per step (default: 2d 8, 3du 4, 3dt 4)"
+        "--batch-size", type=_positive, default=None, help=f"grids per step (default: {_defaults('batch_size')})"
     )
     parser.add_argument("--workers", type=_positive, default=1, help="processes generating missing training data")
     parser.add_argument("--threads", type=_positive, default=None, help="torch threads (default: min(2, cores))")
     parser.add_argument("--device", default=None, help="torch device (default: cuda if available, else cpu)")
     parser.add_argument("--no-resume", action="store_true", help="start over instead of resuming <out>.last.ckpt")
-
-
-#: Default epochs per data set, sized for about an hour on 2 CPU cores (see the model docs).
-DEFAULT_EPOCHS = {"2d": 120, "3du": 15, "3dt": 25}
-#: Default training crop per data set.
-DEFAULT_CROP = {"2d": 256, "3du": None, "3dt": 64}
+    parser.add_argument("--note", default="", help="a sentence for the model card (e.g. why the run was short)")
 
 
 def run(args: argparse.Namespace) -> int:
-    from nbv_prob_cnn.completion.inference import default_weights_path
     from nbv_prob_cnn.completion.train import train
 
-    epochs = args.epochs or DEFAULT_EPOCHS[args.dataset]
-    out = args.out or default_weights_path(args.dataset)
-    crop = args.crop if args.crop is not None else DEFAULT_CROP[args.dataset]
+    training = DATASET_SPECS[args.dataset].training
     result = train(
         args.dataset,
-        epochs,
-        out,
+        args.epochs or training.epochs,
+        args.out,
         n_train_envs=args.train_envs,
         n_test_envs=args.test_envs,
-        crop=crop,
+        crop=args.crop if args.crop is not None else training.crop,
         resume=not args.no_resume,
         batch_size=args.batch_size,
         workers=args.workers,
         threads=args.threads,
         device=args.device,
+        method=args.method,
+        n_val_envs=args.val_envs,
+        note=args.note,
     )
-    print(f"weights: {result.weights} (best test MSE {result.best_test_loss:.5f}, {result.epochs_done} epochs)")
+    ece = f", test ECE {result.ece:.4f}" if result.ece is not None else ""
+    print(
+        f"weights: {result.weights} (best validation MSE {result.validation_mse:.5f}, "
+        f"test MSE {result.test_mse:.5f}{ece}, {result.epochs_done} epochs)"
+    )
     print(f"history: {result.history_csv}, plot: {result.plot}, card: {result.card}")
     return 0

@@ -310,8 +310,9 @@ def rotations(dataset: str) -> tuple[Rotation, ...]:
         raise ValueError(f"dataset: unknown data set {dataset!r}; expected one of {sorted(ROTATIONS)}") from None
 
 
-def crop_box(shape: tuple[int, ...], crop: int | None, rng: np.random.Generator) -> tuple[slice, ...]:
-    """A random box of edge ``min(crop, size)`` per axis (the whole grid when ``crop`` is None)."""
+def crop_box(shape: tuple[int, ...], crop: int | None, rng: np.random.Generator, align: int = 1) -> tuple[slice, ...]:
+    """A random box of edge ``min(crop, size)`` per axis (the whole grid when ``crop`` is None)
+    whose starts are multiples of ``align`` (City-CNN output lattices)."""
     if crop is None:
         return tuple(slice(0, s) for s in shape)
     if crop < 1:
@@ -319,6 +320,6 @@ def crop_box(shape: tuple[int, ...], crop: int | None, rng: np.random.Generator)
     box = []
     for size in shape:
         edge = min(crop, size)
-        start = int(rng.integers(0, size - edge + 1))
+        start = align * int(rng.integers(0, (size - edge) // align + 1))
         box.append(slice(start, start + edge))
     return tuple(box)

@@ -1,16 +1,25 @@
-"""Training the completion CNN (SPEC §3): Adam (lr 1e-3), MSE between ``P`` and ``D``.
+"""The one training loop of the project's networks (SPEC §3, §6): the completion CNN
+(``cnn_prob``) and the City-CNN baselines (``flat_city_cnn``, ``b_city_cnn``, ``d_city_cnn``),
+Adam (lr 1e-3), MSE loss (:mod:`~nbv_prob_cnn.completion.tasks` says what each one learns).
+
+Environment split (:mod:`nbv_prob_cnn.datasets`): training, validation, test. After every epoch
+the validation loss is measured; the weights kept are those of the epoch with the lowest
+validation loss (the test split never chooses anything). When training ends, the kept weights
+are scored once on the test split: test MSE and, for the completion CNN, the calibration of its
+probabilities on unknown cells (reliability table, ECE, reliability plot).
 
 For weights ``out = <dir>/<stem>.pt`` training writes, next to it:
 
-* ``<stem>.pt``: the best weights so far (lowest test loss), with their model card;
+* ``<stem>.pt``: the best-validation weights so far, with their model card;
 * ``<stem>.last.ckpt``: the last epoch's model, optimizer, history (resumable);
-* ``<stem>.csv``: per-epoch train/test MSE and wall time; ``<stem>.png``: their plot;
-* ``<stem>.md``: the model card (data set, seeds, versions, epochs, time, test MSE, command).
+* ``<stem>.csv``: per-epoch train/validation MSE and wall time; ``<stem>.png``: their plot;
+* ``<stem>.calibration.png`` (completion CNN): reliability plot on the test split;
+* ``<stem>.md``: the model card (data set, seeds, versions, epochs, time, MSEs, ECE, command).
 
 An epoch visits every training environment once under every augmentation rotation, in a
-shuffled order (one random crop each when ``crop`` is set). The test loss is the MSE on the
-test environments, unrotated, on a fixed crop per environment when ``test_crop`` is set
-(2D default: 400×400, the evaluation size of SPEC §7).
+shuffled order (one random crop each when ``crop`` is set; City-CNN crops start on the output
+lattice and their targets are ray-cast through the whole rotated grid). Validation and test
+items are unrotated, on a fixed crop per environment when ``test_crop`` is set.
 """
 
 from __future__ import annotations
@@ -26,26 +35,19 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from torch.nn import functional
 from tqdm import tqdm
 
-from nbv_prob_cnn.camera import dataset_defaults
-from nbv_prob_cnn.completion.data import (
-    DATA_VERSION,
-    TEST_SEEDS,
-    TRAIN_SEEDS,
-    TrainingSample,
-    crop_box,
-    load_samples,
-    rotations,
-)
+from nbv_prob_cnn.completion.calibration import Reliability, reliability, save_reliability_plot
+from nbv_prob_cnn.completion.data import DATA_VERSION, TrainingSample, crop_box, load_samples, rotations
 from nbv_prob_cnn.completion.inference import clear_model_cache, default_weights_path, resolve_device, save_weights
-from nbv_prob_cnn.completion.model import DEFAULT_FIRST_CHANNELS, CompletionNet, count_parameters, encode_state
+from nbv_prob_cnn.completion.model import CompletionNet, count_parameters
+from nbv_prob_cnn.completion.tasks import Example, TrainingTask
+from nbv_prob_cnn.datasets import DATASET_SPECS, dataset_spec
 
-#: Default mini-batch size per data set (fits 2 CPU cores; see the module docs for timings).
-DEFAULT_BATCH = {"2d": 8, "3du": 4, "3dt": 4}
-#: Default test crop per data set (None: whole grids).
-DEFAULT_TEST_CROP: dict[str, int | None] = {"2d": 400, "3du": None, "3dt": None}
+#: Default mini-batch size per data set (from :mod:`nbv_prob_cnn.datasets`).
+DEFAULT_BATCH = {name: spec.training.batch_size for name, spec in DATASET_SPECS.items()}
+#: Default validation/test crop per data set (None: whole grids).
+DEFAULT_TEST_CROP: dict[str, int | None] = {name: spec.training.test_crop for name, spec in DATASET_SPECS.items()}
 LEARNING_RATE = 1e-3
 
 
@@ -58,7 +60,9 @@ class TrainResult:
     history_csv: Path
     plot: Path
     card: Path
-    best_test_loss: float
+    validation_mse: float
+    test_mse: float
+    ece: float | None
     epochs_done: int
 
 
@@ -71,6 +75,7 @@ def side_paths(out: str | Path) -> dict[str, Path]:
         "last": stem.with_name(stem.name + ".last.ckpt"),
         "csv": stem.with_suffix(".csv"),
         "png": stem.with_suffix(".png"),
+        "calibration": stem.with_name(stem.name + ".calibration.png"),
         "card": stem.with_suffix(".md"),
     }
 
@@ -80,54 +85,74 @@ def default_threads() -> int:
     return max(1, min(2, os.cpu_count() or 1))
 
 
+def _batch(examples: Sequence[Example], device: torch.device) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    def stack(name: str) -> torch.Tensor:
+        return torch.as_tensor(np.stack([getattr(e, name) for e in examples]), dtype=torch.float32, device=device)
+
+    return stack("inputs"), stack("target"), stack("mask")
+
+
 def train_step(
-    model: CompletionNet, optimizer: torch.optim.Optimizer, states: np.ndarray, truths: np.ndarray, device: torch.device
+    model: CompletionNet, optimizer: torch.optim.Optimizer, examples: Sequence[Example], device: torch.device
 ) -> float:
-    """One Adam step on a batch ``(B, *spatial)`` of states and ground truths; returns the MSE."""
+    """One Adam step on examples of equal shape; returns the MSE of ``output · mask`` and the target."""
     model.train()
-    x = encode_state(states).to(device)
-    target = torch.as_tensor(truths, dtype=torch.float32, device=device).unsqueeze(1)
+    x, target, mask = _batch(examples, device)
     optimizer.zero_grad(set_to_none=True)
-    loss = functional.mse_loss(model(x), target)
+    loss = torch.mean((model(x) * mask - target) ** 2)
     loss.backward()
     optimizer.step()
     return float(loss.detach())
 
 
-def evaluate(
-    model: CompletionNet, states: Sequence[np.ndarray], truths: Sequence[np.ndarray], device: torch.device, batch: int
-) -> float:
-    """Mean per-grid MSE between ``P`` and ``D`` (no gradient)."""
+def evaluate(model: CompletionNet, examples: Sequence[Example], device: torch.device, batch: int) -> float:
+    """Mean per-example MSE of ``output · mask`` and the target (no gradient)."""
+    return float(np.mean(_per_example(model, examples, device, batch)[0])) if examples else float("nan")
+
+
+def _per_example(
+    model: CompletionNet, examples: Sequence[Example], device: torch.device, batch: int
+) -> tuple[list[float], list[np.ndarray]]:
     model.eval()
-    losses = []
+    losses, outputs = [], []
     with torch.inference_mode():
-        for start in range(0, len(states), batch):
-            for group_s, group_t in _same_shape_groups(states[start : start + batch], truths[start : start + batch]):
-                prob = model(encode_state(np.stack(group_s)).to(device))
-                target = torch.as_tensor(np.stack(group_t), dtype=torch.float32, device=device).unsqueeze(1)
-                per_grid = ((prob - target) ** 2).flatten(1).mean(dim=1)
-                losses += per_grid.cpu().tolist()
-    return float(np.mean(losses)) if losses else float("nan")
+        for start in range(0, len(examples), batch):
+            for group in _same_shape_groups(examples[start : start + batch]):
+                x, target, mask = _batch(group, device)
+                out = model(x) * mask
+                losses += ((out - target) ** 2).flatten(1).mean(dim=1).cpu().tolist()
+                outputs += list(out.cpu().numpy())
+    return losses, outputs
 
 
-def _same_shape_groups(states: Sequence[np.ndarray], truths: Sequence[np.ndarray]):
-    groups: dict[tuple[int, ...], tuple[list, list]] = {}
-    for s, t in zip(states, truths, strict=True):
-        g = groups.setdefault(s.shape, ([], []))
-        g[0].append(s)
-        g[1].append(t)
+def _same_shape_groups(examples: Sequence[Example]) -> list[list[Example]]:
+    groups: dict[tuple, list[Example]] = {}
+    for e in examples:
+        groups.setdefault((e.inputs.shape, e.target.shape, e.mask.shape), []).append(e)
     return list(groups.values())
 
 
-def _fixed_test_views(
-    samples: Sequence[TrainingSample], test_crop: int | None
-) -> tuple[list[np.ndarray], list[np.ndarray]]:
-    states, truths = [], []
+def fixed_examples(task: TrainingTask, samples: Sequence[TrainingSample], crop: int | None) -> list[Example]:
+    """Validation/test items: unrotated, one fixed crop per environment (seeded by the environment)."""
+    examples = []
     for sample in samples:
-        box = crop_box(sample.state.shape, test_crop, np.random.default_rng([sample.seed, 404]))
-        states.append(sample.state[box])
-        truths.append(sample.truth[box])
-    return states, truths
+        box = crop_box(sample.state.shape, crop, np.random.default_rng([sample.seed, 404]), task.align)
+        examples.append(task.example(sample.state, sample.truth, box))
+    return examples
+
+
+def calibration_of(
+    model: CompletionNet, task: TrainingTask, samples: Sequence[TrainingSample], crop: int | None, device, batch: int
+) -> Reliability:
+    """Reliability of the completion CNN's probabilities on the unknown cells of ``samples``."""
+    examples = fixed_examples(task, samples, crop)
+    _, outputs = _per_example(model, examples, device, batch)
+    predicted, occupied = [], []
+    for example, out in zip(examples, outputs, strict=True):
+        unknown = (example.inputs[0] == 0) & (example.inputs[1] == 0)
+        predicted.append(np.clip(out[0][unknown], 0.0, 1.0))
+        occupied.append(example.target[0][unknown])
+    return reliability(np.concatenate(predicted), np.concatenate(occupied))
 
 
 def retrain_args(
@@ -138,15 +163,20 @@ def retrain_args(
     n_test_envs: int | None,
     crop: int | None,
     batch_size: int,
+    *,
+    method: str = "cnn_prob",
+    n_val_envs: int | None = None,
 ) -> str:
     """The ``nbv train`` command line that reproduces a run."""
-    cmd = f"nbv train --dataset {dataset} --epochs {epochs}"
-    if Path(out).expanduser().resolve() != default_weights_path(dataset):
+    cmd = f"nbv train --dataset {dataset}"
+    if method != "cnn_prob":
+        cmd += f" --method {method}"
+    cmd += f" --epochs {epochs}"
+    if Path(out).expanduser().resolve() != default_weights_path(dataset, method):
         cmd += f" --out {out}"
-    if n_train_envs is not None:
-        cmd += f" --train-envs {n_train_envs}"
-    if n_test_envs is not None:
-        cmd += f" --test-envs {n_test_envs}"
+    for flag, value in (("--train-envs", n_train_envs), ("--val-envs", n_val_envs), ("--test-envs", n_test_envs)):
+        if value is not None:
+            cmd += f" {flag} {value}"
     if crop is not None:
         cmd += f" --crop {crop}"
     if batch_size != DEFAULT_BATCH[dataset]:
@@ -154,51 +184,52 @@ def retrain_args(
     return cmd
 
 
-def _write_history(history: list[dict], csv_path: Path, png_path: Path, dataset: str) -> None:
-    fields = ["epoch", "train_mse", "test_mse", "epoch_seconds", "elapsed_seconds"]
+def _write_history(history: list[dict], csv_path: Path, png_path: Path, title: str) -> None:
+    fields = ["epoch", "train_mse", "validation_mse", "epoch_seconds", "elapsed_seconds"]
     with open(csv_path, "w", newline="") as fh:
         writer = csv.DictWriter(fh, fieldnames=fields)
         writer.writeheader()
         for row in history:
             writer.writerow({k: row[k] for k in fields})
-    import matplotlib
+    from matplotlib.figure import Figure
 
-    matplotlib.use("Agg")
-    from matplotlib import pyplot as plt
-
-    fig, ax = plt.subplots(figsize=(6, 4))
+    fig = Figure(figsize=(6, 4))
+    ax = fig.add_subplot(1, 1, 1)
     epochs = [r["epoch"] for r in history]
     ax.plot(epochs, [r["train_mse"] for r in history], label="train", marker=".")
-    ax.plot(epochs, [r["test_mse"] for r in history], label="test", marker=".")
+    ax.plot(epochs, [r["validation_mse"] for r in history], label="validation", marker=".")
     ax.set_xlabel("epoch")
-    ax.set_ylabel("MSE(P, D)")
-    ax.set_title(f"completion CNN, {dataset}")
+    ax.set_ylabel("MSE")
+    ax.set_title(title)
     ax.grid(True, alpha=0.3)
     ax.legend()
     fig.tight_layout()
     fig.savefig(png_path, dpi=100)
-    plt.close(fig)
 
 
 def _card_markdown(card: dict) -> str:
-    lines = [f"# Completion CNN weights: {card['dataset']}", ""]
+    lines = [f"# {card.get('model', 'cnn_prob')} weights: {card['dataset']}", ""]
     labels = {
         "dataset": "Data set",
+        "model": "Model (method)",
         "architecture": "Architecture",
         "parameters": "Parameters",
         "train_seeds": "Training environments (seeds)",
+        "validation_seeds": "Validation environments (seeds)",
         "test_seeds": "Test environments (seeds)",
         "data_version": "Training-data simulation version",
         "generator_versions": "World generator version(s)",
         "augmentation": "Augmentation",
         "crop": "Training crop",
-        "test_crop": "Test crop",
+        "test_crop": "Validation/test crop",
         "batch_size": "Batch size",
         "optimizer": "Optimizer",
         "epochs": "Epochs trained",
-        "best_epoch": "Epoch of these weights (lowest test MSE)",
+        "best_epoch": "Epoch of these weights (lowest validation MSE)",
+        "validation_mse": "Validation MSE of these weights",
         "test_mse": "Test MSE of these weights",
-        "final_test_mse": "Test MSE after the last epoch",
+        "ece": "Calibration on the test split, unknown cells (ECE, 10 bins)",
+        "final_validation_mse": "Validation MSE after the last epoch",
         "final_train_mse": "Train MSE of the last epoch",
         "wall_time_s": "Training wall time (s)",
         "device": "Device",
@@ -208,7 +239,9 @@ def _card_markdown(card: dict) -> str:
     for key, label in labels.items():
         if key in card:
             lines.append(f"* **{label}**: {card[key]}")
-    if card.get("crop"):
+    if card.get("note"):
+        lines += ["", card["note"]]
+    if card.get("crop") and card["crop"] != "none (whole grids)":
         lines += [
             "",
             f"Trained on random {card['crop']}-cell crops of the simulated grids: the network is fully "
@@ -222,7 +255,7 @@ def _card_markdown(card: dict) -> str:
 def train(
     dataset: str,
     epochs: int,
-    out: str | Path,
+    out: str | Path | None = None,
     n_train_envs: int | None = None,
     n_test_envs: int | None = None,
     crop: int | None = None,
@@ -236,46 +269,63 @@ def train(
     progress: bool = True,
     train_seeds: Sequence[int] | None = None,
     test_seeds: Sequence[int] | None = None,
+    method: str = "cnn_prob",
+    n_val_envs: int | None = None,
+    validation_seeds: Sequence[int] | None = None,
+    first_channels: int | None = None,
+    backend: str = "auto",
+    note: str = "",
 ) -> TrainResult:
-    """Train the completion CNN of ``dataset`` and write the weights to ``out``.
+    """Train the network ``method`` of ``dataset`` and write the weights to ``out``.
 
     Args:
         dataset: ``2d``, ``3du`` or ``3dt``.
         epochs: total number of epochs (a resumed run continues up to this number).
-        out: weights file; the side files of :func:`side_paths` go next to it.
-        n_train_envs, n_test_envs: use only the first N environments of each split.
+        out: weights file (default ``nbv_prob_cnn/weights/<dataset>_<method>.pt``); the side
+            files of :func:`side_paths` go next to it.
+        n_train_envs, n_val_envs, n_test_envs: use only the first N environments of each split.
         crop: random training crop edge (cells, per axis); None: whole grids.
         resume: continue from ``<stem>.last.ckpt`` when it exists.
         batch_size: grids per step (default :data:`DEFAULT_BATCH`).
-        test_crop: fixed test crop edge; ``"default"``: :data:`DEFAULT_TEST_CROP`.
+        test_crop: fixed validation/test crop edge; ``"default"``: :data:`DEFAULT_TEST_CROP`.
         workers: processes generating missing training data.
         threads: torch intra-op threads (default :func:`default_threads`).
         device: default CUDA when available, else CPU.
         seed: seed of initialisation, shuffling and crops.
         progress: show tqdm progress bars.
-        train_seeds, test_seeds: override the environment split (default
-            :data:`~nbv_prob_cnn.completion.data.TRAIN_SEEDS` / ``TEST_SEEDS``).
+        train_seeds, validation_seeds, test_seeds: override the environment split (default:
+            the data set's, :mod:`nbv_prob_cnn.datasets`).
+        method: ``cnn_prob`` (completion CNN) or a City-CNN variant.
+        first_channels: width of the first conv block (default 8 in 2D, 16 in 3D).
+        backend: ray-casting backend of the City-CNN targets.
+        note: a sentence for the model card (e.g. why a run was short).
     """
-    defaults = dataset_defaults(dataset)
+    spec = dataset_spec(dataset)
+    task = TrainingTask(method, spec, backend)
     if epochs < 1:
         raise ValueError(f"epochs: expected >= 1, got {epochs}")
-    out = Path(out).expanduser()
+    out = Path(out).expanduser() if out is not None else default_weights_path(dataset, method)
     paths = side_paths(out)
     out.parent.mkdir(parents=True, exist_ok=True)
     batch_size = batch_size or DEFAULT_BATCH[dataset]
     test_crop = DEFAULT_TEST_CROP[dataset] if test_crop == "default" else test_crop
-    train_seeds = list(TRAIN_SEEDS if train_seeds is None else train_seeds)[:n_train_envs]
-    test_seeds = list(TEST_SEEDS if test_seeds is None else test_seeds)[:n_test_envs]
-    if not train_seeds or not test_seeds:
-        raise ValueError("train-envs/test-envs: need at least one training and one test environment")
-    if set(train_seeds) & set(test_seeds):
-        raise ValueError("seeds: training and test environments overlap")
+    train_seeds = list(spec.train_seeds if train_seeds is None else train_seeds)[:n_train_envs]
+    val_seeds = list(spec.validation_seeds if validation_seeds is None else validation_seeds)[:n_val_envs]
+    test_seeds = list(spec.test_seeds if test_seeds is None else test_seeds)[:n_test_envs]
+    if not train_seeds or not val_seeds or not test_seeds:
+        raise ValueError("train/val/test envs: need at least one training, validation and test environment")
+    if set(train_seeds) & set(test_seeds) or set(train_seeds) & set(val_seeds) or set(val_seeds) & set(test_seeds):
+        raise ValueError("seeds: training, validation and test environments overlap")
     torch.set_num_threads(threads or default_threads())
     dev = resolve_device(device)
-    command = retrain_args(dataset, epochs, out, n_train_envs, n_test_envs, crop, batch_size)
+    command = retrain_args(
+        dataset, epochs, out, n_train_envs, n_test_envs, crop, batch_size, method=method, n_val_envs=n_val_envs
+    )
     run_config = {
         "dataset": dataset,
+        "method": method,
         "train_seeds": train_seeds,
+        "validation_seeds": val_seeds,
         "test_seeds": test_seeds,
         "crop": crop,
         "test_crop": test_crop,
@@ -284,17 +334,19 @@ def train(
         "data_version": DATA_VERSION,
     }
 
-    with tqdm(total=len(train_seeds) + len(test_seeds), desc=f"training data {dataset}", disable=not progress) as bar:
+    n_envs = len(train_seeds) + len(val_seeds) + len(test_seeds)
+    with tqdm(total=n_envs, desc=f"training data {dataset}", disable=not progress) as bar:
         train_samples = load_samples(dataset, train_seeds, workers, bar.update)
+        val_samples = load_samples(dataset, val_seeds, workers, bar.update)
         test_samples = load_samples(dataset, test_seeds, workers, bar.update)
-    test_states, test_truths = _fixed_test_views(test_samples, test_crop)
+    val_examples = fixed_examples(task, val_samples, test_crop)
     rots = rotations(dataset)
 
     torch.manual_seed(seed)
-    model = CompletionNet(defaults.dims, defaults.n_conv, DEFAULT_FIRST_CHANNELS[defaults.dims]).to(dev)
+    model = task.build(first_channels).to(dev)
     optimizer = torch.optim.Adam(model.parameters(), lr=LEARNING_RATE)
     history: list[dict] = []
-    best = {"test_mse": float("inf"), "epoch": 0}
+    best = {"validation_mse": float("inf"), "epoch": 0}
     elapsed = 0.0
     if resume and paths["last"].is_file():
         ckpt = torch.load(paths["last"], map_location="cpu", weights_only=True)
@@ -307,14 +359,15 @@ def train(
         optimizer.load_state_dict(ckpt["optimizer"])
         history, best, elapsed = ckpt["history"], ckpt["best"], float(ckpt["elapsed_s"])
 
-    generator_versions = sorted({s.generator_version for s in train_samples + test_samples})
+    generator_versions = sorted({s.generator_version for s in train_samples + val_samples + test_samples})
+    card_args = (dataset, method, model, run_config, generator_versions, rots, dev, command, note)
     start_epoch = len(history)
     items_per_epoch = len(train_samples) * len(rots)
     steps_per_epoch = -(-items_per_epoch // batch_size)
     bar = tqdm(
         total=steps_per_epoch * epochs,
-        initial=steps_per_epoch * start_epoch,
-        desc=f"train {dataset}",
+        initial=steps_per_epoch * min(start_epoch, epochs),
+        desc=f"train {dataset} {method}",
         unit="step",
         disable=not progress,
     )
@@ -324,69 +377,93 @@ def train(
         order = rng.permutation(items_per_epoch)
         loss_sum, n_items = 0.0, 0
         for start in range(0, items_per_epoch, batch_size):
-            states, truths = [], []
+            examples = []
             for item in order[start : start + batch_size]:
                 sample, rot = train_samples[item // len(rots)], rots[item % len(rots)]
-                box = crop_box(sample.state.shape, crop, rng)
-                states.append(rot.apply(sample.state[box]))
-                truths.append(rot.apply(sample.truth[box]))
-            for group_s, group_t in _same_shape_groups(states, truths):
-                loss = train_step(model, optimizer, np.stack(group_s), np.stack(group_t), dev)
-                loss_sum += loss * len(group_s)
-                n_items += len(group_s)
+                state, truth = rot.apply(sample.state), rot.apply(sample.truth)
+                examples.append(task.example(state, truth, crop_box(state.shape, crop, rng, task.align)))
+            for group in _same_shape_groups(examples):
+                loss = train_step(model, optimizer, group, dev)
+                loss_sum += loss * len(group)
+                n_items += len(group)
             bar.update(1)
-            bar.set_postfix(epoch=epoch + 1, loss=f"{loss_sum / n_items:.4f}", test=_fmt(history))
-        test_mse = evaluate(model, test_states, test_truths, dev, batch_size)
+            bar.set_postfix(epoch=epoch + 1, loss=f"{loss_sum / n_items:.4f}", val=_fmt(history))
+        val_mse = evaluate(model, val_examples, dev, batch_size)
         epoch_s = time.perf_counter() - t0
         elapsed += epoch_s
         history.append(
             {
                 "epoch": epoch + 1,
                 "train_mse": loss_sum / max(n_items, 1),
-                "test_mse": test_mse,
+                "validation_mse": val_mse,
                 "epoch_seconds": round(epoch_s, 2),
                 "elapsed_seconds": round(elapsed, 2),
             }
         )
-        bar.set_postfix(epoch=epoch + 1, loss=f"{history[-1]['train_mse']:.4f}", test=_fmt(history))
-        card = _card(dataset, model, run_config, generator_versions, rots, history, best, elapsed, dev, command)
-        if test_mse < best["test_mse"]:
-            best = {"test_mse": test_mse, "epoch": epoch + 1}
-            card = _card(dataset, model, run_config, generator_versions, rots, history, best, elapsed, dev, command)
-            save_weights(model, out, dataset, card)
+        bar.set_postfix(epoch=epoch + 1, loss=f"{history[-1]['train_mse']:.4f}", val=_fmt(history))
+        if val_mse < best["validation_mse"]:
+            best = {"validation_mse": val_mse, "epoch": epoch + 1}
+            save_weights(model, out, dataset, _card(*card_args, history, best, elapsed), name=method)
             clear_model_cache()
-        _update_card_file(paths, card)
-        _write_history(history, paths["csv"], paths["png"], dataset)
+        _write_history(history, paths["csv"], paths["png"], f"{method}, {dataset}")
         _save_last(paths["last"], model, optimizer, history, best, elapsed, run_config)
+        _update_card_file(paths, _card(*card_args, history, best, elapsed))
     bar.close()
+
+    # The kept (best-validation) weights, scored once on the test split.
+    from nbv_prob_cnn.completion.inference import load_model
+
+    kept = load_model(out, dataset, dev, model_name=method)
+    test_mse = evaluate(kept, fixed_examples(task, test_samples, test_crop), dev, batch_size)
+    best = {**best, "test_mse": test_mse}
+    if task.is_completion:
+        table = calibration_of(kept, task, test_samples, test_crop, dev, batch_size)
+        save_reliability_plot(table, paths["calibration"], f"{dataset}: calibration on the test split")
+        best["ece"] = table.ece
+    card = _card(*card_args, history, best, elapsed)
+    save_weights(kept, out, dataset, card, name=method)
+    clear_model_cache()
+    _update_card_file(paths, card)
     return TrainResult(
-        out, paths["last"], paths["csv"], paths["png"], paths["card"], float(best["test_mse"]), len(history)
+        out,
+        paths["last"],
+        paths["csv"],
+        paths["png"],
+        paths["card"],
+        float(best["validation_mse"]),
+        float(test_mse),
+        best.get("ece"),
+        len(history),
     )
 
 
 def _fmt(history: list[dict]) -> str:
-    return f"{history[-1]['test_mse']:.4f}" if history else "-"
+    return f"{history[-1]['validation_mse']:.4f}" if history else "-"
 
 
 def _card(
     dataset: str,
+    method: str,
     model: CompletionNet,
     run_config: dict,
     generator_versions: list[int],
     rots: Sequence,
+    device: torch.device,
+    command: str,
+    note: str,
     history: list[dict],
     best: dict,
     elapsed: float,
-    device: torch.device,
-    command: str,
 ) -> dict:
     """The model card of the current best weights (plus the run so far)."""
-    return {
+    arch = ", ".join(f"{k}={v}" for k, v in model.config().items())
+    card = {
         "dataset": dataset,
-        "architecture": f"CompletionNet(dims={model.dims}, n_conv={model.n_conv}, "
-        f"first_channels={model.first_channels})",
+        "model": method,
+        "architecture": f"CompletionNet({arch})",
         "parameters": count_parameters(model),
         "train_seeds": _seed_ranges(run_config["train_seeds"]),
+        "validation_seeds": _seed_ranges(run_config["validation_seeds"]),
         "test_seeds": _seed_ranges(run_config["test_seeds"]),
         "data_version": DATA_VERSION,
         "generator_versions": ", ".join(map(str, generator_versions)),
@@ -394,11 +471,11 @@ def _card(
         "crop": run_config["crop"] or "none (whole grids)",
         "test_crop": run_config["test_crop"] or "none (whole grids)",
         "batch_size": run_config["batch_size"],
-        "optimizer": f"Adam, lr {LEARNING_RATE}, MSE(P, D)",
+        "optimizer": f"Adam, lr {LEARNING_RATE}, MSE",
         "epochs": len(history),
         "best_epoch": best["epoch"],
-        "test_mse": round(float(best["test_mse"]), 6),
-        "final_test_mse": round(float(history[-1]["test_mse"]), 6),
+        "validation_mse": round(float(best["validation_mse"]), 6),
+        "final_validation_mse": round(float(history[-1]["validation_mse"]), 6),
         "final_train_mse": round(float(history[-1]["train_mse"]), 6),
         "wall_time_s": round(elapsed, 1),
         "device": f"{device} ({platform.processor() or platform.machine()}, {torch.get_num_threads()} threads)",
@@ -406,6 +483,13 @@ def _card(
         "date": datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M UTC"),
         "command": command,
     }
+    if "test_mse" in best:
+        card["test_mse"] = round(float(best["test_mse"]), 6)
+    if "ece" in best:
+        card["ece"] = round(float(best["ece"]), 5)
+    if note:
+        card["note"] = note
+    return card
 
 
 def _update_card_file(paths: dict[str, Path], card: dict) -> None:
