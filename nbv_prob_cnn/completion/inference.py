@@ -34,11 +34,18 @@ class WeightsError(ValueError):
     """Completion weights are missing, unreadable or do not fit the request."""
 
 
+def weights_dir() -> Path:
+    """Folder of the weights files: ``$NBV_WEIGHTS_DIR`` when set, else the shipped
+    ``nbv_prob_cnn/weights/``."""
+    env = os.environ.get("NBV_WEIGHTS_DIR")
+    return Path(env).expanduser().resolve() if env else Path(__file__).resolve().parent.parent / "weights"
+
+
 def default_weights_path(dataset: str, model: str = COMPLETION_MODEL) -> Path:
-    """``nbv_prob_cnn/weights/<dataset>_<model>.pt`` (the shipped weights of a model)."""
+    """``<weights_dir()>/<dataset>_<model>.pt`` (by default the shipped weights of a model)."""
     if dataset not in DATASETS:
         raise ValueError(f"dataset: unknown data set {dataset!r}; expected one of {sorted(DATASETS)}")
-    return Path(__file__).resolve().parent.parent / "weights" / f"{dataset}_{model}.pt"
+    return weights_dir() / f"{dataset}_{model}.pt"
 
 
 def retrain_command(dataset: str | None, path: str | Path | None = None, model: str | None = None) -> str:

@@ -1,0 +1,61 @@
+"""A City-CNN over ROS: /nbv/plan through the servers (the gain server runs the registry's
+planner) gives the views of the core planner, with weights from $NBV_WEIGHTS_DIR."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+pytest.importorskip("rclpy")
+pytest.importorskip("nbv_prob_cnn_msgs")
+
+import test_ros_planning as planning_tests  # noqa: E402
+from nbv_prob_cnn_msgs.msg import VoxelGrid  # noqa: E402
+from nbv_prob_cnn_msgs.srv import PlanNextBestView  # noqa: E402
+from test_ros_planning import GEOMETRY, call, random_grid  # noqa: E402
+
+from nbv_prob_cnn.ros.common import GRID_QOS  # noqa: E402
+from nbv_prob_cnn.ros.conversions import grid_to_msg  # noqa: E402
+from nbv_prob_cnn.ros.graph import wait_for  # noqa: E402
+
+ros = planning_tests.ros  # the same fixture: a fresh domain, a client node, the node graph
+
+
+@pytest.fixture
+def weights_dir(tmp_path, monkeypatch):
+    """Untrained (seeded) d_city_cnn weights for 3du, in a folder the nodes are pointed to."""
+    import torch
+
+    from nbv_prob_cnn.city_cnn import build_network
+    from nbv_prob_cnn.completion.inference import clear_model_cache, save_weights
+    from nbv_prob_cnn.datasets import dataset_spec
+
+    torch.manual_seed(0)
+    folder = tmp_path / "weights"
+    save_weights(
+        build_network("d_city_cnn", dataset_spec("3du"), 2), folder / "3du_d_city_cnn.pt", "3du", name="d_city_cnn"
+    )
+    monkeypatch.setenv("NBV_WEIGHTS_DIR", str(folder))
+    clear_model_cache()
+    yield folder
+    clear_model_cache()
+
+
+def test_city_cnn_plans_through_the_servers(weights_dir, ros):
+    from nbv_prob_cnn.planners import PlanningContext, make_planner
+
+    node, graph, context = ros
+    graph.start_node("gain_server", "gain_server", {"dataset": "3du", "backend": "opencl"})
+    graph.start_node("nbv_planner", "nbv_planner", {"dataset": "3du", "method": "prob_ig"})
+    state = random_grid(5)
+    node.create_publisher(VoxelGrid, "/nbv/grid", GRID_QOS).publish(grid_to_msg(state, GEOMETRY))
+    request = PlanNextBestView.Request(top_k=5, method="d_city_cnn")
+    assert wait_for(lambda: call(node, context, PlanNextBestView, "/nbv/plan", request).success, 30.0, 0.5)
+    reply = call(node, context, PlanNextBestView, "/nbv/plan", request)
+    core = make_planner("d_city_cnn").rank(state, PlanningContext.for_dataset("3du", backend="opencl"), 5)
+    assert len(reply.ranked) == len(core) == 5
+    np.testing.assert_allclose([v.gain for v in reply.ranked], [c.gain for c in core], rtol=1e-5)
+    for view, choice in zip(reply.ranked, core, strict=True):
+        p = view.pose.pose.position
+        np.testing.assert_allclose([p.x, p.y, p.z], GEOMETRY.cell_centre(choice.cell), atol=1e-6)
+    assert reply.time_cnn_s > 0 or reply.time_views_s > 0
