@@ -2,12 +2,21 @@
 per run, then mean/spread curves (paper Fig. 5), time against explored fraction (Fig. 6) and
 a table of the unknown fraction after given numbers of views.
 
-Runs are resumable: a run whose CSV exists is read back instead of recomputed.
+Runs are Ray tasks (:func:`evaluate`): a local Ray instance by default, an existing cluster with
+``address``, or plain in-process calls with ``workers=0`` (debugging). A task returns its log;
+the driver writes ``runs/<dataset>_<method>_seed<seed>.csv`` (plus a small ``.json`` with the
+views asked for and why the run stopped), so workers need no shared file system. Runs are
+resumable: a run whose files exist (for at least as many views) is read back, not recomputed.
+Worlds and weights are read on the worker (``NBV_CACHE_DIR`` and ``NBV_WEIGHTS_DIR`` are passed
+on); every node of a cluster needs this package installed (``launch_scripts/setup.sh``).
 """
 
 from __future__ import annotations
 
 import csv
+import io
+import json
+import os
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -15,12 +24,14 @@ import numpy as np
 from matplotlib.figure import Figure
 from tqdm import tqdm
 
-from nbv_prob_cnn.camera import dataset_defaults
+from nbv_prob_cnn.datasets import dataset_spec
 from nbv_prob_cnn.explore import explore, write_csv
-from nbv_prob_cnn.planners import PlanningContext, make_planner
+from nbv_prob_cnn.planners import PlanningContext, make_planner, method_spec
 
-#: Evaluation environments: the first ten seeds of the CNN test split (never trained on).
+#: Evaluation environments of a quick comparison: the first ten seeds of the test split.
 DEFAULT_SEEDS = tuple(range(120, 130))
+#: Environment variables passed on to Ray workers.
+FORWARDED_ENV = ("NBV_CACHE_DIR", "NBV_WEIGHTS_DIR")
 
 
 @dataclass
@@ -32,9 +43,10 @@ class RunLog:
     time_total_s: np.ndarray
 
 
-def read_run(path: Path) -> RunLog:
+def read_run(path: Path, views: int | None = None) -> RunLog:
+    """The log of a run CSV (its first ``views`` rows when given)."""
     with open(path) as handle:
-        rows = list(csv.DictReader(handle))
+        rows = list(csv.DictReader(handle))[:views]
     column = lambda name: np.array([float(r[name]) for r in rows])  # noqa: E731
     return RunLog(column("unknown_fraction"), column("unknown_fraction_all"), column("time_total_s"))
 
@@ -43,32 +55,117 @@ def run_path(out: Path, dataset: str, method: str, seed: int) -> Path:
     return out / "runs" / f"{dataset}_{method}_seed{seed}.csv"
 
 
-def evaluate(
-    dataset: str, methods: list[str], seeds: list[int], views: int, out: Path, progress: bool = True
-) -> dict[str, list[RunLog]]:
-    """Run (or read back) every method on every seed; returns the logs per method."""
+def is_finished(path: Path, views: int) -> bool:
+    """A run CSV exists for at least ``views`` views (or stopped early in a run that asked for as many)."""
+    if not path.is_file():
+        return False
+    meta = path.with_suffix(".json")
+    if meta.is_file():
+        try:
+            return int(json.loads(meta.read_text())["views"]) >= views
+        except (ValueError, KeyError, TypeError):
+            return False
+    with open(path) as handle:
+        return sum(1 for _ in handle) - 1 >= views
+
+
+def run_one(dataset: str, method: str, seed: int, views: int, backend: str = "auto") -> tuple[str, dict]:
+    """One run of SPEC §9 (the body of a Ray task): the CSV text and its metadata."""
     from nbv_prob_cnn.worlds import load_or_generate
 
-    defaults = dataset_defaults(dataset)
+    world = load_or_generate(dataset, seed)
+    # same first view for every method: the rng is seeded by the environment only
+    context = PlanningContext(
+        dataset_spec(dataset), rng=np.random.default_rng(seed), ground_truth=world.ground_truth, backend=backend
+    )
+    result = explore(world, make_planner(method), context, views, progress=False)
+    text = io.StringIO()
+    write_csv(result.records, text)
+    return text.getvalue(), {"views": views, "stop_reason": result.stop_reason, "host": os.uname().nodename}
+
+
+def _store(path: Path, text: str, meta: dict) -> None:
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    tmp.write_text(text)
+    path.with_suffix(".json").write_text(json.dumps(meta) + "\n")
+    tmp.replace(path)
+
+
+def check_weights(dataset: str, methods: list[str]) -> None:
+    """Fail before any run when a method's trained weights are missing (names the command)."""
+    from nbv_prob_cnn.completion.inference import default_weights_path, read_weights
+
     for method in methods:
-        make_planner(method)  # fail early on an unknown name
+        weights = method_spec(method).weights
+        if weights is not None:
+            read_weights(default_weights_path(dataset, weights), dataset, weights)
+
+
+def evaluate(
+    dataset: str,
+    methods: list[str],
+    seeds: list[int],
+    views: int,
+    out: Path,
+    progress: bool = True,
+    workers: int | None = None,
+    address: str | None = None,
+    backend: str = "auto",
+) -> dict[str, list[RunLog]]:
+    """Run (or read back) every method on every seed; returns the logs per method.
+
+    Args:
+        workers: 0 = in this process, one run after the other (debugging); None = a local Ray
+            instance with one task per CPU; N = a local Ray instance with N CPUs. Ignored with
+            ``address``.
+        address: an existing Ray cluster (``ray start --head`` prints it), e.g. ``"10.0.0.5:6379"``.
+        backend: ray-casting backend of the runs.
+    """
+    for method in methods:
+        method_spec(method)  # fail early on an unknown name
+    check_weights(dataset, methods)
     (out / "runs").mkdir(parents=True, exist_ok=True)
-    logs: dict[str, list[RunLog]] = {m: [] for m in methods}
     jobs = [(seed, method) for seed in seeds for method in methods]
-    bar = tqdm(jobs, desc=f"evaluate {dataset}", unit="run", disable=not progress)
-    for seed, method in bar:
-        path = run_path(out, dataset, method, seed)
-        if not path.exists():
-            world = load_or_generate(dataset, seed)
-            # same first view for every method: the rng is seeded by the environment only
-            context = PlanningContext(defaults, rng=np.random.default_rng(seed), ground_truth=world.ground_truth)
-            result = explore(world, make_planner(method), context, views, progress=False)
-            tmp = path.with_suffix(".tmp")
-            write_csv(result.records, tmp)
-            tmp.replace(path)
-        logs[method].append(read_run(path))
-        bar.set_postfix(seed=seed, method=method)
+    pending = [(seed, method) for seed, method in jobs if not is_finished(run_path(out, dataset, method, seed), views)]
+    bar = tqdm(total=len(jobs), initial=len(jobs) - len(pending), desc=f"evaluate {dataset}", unit="run",
+               disable=not progress)  # fmt: skip
+    if pending and workers == 0 and address is None:
+        for seed, method in pending:
+            _store(run_path(out, dataset, method, seed), *run_one(dataset, method, seed, views, backend))
+            bar.update(1)
+            bar.set_postfix(seed=seed, method=method)
+    elif pending:
+        _run_on_ray(dataset, pending, views, out, workers, address, backend, bar)
+    bar.close()
+    logs: dict[str, list[RunLog]] = {m: [] for m in methods}
+    for seed, method in jobs:
+        logs[method].append(read_run(run_path(out, dataset, method, seed), views))
     return logs
+
+
+def _run_on_ray(dataset, pending, views, out, workers, address, backend, bar) -> None:
+    import ray
+
+    env = {k: os.environ[k] for k in FORWARDED_ENV if k in os.environ}
+    options = {"runtime_env": {"env_vars": env}, "include_dashboard": False, "log_to_driver": False}
+    if address is None:
+        options["num_cpus"] = workers or os.cpu_count()
+    started_here = not ray.is_initialized()
+    if started_here:
+        ray.init(address=address, **options)
+    try:
+        task = ray.remote(num_cpus=1, max_retries=1)(run_one)
+        futures = {task.remote(dataset, method, seed, views, backend): (seed, method) for seed, method in pending}
+        remaining = list(futures)
+        while remaining:
+            done, remaining = ray.wait(remaining, num_returns=1)
+            seed, method = futures[done[0]]
+            _store(run_path(out, dataset, method, seed), *ray.get(done[0]))  # written as soon as it finishes
+            bar.update(1)
+            bar.set_postfix(seed=seed, method=method)
+    finally:
+        if started_here:
+            ray.shutdown()
 
 
 def padded(values: list[np.ndarray], length: int) -> np.ndarray:

@@ -7,6 +7,7 @@ import csv
 import time
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TextIO
 
 import numpy as np
 from tqdm import tqdm
@@ -119,10 +120,18 @@ def explore(
     return ExplorationResult(records, state, stop_reason)
 
 
-def write_csv(records: list[IterationRecord], path: str | Path) -> None:
-    """Write the per-iteration log with the columns of :data:`CSV_COLUMNS`."""
+def write_csv(records: list[IterationRecord], path: str | Path | TextIO) -> None:
+    """Write the per-iteration log with the columns of :data:`CSV_COLUMNS` (to a file path or an
+    open text stream)."""
+    if hasattr(path, "write"):
+        _write_rows(records, path)
+        return
     with open(path, "w", newline="") as handle:
-        writer = csv.writer(handle)
-        writer.writerow(CSV_COLUMNS)
-        for record in records:
-            writer.writerow(record.csv_row())
+        _write_rows(records, handle)
+
+
+def _write_rows(records: list[IterationRecord], handle: TextIO) -> None:
+    writer = csv.writer(handle)
+    writer.writerow(CSV_COLUMNS)
+    for record in records:
+        writer.writerow(record.csv_row())

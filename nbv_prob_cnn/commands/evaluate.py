@@ -1,37 +1,57 @@
-"""``nbv evaluate``: compare methods on held-out environments (SPEC §9)."""
+"""``nbv evaluate``: compare methods on held-out environments (SPEC §9), runs as Ray tasks."""
 
 from __future__ import annotations
 
 import argparse
 from pathlib import Path
 
-from nbv_prob_cnn.camera import DATASETS
+from nbv_prob_cnn.datasets import DATASET_SPECS, EVALUATION_SEEDS
 
 NAME = "evaluate"
-HELP = "Compare NBV methods on held-out environments: per-run CSVs, summary table, plots (resumable)."
+HELP = "Compare NBV methods on held-out environments as Ray tasks: per-run CSVs, summary table, plots (resumable)."
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    from nbv_prob_cnn.evaluation import DEFAULT_SEEDS
+    from nbv_prob_cnn.gain import BACKENDS
+    from nbv_prob_cnn.planners import METHODS
 
-    parser.add_argument("--dataset", choices=sorted(DATASETS), required=True)
+    parser.add_argument("--dataset", choices=sorted(DATASET_SPECS), required=True)
     parser.add_argument(
-        "--methods", nargs="+", default=["random", "ig", "prob_ig", "cnn_prob", "cnn_prob_d", "omniscient"]
-    )
-    parser.add_argument("--seeds", nargs="+", type=int, default=list(DEFAULT_SEEDS), help="environment seeds")
-    parser.add_argument("--views", type=int, default=50)
-    parser.add_argument("--at", nargs="+", type=int, default=[20, 50], help="table columns: after N views")
+        "--methods", nargs="+", default=list(METHODS), choices=list(METHODS), metavar="METHOD",
+        help=f"methods to compare (default: all nine: {' '.join(METHODS)})",
+    )  # fmt: skip
+    parser.add_argument(
+        "--seeds", nargs="+", type=int, default=list(EVALUATION_SEEDS),
+        help="environment seeds (default: the protocol's 40 test environments 120..159)",
+    )  # fmt: skip
+    parser.add_argument("--envs", type=int, default=None, help="use only the first N of --seeds")
+    parser.add_argument("--views", type=int, default=100, help="views per run, the random first one included")
+    parser.add_argument("--at", nargs="+", type=int, default=None, help="table columns: after N views")
     parser.add_argument("--out", default="out/evaluation", help="output directory (runs are cached there)")
+    parser.add_argument(
+        "--workers", type=int, default=None,
+        help="local Ray instance with N CPUs (default: all cores); 0 = no Ray, runs one by one in this process",
+    )  # fmt: skip
+    parser.add_argument("--address", default=None, help="an existing Ray cluster, e.g. 10.0.0.5:6379")
+    parser.add_argument("--backend", choices=BACKENDS, default="auto", help="ray-casting backend of the runs")
+    parser.add_argument("--quiet", action="store_true", help="no progress bar")
 
 
 def run(args: argparse.Namespace) -> int:
     from nbv_prob_cnn.evaluation import evaluate, save_plots, summary_table, write_summary_csv
 
-    if any(a < 1 or a > args.views for a in args.at):
-        raise ValueError(f"--at: every value must be within 1..{args.views}")
+    at = args.at or sorted({min(20, args.views), min(50, args.views), args.views})
+    if args.views < 1 or any(a < 1 or a > args.views for a in at):
+        raise ValueError(f"--views must be >= 1 and every --at value within 1..{args.views}")
+    if args.workers is not None and args.workers < 0:
+        raise ValueError("--workers: expected >= 0")
+    seeds = args.seeds[: args.envs] if args.envs else args.seeds
     out = Path(args.out) / args.dataset
-    logs = evaluate(args.dataset, args.methods, args.seeds, args.views, out)
-    table = summary_table(logs, args.at)
+    logs = evaluate(
+        args.dataset, args.methods, seeds, args.views, out, progress=not args.quiet,
+        workers=args.workers, address=args.address, backend=args.backend,
+    )  # fmt: skip
+    table = summary_table(logs, at)
     write_summary_csv(logs, args.views, out / f"{args.dataset}_summary.csv")
     (out / f"{args.dataset}_table.md").write_text(table + "\n")
     plots = save_plots(logs, args.views, args.dataset, out)
