@@ -24,12 +24,12 @@ import numpy as np
 from matplotlib.figure import Figure
 from tqdm import tqdm
 
-from nbv_prob_cnn.datasets import dataset_spec
+from nbv_prob_cnn.datasets import EVALUATION_SEEDS, dataset_spec
 from nbv_prob_cnn.explore import explore, write_csv
 from nbv_prob_cnn.planners import PlanningContext, make_planner, method_spec
 
-#: Evaluation environments of a quick comparison: the first ten seeds of the test split.
-DEFAULT_SEEDS = tuple(range(120, 130))
+#: Evaluation environments of a quick comparison: the first ten of the protocol's (test split).
+DEFAULT_SEEDS = EVALUATION_SEEDS[:10]
 #: Environment variables passed on to Ray workers.
 FORWARDED_ENV = ("NBV_CACHE_DIR", "NBV_WEIGHTS_DIR")
 

@@ -24,8 +24,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-MAP_SIZE: int = 1250
-CELL_M: float = 1.2
+from nbv_prob_cnn.datasets import DATASET_SPECS
+
+MAP_SIZE: int = DATASET_SPECS["2d"].map_shape[0]
+CELL_M: float = DATASET_SPECS["2d"].resolution_m
 
 
 @dataclass(frozen=True)

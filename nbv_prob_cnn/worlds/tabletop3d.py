@@ -22,11 +22,12 @@ from functools import cache
 import numpy as np
 import trimesh
 
+from nbv_prob_cnn.datasets import DATASET_SPECS
 from nbv_prob_cnn.worlds import ycb
 from nbv_prob_cnn.worlds.world import PlacedMesh, World
 
-SHAPE: tuple[int, int, int] = (128, 128, 96)
-RESOLUTION: float = 0.0116
+SHAPE: tuple[int, int, int] = DATASET_SPECS["3dt"].shape
+RESOLUTION: float = DATASET_SPECS["3dt"].resolution_m
 N_OBJECTS: tuple[int, int] = (6, 10)  # inclusive
 TABLE_TOP_CELLS: tuple[int, int] = (5, 7)  # inclusive: z index of the first cell above the table
 # The table fills the bottom of the grid (no space under it: a camera there could never get out).

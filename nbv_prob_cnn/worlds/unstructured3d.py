@@ -14,11 +14,12 @@ from __future__ import annotations
 
 import numpy as np
 
+from nbv_prob_cnn.datasets import DATASET_SPECS
 from nbv_prob_cnn.worlds import ycb
 from nbv_prob_cnn.worlds.world import PlacedMesh, World
 
-SHAPE: tuple[int, int, int] = (64, 64, 64)
-RESOLUTION: float = 0.0116
+SHAPE: tuple[int, int, int] = DATASET_SPECS["3du"].shape
+RESOLUTION: float = DATASET_SPECS["3du"].resolution_m
 N_OBJECTS: tuple[int, int] = (20, 30)  # inclusive
 SCALE_RANGE: tuple[float, float] = (1.0, 2.0)
 
