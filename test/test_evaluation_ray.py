@@ -44,8 +44,10 @@ def _stop(proc: subprocess.Popen) -> None:
 
 
 @pytest.fixture
-def ray_cluster(tmp_path):
-    """Address of a head plus one worker node (1 CPU each), on this machine."""
+def ray_cluster(tmp_path, monkeypatch):
+    """Address of a head plus one worker node (1 CPU each), on this machine (no auth token: a
+    token left in ~/.ray by another local Ray instance must not decide how this cluster runs)."""
+    monkeypatch.setenv("RAY_AUTH_MODE", "disabled")
     ray_cli = str(Path(sys.executable).with_name("ray"))
     port = _free_port()
     temp_dir = tempfile.mkdtemp(prefix="nbvray")  # short: Ray's socket paths have a length limit

@@ -45,7 +45,7 @@ def test_cnn_methods_refuse_missing_weights(rng, monkeypatch, tmp_path):
     from nbv_prob_cnn.completion import WeightsError, inference
     from nbv_prob_cnn.planners import make_planner
 
-    missing = tmp_path / "3du.pt"
+    missing = tmp_path / "3du_cnn_prob.pt"
     monkeypatch.setattr(inference, "default_weights_path", lambda dataset, model="cnn_prob": missing)
     state, _ = _grid(rng)
     for method in ("cnn_prob", "cnn_prob_d"):
