@@ -9,7 +9,7 @@ import numpy as np
 from nbv_prob_cnn.camera import DATASETS
 from nbv_prob_cnn.explore import explore, write_csv
 from nbv_prob_cnn.gain import BACKENDS
-from nbv_prob_cnn.planners import PLANNER_FACTORIES, PlanningContext, make_planner
+from nbv_prob_cnn.planners import METHODS, PlanningContext, make_planner
 
 NAME = "explore"
 HELP = "Run a simulated next-best-view exploration and log it per view."
@@ -17,7 +17,7 @@ HELP = "Run a simulated next-best-view exploration and log it per view."
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--dataset", choices=sorted(DATASETS), required=True)
-    parser.add_argument("--method", default="prob_ig", help=f"one of {sorted(PLANNER_FACTORIES)}")
+    parser.add_argument("--method", default="prob_ig", choices=list(METHODS), help="next-best-view method (SPEC §6)")
     parser.add_argument("--views", type=int, default=20, help="number of views, the random first one included")
     parser.add_argument("--seed", type=int, default=1000, help="world seed (without --scene) and first view")
     parser.add_argument("--scene", help="world .npz written by `nbv world` (default: generate from --seed)")
