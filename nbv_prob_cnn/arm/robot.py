@@ -166,7 +166,9 @@ class RobotModel:
         _place_root(pin, model, (collision, visual), world_from_base)
         if not model.existFrame(self.config.camera_parent):
             links = [f.name for f in model.frames if f.type == pin.FrameType.BODY]
-            raise ValueError(f"robot: camera_parent {self.config.camera_parent!r} is not a link of the URDF; links: {links}")
+            raise ValueError(
+                f"robot: camera_parent {self.config.camera_parent!r} is not a link of the URDF; links: {links}"
+            )
         parent = model.frames[model.getFrameId(self.config.camera_parent)]
         placement = parent.placement * pin.SE3(parent_from_camera[:3, :3], parent_from_camera[:3, 3])
         self.camera_frame = model.addFrame(
