@@ -26,7 +26,7 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from nbv_prob_cnn.arm.ik import IkSettings, solve_batch
+from nbv_prob_cnn.arm.ik import DEFAULT_IK, IkSettings, solve_batch
 from nbv_prob_cnn.arm.kinematics import CameraChain
 from nbv_prob_cnn.arm.robot import RobotModel, arm_cache_dir
 from nbv_prob_cnn.camera import matrix_from_quaternion, orientations
@@ -119,7 +119,7 @@ def build_capability_map(
     robot: RobotModel,
     geometry: GridGeometry,
     stride: int,
-    settings: IkSettings = IkSettings(),
+    settings: IkSettings = DEFAULT_IK,
     random_rounds: int = 2,
     seed: int = 0,
     progress: bool = True,
@@ -174,7 +174,7 @@ def load_or_build_capability_map(
     robot: RobotModel,
     geometry: GridGeometry,
     stride: int,
-    settings: IkSettings = IkSettings(),
+    settings: IkSettings = DEFAULT_IK,
     random_rounds: int = 2,
     progress: bool = True,
 ) -> CapabilityMap:

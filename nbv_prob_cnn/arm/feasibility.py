@@ -21,7 +21,7 @@ import numpy as np
 
 from nbv_prob_cnn.arm.capability import CapabilityMap
 from nbv_prob_cnn.arm.collision import CollisionChecker, GridObstacles
-from nbv_prob_cnn.arm.ik import IkSettings, solve_camera_pose
+from nbv_prob_cnn.arm.ik import DEFAULT_IK, IkSettings, solve_camera_pose
 from nbv_prob_cnn.arm.kinematics import CameraChain
 from nbv_prob_cnn.arm.robot import RobotModel
 from nbv_prob_cnn.camera import matrix_from_quaternion
@@ -74,7 +74,7 @@ class ArmFeasibility:
         motion_weight: float = 0.0,
         path_step: float = 0.1,
         margin_cells: int = 0,
-        ik_settings: IkSettings = IkSettings(),
+        ik_settings: IkSettings = DEFAULT_IK,
         rng: np.random.Generator | None = None,
     ) -> None:
         if not (np.isfinite(motion_weight) and motion_weight >= 0):

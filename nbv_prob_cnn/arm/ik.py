@@ -30,6 +30,10 @@ class IkSettings:
     restarts: int = 8
 
 
+#: The default solver settings.
+DEFAULT_IK = IkSettings()
+
+
 def rotation_error(target: np.ndarray, current: np.ndarray) -> np.ndarray:
     """Rotation vectors ``log(target · currentᵀ)`` ``(N, 3)`` of ``(N, 3, 3)`` rotations."""
     rel = target @ np.swapaxes(current, 1, 2)
@@ -53,7 +57,7 @@ def solve_batch(
     chain: CameraChain,
     targets: np.ndarray,
     seeds: np.ndarray,
-    settings: IkSettings = IkSettings(),
+    settings: IkSettings = DEFAULT_IK,
     stop_at_first: bool = False,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Solve ``targets (N, 4, 4)`` from ``seeds (N, n)``; with ``stop_at_first`` the iteration
@@ -105,7 +109,7 @@ def solve_camera_pose(
     target: np.ndarray,
     current_q: np.ndarray,
     rng: np.random.Generator,
-    settings: IkSettings = IkSettings(),
+    settings: IkSettings = DEFAULT_IK,
 ) -> IkResult:
     """IK of one ``world_from_optical`` pose from the current full configuration.
 
