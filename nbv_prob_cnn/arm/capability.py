@@ -69,15 +69,19 @@ class CapabilityMap:
         return float(self.reachable.mean())
 
     def views_at(self, cells: np.ndarray) -> np.ndarray:
-        """``(N, V)`` bool: orientations possibly reachable at grid cells ``(N, 3)`` (OR of the
-        eight surrounding lattice nodes)."""
+        """``(N, V)`` bool: orientations possibly reachable at grid cells ``(N, 3)``: the OR of
+        the (up to eight) lattice nodes around each cell; a cell on a node plane along an axis
+        only looks at that plane. Cells beyond the lattice see nothing."""
         cells = np.asarray(cells, dtype=np.int64).reshape(-1, 3)
         base = cells // self.stride
+        between = (cells % self.stride) != 0
         out = np.zeros((cells.shape[0], self.reachable.shape[3]), dtype=bool)
         upper = np.array(self.reachable.shape[:3]) - 1
         for corner in np.ndindex(2, 2, 2):
-            node = np.clip(base + np.array(corner), 0, upper)
-            out |= self.reachable[node[:, 0], node[:, 1], node[:, 2]]
+            node = base + np.array(corner) * between
+            valid = np.all((node >= 0) & (node <= upper), axis=1)
+            node = np.clip(node, 0, upper)
+            out |= self.reachable[node[:, 0], node[:, 1], node[:, 2]] & valid[:, None]
         return out
 
     def origin_filter(self, origins: np.ndarray) -> np.ndarray:
