@@ -11,6 +11,7 @@ import pytest
 pytest.importorskip("pinocchio")
 
 from nbv_prob_cnn.arm.capability import (  # noqa: E402
+    MAP_IK,
     CapabilityMap,
     UnreachableWorkspaceError,
     build_capability_map,
@@ -264,6 +265,23 @@ def test_margin_and_path_checks(robot, checker):
         GridObstacles.from_state(np.zeros((4, 4, 4), dtype=np.int8), GEOMETRY_3DT)
 
 
+def test_tabletop_prior_and_the_space_the_arm_fills(robot, checker):
+    unknown = np.full(GEOMETRY_3DT.shape, UNKNOWN, dtype=np.int8)
+    unknown[:, :, -1] = OCCUPIED  # the top layer (z = 1.10 m) is seen occupied
+    strict = GridObstacles.from_state(unknown, GEOMETRY_3DT)
+    assert strict.blocked.all()
+    prior = GridObstacles.from_state(unknown, GEOMETRY_3DT, free_above_m=0.5)
+    z = (np.arange(GEOMETRY_3DT.shape[2]) + 0.5) * GEOMETRY_3DT.resolution
+    assert prior.blocked[:, :, z < 0.5].all()
+    assert not prior.blocked[:, :, (z >= 0.5) & (z < 1.0)].any()  # unknown above the prior height passes
+    assert prior.blocked[:, :, -1].all()  # occupied always blocks
+    q = robot.reference_q
+    assert not checker.is_free(q, strict)
+    cleared = strict.cleared(checker.body_points(q))
+    assert checker.is_free(q, cleared)  # where the arm is, nothing else is
+    assert cleared.blocked.sum() < strict.blocked.sum()
+
+
 # --- capability map ----------------------------------------------------------------------------
 
 COARSE_STRIDE = 24
@@ -301,7 +319,7 @@ def test_capability_map_agrees_with_exact_ik(robot, chain, capability):
 
 
 def test_capability_map_is_cached_and_prunes(robot, capability):
-    path = capability_map_path(capability_key(robot, GEOMETRY_3DT, COARSE_STRIDE, DEFAULT_IK, 2))
+    path = capability_map_path(capability_key(robot, GEOMETRY_3DT, COARSE_STRIDE, MAP_IK, 2))
     assert path.is_file()
     again = load_or_build_capability_map(robot, GEOMETRY_3DT, COARSE_STRIDE, progress=False)
     np.testing.assert_array_equal(again.reachable, capability.reachable)
@@ -365,6 +383,9 @@ def test_exact_check_takes_the_first_feasible_view(robot, chain, checker, capabi
     assert report.view.choice is feasible and report.unreachable == 0
     nothing = arm.select([unreachable], grid, context, GEOMETRY_3DT, robot.reference_q)
     assert nothing.view is None
+    budget = ArmFeasibility(robot, checker, max_checks=2, rng=np.random.default_rng(6))
+    report = budget.select([unreachable, unreachable, feasible], grid, context, GEOMETRY_3DT, robot.reference_q)
+    assert report.view is None and report.checked == 2 and report.budget_exhausted
 
 
 def test_motion_cost_trades_gain_for_joint_travel(robot, chain, checker):

@@ -1,7 +1,8 @@
 """Collision checks of arm configurations: self-collision (coal meshes) and links against the grid.
 
 Grid rule: a link collides when one of its sample points lies in a cell that is OCCUPIED or
-UNKNOWN (unknown counts as an obstacle; optionally grown by ``margin_cells``). Sample points fill
+UNKNOWN (unknown counts as an obstacle; optionally grown by ``margin_cells``; an optional
+tabletop prior ``free_above_m`` lets unknown cells above a height pass). Sample points fill
 each collision body's convex hull on a cubic lattice (``spacing``, default 0.75 cell) plus its
 vertices, computed once per body in the body frame and moved by forward kinematics. Points
 outside the grid are free (the grid bounds the mapped volume). Bodies fixed to the root (the
@@ -21,7 +22,7 @@ from scipy import ndimage
 
 from nbv_prob_cnn.arm.robot import RobotModel
 from nbv_prob_cnn.geometry import GridGeometry
-from nbv_prob_cnn.grid import EMPTY, check_state
+from nbv_prob_cnn.grid import EMPTY, OCCUPIED, check_state
 
 
 def body_mesh(obj):
@@ -68,8 +69,13 @@ class GridObstacles:
     geometry: GridGeometry
 
     @classmethod
-    def from_state(cls, state: np.ndarray, geometry: GridGeometry, margin_cells: int = 0) -> GridObstacles:
+    def from_state(
+        cls, state: np.ndarray, geometry: GridGeometry, margin_cells: int = 0, free_above_m: float | None = None
+    ) -> GridObstacles:
         """Obstacles of a ternary grid.
+
+        ``free_above_m`` is an optional scene prior (a tabletop whose objects are all lower than
+        that height): unknown cells whose centre lies at or above it do not block.
 
         Raises:
             ValueError: invalid grid, a grid whose shape differs from ``geometry``, or a negative margin.
@@ -80,9 +86,23 @@ class GridObstacles:
         if margin_cells < 0:
             raise ValueError(f"margin_cells: expected >= 0, got {margin_cells}")
         blocked = state != EMPTY
+        if free_above_m is not None:
+            if not np.isfinite(free_above_m):
+                raise ValueError(f"free_above_m: expected a finite height in metres, got {free_above_m}")
+            z = geometry.origin[2] + (np.arange(state.shape[2]) + 0.5) * geometry.resolution
+            blocked[:, :, z >= free_above_m] &= state[:, :, z >= free_above_m] == OCCUPIED
         if margin_cells:
             blocked = ndimage.binary_dilation(blocked, iterations=int(margin_cells))
         return cls(blocked, geometry)
+
+    def cleared(self, points: np.ndarray) -> GridObstacles:
+        """A copy with the cells holding ``points (N, 3)`` unblocked (the space the arm fills now
+        is free of other obstacles, whatever the map says: unknown, or the arm seen as occupied)."""
+        cell, inside = self.geometry.containing_cell(points)
+        blocked = self.blocked.copy()
+        c = cell[inside]
+        blocked[c[:, 0], c[:, 1], c[:, 2]] = False
+        return GridObstacles(blocked, self.geometry)
 
     def hits(self, points: np.ndarray) -> np.ndarray:
         """Which world points ``(N, 3)`` lie in a blocked cell."""
@@ -152,6 +172,11 @@ class CollisionChecker:
         self.pin.updateGeometryPlacements(self.robot.model, self.data, self.geometry_model, self.geometry_data)
         return {i: self.geometry_data.oMg[i].homogeneous for i in self.moving}
 
+    def body_points(self, q: np.ndarray) -> np.ndarray:
+        """World positions ``(N, 3)`` of every moving body's sample points at ``q``."""
+        poses = self.body_poses(q)
+        return np.vstack([self.points[i] @ pose[:3, :3].T + pose[:3, 3] for i, pose in poses.items()])
+
     def grid_collisions(self, q: np.ndarray, obstacles: GridObstacles) -> list[str]:
         """Names of the bodies that enter a blocked cell at ``q`` (empty list: free)."""
         names = []
@@ -163,9 +188,7 @@ class CollisionChecker:
 
     def grid_collision(self, q: np.ndarray, obstacles: GridObstacles) -> bool:
         """True when any moving body enters a blocked cell at ``q``."""
-        poses = self.body_poses(q)
-        points = np.vstack([self.points[i] @ pose[:3, :3].T + pose[:3, 3] for i, pose in poses.items()])
-        return bool(np.any(obstacles.hits(points)))
+        return bool(np.any(obstacles.hits(self.body_points(q))))
 
     def is_free(self, q: np.ndarray, obstacles: GridObstacles) -> bool:
         """Neither self-collision nor grid collision at ``q``."""

@@ -8,7 +8,8 @@ reaches). With ``λ > 0`` candidates are checked in gain order until no remainin
 the best utility found (``utility ≤ gain``), so the result is the exact argmax over the ranked
 list. A view is feasible when its pose has an IK solution within the limits, that configuration
 is free of self- and grid collision, and the straight joint path to it is free at samples at most
-``path_step`` rad apart.
+``path_step`` rad apart. The cells the arm fills at the current configuration count as free
+(it is there, so nothing else is; the map may hold them as unknown or, unfiltered, occupied).
 """
 
 from __future__ import annotations
@@ -50,6 +51,7 @@ class FeasibilityReport:
     unreachable: int = 0
     in_collision: int = 0
     path_blocked: int = 0
+    budget_exhausted: bool = False
     times: dict[str, float] = field(default_factory=lambda: {"capability": 0.0, "ik_collision": 0.0})
 
 
@@ -63,6 +65,10 @@ class ArmFeasibility:
         motion_weight: ``λ`` of the utility (0 = the paper's behaviour).
         path_step: joint-space sampling step (rad) of the straight path check.
         margin_cells: growth of the blocked cells for grid collision.
+        free_above_m: optional tabletop prior, see :meth:`GridObstacles.from_state` (None: every
+            unknown cell blocks).
+        max_checks: at most this many candidates get the exact check per call (bounds the time
+            when the ranked views are mostly infeasible); 0 = no limit.
         rng: random restarts of IK.
     """
 
@@ -74,6 +80,8 @@ class ArmFeasibility:
         motion_weight: float = 0.0,
         path_step: float = 0.1,
         margin_cells: int = 0,
+        free_above_m: float | None = None,
+        max_checks: int = 0,
         ik_settings: IkSettings = DEFAULT_IK,
         rng: np.random.Generator | None = None,
     ) -> None:
@@ -88,6 +96,10 @@ class ArmFeasibility:
         self.motion_weight = float(motion_weight)
         self.path_step = float(path_step)
         self.margin_cells = int(margin_cells)
+        self.free_above_m = free_above_m
+        if max_checks < 0:
+            raise ValueError(f"max_checks: expected >= 0 (0 = no limit), got {max_checks}")
+        self.max_checks = int(max_checks)
         self.ik_settings = ik_settings
         self.rng = rng if rng is not None else np.random.default_rng()
 
@@ -123,10 +135,14 @@ class ArmFeasibility:
         candidates = self.prune(ranked)
         report.times["capability"] = time.perf_counter() - start
         start = time.perf_counter()
-        obstacles = GridObstacles.from_state(state, geometry, self.margin_cells)
+        obstacles = GridObstacles.from_state(state, geometry, self.margin_cells, self.free_above_m)
+        obstacles = obstacles.cleared(self.checker.body_points(current_q))
         best: ArmView | None = None
         for choice in candidates:
             if best is not None and (self.motion_weight == 0.0 or choice.gain <= best.utility):
+                break
+            if self.max_checks and report.checked >= self.max_checks:
+                report.budget_exhausted = True
                 break
             report.checked += 1
             position, quaternion = view_pose(choice, context, geometry)

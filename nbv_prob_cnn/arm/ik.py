@@ -6,7 +6,9 @@ run side by side as one batch) and the capability map (thousands of targets at o
 Per iteration, for every row: the pose error ``e = [p* - p, log(R* Rᵀ)]`` (metres, radians, world
 axes), the step ``dq = Jᵀ (J Jᵀ + λ² I)⁻¹ e`` scaled down to at most ``max_step`` rad, and
 ``q ← clip(q + dq, lower, upper)``. A row converges when the position error is below
-``position_tol`` and the rotation error below ``rotation_tol``.
+``position_tol`` and the rotation error below ``rotation_tol``; it gives up when its error norm
+has not dropped by 1 % for ``patience`` iterations (stuck at a joint limit or a local minimum),
+which keeps unreachable targets cheap.
 """
 
 from __future__ import annotations
@@ -28,6 +30,7 @@ class IkSettings:
     position_tol: float = 1e-3
     rotation_tol: float = 1e-2
     restarts: int = 8
+    patience: int = 25  # a row stops after this many iterations without a 1 % error decrease
 
 
 #: The default solver settings.
@@ -70,6 +73,8 @@ def solve_batch(
     targets = np.asarray(targets, dtype=np.float64).reshape(-1, 4, 4)
     converged = np.zeros(q.shape[0], dtype=bool)
     active = np.arange(q.shape[0])
+    best = np.full(q.shape[0], np.inf)
+    stalled = np.zeros(q.shape[0], dtype=np.int64)
     eye = np.eye(6) * settings.damping**2
     for _ in range(settings.max_iterations + 1):
         if active.size == 0:
@@ -83,7 +88,11 @@ def solve_batch(
         converged[active[done]] = True
         if stop_at_first and np.any(done):
             break
-        keep = ~done
+        norm = np.linalg.norm(error, axis=1)
+        improved = norm < 0.99 * best[active]
+        best[active] = np.where(improved, norm, best[active])
+        stalled[active] = np.where(improved, 0, stalled[active] + 1)
+        keep = ~done & (stalled[active] < settings.patience)
         active, jac, error = active[keep], jac[keep], error[keep]
         if active.size == 0:
             break
