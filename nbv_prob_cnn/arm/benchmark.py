@@ -115,8 +115,10 @@ def arm_benchmark(
         f"per planning iteration ({method}, 3DT seed {seed}, explored by random views to 60/50/40 % unknown, "
         f"top_k {top_k}, unknown free above {free_above_m} m, at most {max_checks} exact checks):"
     )
-    lines.append("iter | free-flying s | arm total s | gain s | capability s | ik+collision s | added s | checked")
-    added_all = []
+    lines.append(
+        "iter | free-flying s | arm total s | gain s | capability s | ik+collision s | arm stages s | added s | checked"
+    )
+    added_all, stages_all = [], []
     for iteration in range(iterations):
         state = half_explored(world, context, target=0.6 - 0.1 * iteration)
         begin = time.perf_counter()
@@ -128,10 +130,17 @@ def arm_benchmark(
         added = total - free
         added_all.append(added)
         t = report.times
+        stages = t["capability"] + t["ik_collision"]
+        stages_all.append(stages)
         lines.append(
             f"{iteration} | {free:.3f} | {total:.3f} | {t['gain']:.3f} | {t['capability']:.3f} | "
-            f"{t['ik_collision']:.3f} | {added:+.3f} | {report.checked} (unreachable {report.unreachable}, "
+            f"{t['ik_collision']:.3f} | {stages:.3f} | {added:+.3f} | "
+            f"{report.checked} (unreachable {report.unreachable}, "
             f"collision {report.in_collision}, path {report.path_blocked}, found {report.view is not None})"
         )
-    lines.append(f"added cost per iteration: median {np.median(added_all):+.3f} s (target <= 0.3 s)")
+    lines.append(
+        f"added cost per iteration (target <= 0.3 s): arm stages (capability + IK/collision) median "
+        f"{np.median(stages_all):.3f} s, max {np.max(stages_all):.3f} s; arm total - free-flying median "
+        f"{np.median(added_all):+.3f} s (the arm's gain stage sees fewer origins; both timed in this run)"
+    )
     return "\n".join(lines)

@@ -26,11 +26,11 @@ class IkSettings:
 
     damping: float = 0.05
     max_step: float = 0.4
-    max_iterations: int = 150
+    max_iterations: int = 80
     position_tol: float = 1e-3
     rotation_tol: float = 1e-2
     restarts: int = 8
-    patience: int = 25  # a row stops after this many iterations without a 1 % error decrease
+    patience: int = 10  # a row stops after this many iterations without a 1 % error decrease
 
 
 #: The default solver settings.
