@@ -461,3 +461,50 @@ def test_self_filter_keeps_the_arm_out_of_the_grid(robot):
     assert raw_arm > 50  # unfiltered, the arm is integrated as occupied
     assert kept_arm == 0  # filtered, no arm cell is occupied
     assert kept_table > 0.5 * raw_table  # the table is still seen
+
+
+# --- simulated motion and flat parameters --------------------------------------------------------
+
+
+def test_motion_respects_velocity_limits_and_waypoint_times():
+    from nbv_prob_cnn.arm.motion import JointMotion
+
+    motion = JointMotion(np.zeros(2), np.array([1.0, 0.5]), now=10.0)
+    arrival = motion.move_through(
+        [np.array([0.5, 1.0]), np.array([0.5, 1.0]), np.array([0.0, 1.0])], now=10.0, min_durations=[0.0, 0.0, 3.0]
+    )
+    # segment 1: joint 2 needs 1.0 / 0.5 = 2 s; the repeated waypoint adds nothing; segment 3: 0.5 s by speed, 3 s asked
+    assert arrival == pytest.approx(15.0)
+    np.testing.assert_allclose(motion.position(11.0), [0.25, 0.5])
+    np.testing.assert_allclose(motion.velocity(11.0), [0.25, 0.5])
+    np.testing.assert_allclose(motion.position(13.5), [0.25, 1.0])
+    np.testing.assert_allclose(motion.position(99.0), [0.0, 1.0])
+    assert motion.moving(14.9) and not motion.moving(15.0)
+    times = np.linspace(10.0, 15.0, 501)
+    speeds = np.abs(np.diff([motion.position(t) for t in times], axis=0)) / np.diff(times)[:, None]
+    assert np.all(speeds <= motion.velocity_limits + 1e-9)
+    # a new goal starts from where the arm is now
+    motion.move_through([np.array([1.0, 0.5])], now=11.0)
+    np.testing.assert_allclose(motion.position(11.0), [0.25, 0.5])
+    assert motion.arrival_time() == pytest.approx(11.75)
+    with pytest.raises(ValueError, match="finite joint positions"):
+        motion.move_through([np.array([np.nan, 0.0])], now=12.0)
+    with pytest.raises(ValueError, match="at least one waypoint"):
+        motion.move_through([], now=12.0)
+
+
+def test_robot_config_from_flat_parameters(robot):
+    from nbv_prob_cnn.arm.robot import pose_from_xyz_rpy, robot_config
+
+    pose = pose_from_xyz_rpy((1.0, 2.0, 3.0), (0.0, 0.0, math.pi / 2))
+    np.testing.assert_allclose(pose[:3, :3] @ [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], atol=1e-12)
+    np.testing.assert_allclose(pose[:3, 3], [1.0, 2.0, 3.0])
+    pitched = pose_from_xyz_rpy((0, 0, 0), (0.0, math.pi / 2, 0.0))
+    np.testing.assert_allclose(pitched[:3, :3] @ [0.0, 0.0, 1.0], [1.0, 0.0, 0.0], atol=1e-12)
+    config = robot_config()
+    np.testing.assert_allclose(config.world_from_base, robot.config.world_from_base)
+    np.testing.assert_allclose(config.parent_from_camera, robot.config.parent_from_camera)
+    with pytest.raises(ValueError, match="camera_parent: required"):
+        robot_config(urdf_path="/some/robot.urdf")
+    with pytest.raises(ValueError, match="3 finite xyz"):
+        robot_config(base_xyz=(0.0, 1.0))

@@ -54,6 +54,24 @@ def translation(xyz: Sequence[float]) -> np.ndarray:
     return pose
 
 
+def pose_from_xyz_rpy(xyz: Sequence[float], rpy: Sequence[float]) -> np.ndarray:
+    """4×4 pose of a translation and URDF roll-pitch-yaw angles (``Rz(yaw) Ry(pitch) Rx(roll)``).
+
+    Raises:
+        ValueError: not three finite values each.
+    """
+    xyz_arr, rpy_arr = np.asarray(xyz, dtype=np.float64), np.asarray(rpy, dtype=np.float64)
+    if xyz_arr.shape != (3,) or rpy_arr.shape != (3,) or not np.all(np.isfinite(np.r_[xyz_arr, rpy_arr])):
+        raise ValueError(f"pose: expected 3 finite xyz and 3 finite rpy values, got {list(xyz)} and {list(rpy)}")
+    (cr, cp, cy), (sr, sp, sy) = np.cos(rpy_arr), np.sin(rpy_arr)
+    rot_x = np.array([[1.0, 0.0, 0.0], [0.0, cr, -sr], [0.0, sr, cr]])
+    rot_y = np.array([[cp, 0.0, sp], [0.0, 1.0, 0.0], [-sp, 0.0, cp]])
+    rot_z = np.array([[cy, -sy, 0.0], [sy, cy, 0.0], [0.0, 0.0, 1.0]])
+    pose = translation(xyz_arr)
+    pose[:3, :3] = rot_z @ rot_y @ rot_x
+    return pose
+
+
 def arm_cache_dir() -> Path:
     """``<NBV_CACHE_DIR or ~/.cache/nbv_prob_cnn>/arm``."""
     return dataset_cache_dir() / "arm"
@@ -115,6 +133,32 @@ class RobotConfig:
             digest.update(np.round(np.asarray(array, dtype=np.float64), 9).tobytes())
         digest.update(self.camera_parent.encode())
         return digest.hexdigest()[:20]
+
+
+def robot_config(
+    urdf_path: str = "",
+    base_xyz: Sequence[float] = DEFAULT_BASE_XYZ,
+    base_rpy: Sequence[float] = (0.0, 0.0, 0.0),
+    camera_parent: str = "",
+    camera_xyz: Sequence[float] = DEFAULT_HAND_FROM_CAMERA_XYZ,
+    camera_rpy: Sequence[float] = (0.0, 0.0, 0.0),
+    package_dirs: Sequence[str] = (),
+) -> RobotConfig:
+    """A :class:`RobotConfig` from flat parameters (as ROS parameters come): ``""`` URDF = the
+    Panda, ``""`` camera parent = ``panda_hand``.
+
+    Raises:
+        ValueError: a custom URDF without ``camera_parent``, or bad poses.
+    """
+    if urdf_path and not camera_parent:
+        raise ValueError("camera_parent: required with a custom URDF (the link that carries the camera)")
+    return RobotConfig(
+        urdf_path=urdf_path or None,
+        package_dirs=tuple(package_dirs),
+        world_from_base=pose_from_xyz_rpy(base_xyz, base_rpy),
+        camera_parent=camera_parent or "panda_hand",
+        parent_from_camera=pose_from_xyz_rpy(camera_xyz, camera_rpy),
+    )
 
 
 class RobotModel:
