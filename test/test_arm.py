@@ -508,3 +508,32 @@ def test_robot_config_from_flat_parameters(robot):
         robot_config(urdf_path="/some/robot.urdf")
     with pytest.raises(ValueError, match="3 finite xyz"):
         robot_config(base_xyz=(0.0, 1.0))
+
+
+def test_plan_with_arm_around_a_gain_planner(robot, checker, capability):
+    from dataclasses import replace
+
+    from nbv_prob_cnn.arm.feasibility import plan_with_arm
+    from nbv_prob_cnn.planners import GAIN_METHODS, GainPlanner
+
+    defaults = DATASETS["3dt"]
+    sensor = replace(defaults.sensor, r_max=24)  # 28 cm: the best views are close to the object
+    context = PlanningContext(defaults, rng=np.random.default_rng(8), sensor=sensor)
+    state = np.zeros(GEOMETRY_3DT.shape, dtype=np.int8)
+    state[24:40, 56:72, 16:32] = UNKNOWN  # an unexplored object within reach
+    planner = GainPlanner(GAIN_METHODS["prob_ig"])
+    arm = ArmFeasibility(robot, checker, capability=capability, rng=np.random.default_rng(8))
+    report = plan_with_arm(planner, state, context, GEOMETRY_3DT, arm, robot.reference_q, top_k=40)
+    assert set(report.times) == {"gain", "capability", "ik_collision"}
+    assert report.view is not None, vars(report)
+    choice = report.view.choice
+    assert state[tuple(choice.cell)] == 0 and choice.gain > 0
+    target = np.eye(4)
+    target[:3, :3] = view_rotations()[choice.view_index]
+    target[:3, 3] = GEOMETRY_3DT.cell_centre(choice.cell)
+    position_error, angle_error = pose_errors(robot.camera_pose(report.view.q), target)
+    assert position_error < DEFAULT_IK.position_tol and angle_error < DEFAULT_IK.rotation_tol
+    obstacles = GridObstacles.from_state(state, GEOMETRY_3DT).cleared(checker.body_points(robot.reference_q))
+    assert checker.is_free(report.view.q, obstacles)
+    # every better-ranked view was rejected for a reason the counters record
+    assert report.checked == 1 + report.unreachable + report.in_collision + report.path_blocked
