@@ -126,12 +126,14 @@ class RobotConfig:
     reference: Mapping[str, float] | None = None
 
     def cache_key(self) -> str:
-        """Hash of everything that changes the kinematics (URDF text, base, camera mount)."""
+        """Hash of everything that changes the kinematics and the map's IK seed (URDF text, base,
+        camera mount, reference)."""
         path = Path(self.urdf_path) if self.urdf_path else panda_urdf()[0]
         digest = hashlib.sha256(path.read_bytes())
         for array in (self.world_from_base, self.parent_from_camera):
             digest.update(np.round(np.asarray(array, dtype=np.float64), 9).tobytes())
         digest.update(self.camera_parent.encode())
+        digest.update(repr(sorted((self.reference or {}).items())).encode())  # the IK seed of the map
         return digest.hexdigest()[:20]
 
 
