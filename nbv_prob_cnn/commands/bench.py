@@ -9,9 +9,9 @@ from nbv_prob_cnn.benchmark import DEFAULT_CASES, format_table, run_case
 NAME = "bench"
 HELP = (
     "Benchmarks: planning iterations on half-explored grids (OpenCL vs numpy), CNN inference, TSDF "
-    "integration, and the transport overhead of the ROS node split."
+    "integration, the transport overhead of the ROS node split, and the arm (capability map, IK, added cost)."
 )
-SUITES = ("planning", "cnn", "integrator", "ros")
+SUITES = ("planning", "cnn", "integrator", "ros", "arm")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -26,7 +26,14 @@ def run(args: argparse.Namespace) -> int:
     suites = SUITES if args.suite == "all" else (args.suite,)
     for suite in suites:
         print(f"## {suite}", flush=True)
-        {"planning": run_planning, "cnn": run_cnn, "integrator": run_integrator, "ros": run_ros}[suite](args)
+        runners = {
+            "planning": run_planning,
+            "cnn": run_cnn,
+            "integrator": run_integrator,
+            "ros": run_ros,
+            "arm": run_arm,
+        }
+        runners[suite](args)
         print(flush=True)
     return 0
 
@@ -40,6 +47,12 @@ def run_integrator(args: argparse.Namespace) -> None:
         f"\nGrid quality on the 3DT world (8 views): empty precision {q['empty_precision']:.4f}, "
         f"seen-surface recall {q['surface_recall']:.4f}, occupied precision {q['occupied_precision']:.4f}"
     )
+
+
+def run_arm(args: argparse.Namespace) -> None:
+    from nbv_prob_cnn.arm.benchmark import arm_benchmark
+
+    print(arm_benchmark(seed=args.seed, iterations=args.repeats))
 
 
 def run_ros(args: argparse.Namespace) -> None:

@@ -1,0 +1,199 @@
+"""From views ranked by gain to a view the arm can take: capability pruning, exact IK + collision
+in gain order, and the motion cost.
+
+Utility of a feasible view: ``gain − λ · L`` with ``L`` the joint-space length (Euclidean, radians
+/ metres of the chain joints) of the straight path from the current configuration. With ``λ = 0``
+the first feasible view in gain order wins (the paper's choice restricted to what the arm
+reaches). With ``λ > 0`` candidates are checked in gain order until no remaining gain can beat
+the best utility found (``utility ≤ gain``), so the result is the exact argmax over the ranked
+list. A view is feasible when its pose has an IK solution within the limits, that configuration
+is free of self- and grid collision, and the straight joint path to it is free at samples at most
+``path_step`` rad apart. The cells the arm fills at the current configuration count as free
+(it is there, so nothing else is; the map may hold them as unknown or, unfiltered, occupied).
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from nbv_prob_cnn.arm.capability import CapabilityMap
+from nbv_prob_cnn.arm.collision import CollisionChecker, GridObstacles
+from nbv_prob_cnn.arm.ik import DEFAULT_IK, IkSettings, solve_camera_pose
+from nbv_prob_cnn.arm.kinematics import CameraChain
+from nbv_prob_cnn.arm.robot import RobotModel
+from nbv_prob_cnn.camera import matrix_from_quaternion
+from nbv_prob_cnn.geometry import GridGeometry
+from nbv_prob_cnn.planners import PlanningContext, ViewChoice
+from nbv_prob_cnn.planners.requests import view_pose
+
+
+@dataclass
+class ArmView:
+    """A feasible view: the planner's choice, the joint goal, path length and utility."""
+
+    choice: ViewChoice
+    q: np.ndarray
+    path_length: float
+    utility: float
+
+
+@dataclass
+class FeasibilityReport:
+    """Outcome of :meth:`ArmFeasibility.select`: the chosen view (None if none is feasible) and
+    counters/times (seconds) of the exact stage."""
+
+    view: ArmView | None
+    checked: int = 0
+    unreachable: int = 0
+    in_collision: int = 0
+    path_blocked: int = 0
+    budget_exhausted: bool = False
+    times: dict[str, float] = field(default_factory=lambda: {"capability": 0.0, "ik_collision": 0.0})
+
+
+class ArmFeasibility:
+    """The arm's view of a plan: capability pruning and the exact check of ranked views.
+
+    Args:
+        robot: robot model; ``checker`` (grid-collision sample spacing ~ cell size) and ``chain``
+            are built from it.
+        capability: optional capability map (pruning before the gain).
+        motion_weight: ``λ`` of the utility (0 = the paper's behaviour).
+        path_step: joint-space sampling step (rad) of the straight path check.
+        margin_cells: growth of the blocked cells for grid collision.
+        free_above_m: optional tabletop prior, see :meth:`GridObstacles.from_state` (None: every
+            unknown cell blocks).
+        max_checks: at most this many candidates get the exact check per call (bounds the time
+            when the ranked views are mostly infeasible); 0 = no limit.
+        rng: random restarts of IK.
+    """
+
+    def __init__(
+        self,
+        robot: RobotModel,
+        checker: CollisionChecker,
+        capability: CapabilityMap | None = None,
+        motion_weight: float = 0.0,
+        path_step: float = 0.1,
+        margin_cells: int = 0,
+        free_above_m: float | None = None,
+        max_checks: int = 0,
+        ik_settings: IkSettings = DEFAULT_IK,
+        rng: np.random.Generator | None = None,
+    ) -> None:
+        if not (np.isfinite(motion_weight) and motion_weight >= 0):
+            raise ValueError(f"motion_weight: expected a finite value >= 0, got {motion_weight}")
+        if not (np.isfinite(path_step) and path_step > 0):
+            raise ValueError(f"path_step: expected a positive step in rad, got {path_step}")
+        self.robot = robot
+        self.chain = CameraChain(robot)
+        self.checker = checker
+        self.capability = capability
+        self.motion_weight = float(motion_weight)
+        self.path_step = float(path_step)
+        self.margin_cells = int(margin_cells)
+        self.free_above_m = free_above_m
+        if max_checks < 0:
+            raise ValueError(f"max_checks: expected >= 0 (0 = no limit), got {max_checks}")
+        self.max_checks = int(max_checks)
+        self.ik_settings = ik_settings
+        self.rng = rng if rng is not None else np.random.default_rng()
+
+    def origin_filter(self) -> Callable[[np.ndarray], np.ndarray] | None:
+        """Origin filter for ``GainPlanner.rank`` (None without a capability map)."""
+        return self.capability.origin_filter if self.capability is not None else None
+
+    def prune(self, ranked: Sequence[ViewChoice]) -> list[ViewChoice]:
+        """The ranked views whose (cell, orientation) the capability map says may be reachable."""
+        if self.capability is None or not ranked:
+            return list(ranked)
+        cells = np.array([c.cell for c in ranked])
+        views = np.array([c.view_index for c in ranked])
+        keep = self.capability.views_at(cells)[np.arange(len(ranked)), views]
+        return [c for c, k in zip(ranked, keep, strict=True) if k]
+
+    def select(
+        self,
+        ranked: Sequence[ViewChoice],
+        state: np.ndarray,
+        context: PlanningContext,
+        geometry: GridGeometry,
+        current_q: np.ndarray,
+    ) -> FeasibilityReport:
+        """The best feasible view of ``ranked`` (best gain first), see the module doc.
+
+        Raises:
+            ValueError: bad configuration or grid.
+        """
+        current_q = self.robot.check_q(current_q, "current_q")
+        report = FeasibilityReport(None)
+        start = time.perf_counter()
+        candidates = self.prune(ranked)
+        report.times["capability"] = time.perf_counter() - start
+        start = time.perf_counter()
+        obstacles = GridObstacles.from_state(state, geometry, self.margin_cells, self.free_above_m)
+        obstacles = obstacles.cleared(self.checker.body_points(current_q))
+        best: ArmView | None = None
+        for choice in candidates:
+            if best is not None and (self.motion_weight == 0.0 or choice.gain <= best.utility):
+                break
+            if self.max_checks and report.checked >= self.max_checks:
+                report.budget_exhausted = True
+                break
+            report.checked += 1
+            position, quaternion = view_pose(choice, context, geometry)
+            target = np.eye(4)
+            target[:3, :3] = matrix_from_quaternion(quaternion)
+            target[:3, 3] = position
+            solution = solve_camera_pose(self.chain, target, current_q, self.rng, self.ik_settings)
+            if solution.q is None:
+                report.unreachable += 1
+                continue
+            if not self.checker.is_free(solution.q, obstacles):
+                report.in_collision += 1
+                continue
+            if not self.checker.path_is_free(current_q, solution.q, obstacles, self.path_step):
+                report.path_blocked += 1
+                continue
+            length = float(np.linalg.norm((solution.q - current_q)[self.chain.q_index]))
+            utility = choice.gain - self.motion_weight * length
+            if best is None or utility > best.utility:
+                best = ArmView(choice, solution.q, length, utility)
+        report.view = best
+        report.times["ik_collision"] = time.perf_counter() - start
+        return report
+
+
+def plan_with_arm(
+    planner,
+    state: np.ndarray,
+    context: PlanningContext,
+    geometry: GridGeometry,
+    arm: ArmFeasibility,
+    current_q: np.ndarray,
+    top_k: int = 50,
+) -> FeasibilityReport:
+    """Thin adapter: ``planner.rank`` (a ``GainPlanner``) on the capability-filtered origins, then
+    :meth:`ArmFeasibility.select`. Times: ``gain`` (the planner, pruning excluded), ``capability``
+    (origin filter and view pruning), ``ik_collision`` (the exact stage)."""
+    pruning = 0.0
+    inner = arm.origin_filter()
+
+    def timed_filter(origins: np.ndarray) -> np.ndarray:
+        nonlocal pruning
+        begin = time.perf_counter()
+        kept = inner(origins) if inner is not None else origins
+        pruning += time.perf_counter() - begin
+        return kept
+
+    start = time.perf_counter()
+    ranked = planner.rank(state, context, top_k=top_k, origin_filter=timed_filter)
+    gain_seconds = time.perf_counter() - start - pruning
+    report = arm.select(ranked, state, context, geometry, current_q)
+    report.times["gain"] = gain_seconds
+    report.times["capability"] += pruning
+    return report

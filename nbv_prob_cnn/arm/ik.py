@@ -1,0 +1,137 @@
+"""Inverse kinematics of camera poses: damped least squares, batched, within joint limits.
+
+One solver serves single requests (the seed from the current configuration plus random restarts
+run side by side as one batch) and the capability map (thousands of targets at once).
+
+Per iteration, for every row: the pose error ``e = [p* - p, log(R* Rᵀ)]`` (metres, radians, world
+axes), the step ``dq = Jᵀ (J Jᵀ + λ² I)⁻¹ e`` scaled down to at most ``max_step`` rad, and
+``q ← clip(q + dq, lower, upper)``. A row converges when the position error is below
+``position_tol`` and the rotation error below ``rotation_tol``; it gives up when its error norm
+has not dropped by 1 % for ``patience`` iterations (stuck at a joint limit or a local minimum),
+which keeps unreachable targets cheap.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from nbv_prob_cnn.arm.kinematics import CameraChain
+
+
+@dataclass(frozen=True)
+class IkSettings:
+    """Solver parameters (metres, radians)."""
+
+    damping: float = 0.05
+    max_step: float = 0.4
+    max_iterations: int = 80
+    position_tol: float = 1e-3
+    rotation_tol: float = 1e-2
+    restarts: int = 8
+    patience: int = 10  # a row stops after this many iterations without a 1 % error decrease
+
+
+#: The default solver settings.
+DEFAULT_IK = IkSettings()
+
+
+def rotation_error(target: np.ndarray, current: np.ndarray) -> np.ndarray:
+    """Rotation vectors ``log(target · currentᵀ)`` ``(N, 3)`` of ``(N, 3, 3)`` rotations."""
+    rel = target @ np.swapaxes(current, 1, 2)
+    cos = np.clip((np.trace(rel, axis1=1, axis2=2) - 1.0) / 2.0, -1.0, 1.0)
+    angle = np.arccos(cos)
+    vee = np.stack([rel[:, 2, 1] - rel[:, 1, 2], rel[:, 0, 2] - rel[:, 2, 0], rel[:, 1, 0] - rel[:, 0, 1]], axis=1)
+    sin = np.sin(angle)
+    small = sin < 1e-6
+    scale = np.where(small, 0.5, angle / (2.0 * np.where(small, 1.0, sin)))
+    out = vee * scale[:, None]
+    near_pi = small & (cos < 0)
+    if np.any(near_pi):  # angle ≈ π: axis from the symmetric part
+        for i in np.nonzero(near_pi)[0]:
+            sym = (rel[i] + np.eye(3)) / 2.0
+            axis = sym[np.argmax(np.diag(sym))]
+            out[i] = np.pi * axis / np.linalg.norm(axis)
+    return out
+
+
+def solve_batch(
+    chain: CameraChain,
+    targets: np.ndarray,
+    seeds: np.ndarray,
+    settings: IkSettings = DEFAULT_IK,
+    stop_at_first: bool = False,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Solve ``targets (N, 4, 4)`` from ``seeds (N, n)``; with ``stop_at_first`` the iteration
+    ends as soon as one row has converged (restarts of one target).
+
+    Returns:
+        ``(q (N, n), converged (N,) bool)``; unconverged rows hold their last iterate.
+    """
+    q = np.clip(np.array(seeds, dtype=np.float64).reshape(-1, chain.n), chain.lower, chain.upper)
+    targets = np.asarray(targets, dtype=np.float64).reshape(-1, 4, 4)
+    converged = np.zeros(q.shape[0], dtype=bool)
+    active = np.arange(q.shape[0])
+    best = np.full(q.shape[0], np.inf)
+    stalled = np.zeros(q.shape[0], dtype=np.int64)
+    eye = np.eye(6) * settings.damping**2
+    for _ in range(settings.max_iterations + 1):
+        if active.size == 0:
+            break
+        poses, jac = chain.camera_poses(q[active], jacobian=True)
+        goal = targets[active]
+        error = np.concatenate([goal[:, :3, 3] - poses[:, :3, 3], rotation_error(goal[:, :3, :3], poses[:, :3, :3])], 1)
+        done = (np.linalg.norm(error[:, :3], axis=1) < settings.position_tol) & (
+            np.linalg.norm(error[:, 3:], axis=1) < settings.rotation_tol
+        )
+        converged[active[done]] = True
+        if stop_at_first and np.any(done):
+            break
+        norm = np.linalg.norm(error, axis=1)
+        improved = norm < 0.99 * best[active]
+        best[active] = np.where(improved, norm, best[active])
+        stalled[active] = np.where(improved, 0, stalled[active] + 1)
+        keep = ~done & (stalled[active] < settings.patience)
+        active, jac, error = active[keep], jac[keep], error[keep]
+        if active.size == 0:
+            break
+        jjt = jac @ np.swapaxes(jac, 1, 2) + eye
+        step = np.einsum("nij,nj->ni", np.swapaxes(jac, 1, 2), np.linalg.solve(jjt, error[..., None])[..., 0])
+        norm = np.abs(step).max(axis=1, keepdims=True)
+        step *= np.minimum(1.0, settings.max_step / np.maximum(norm, 1e-12))
+        q[active] = np.clip(q[active] + step, chain.lower, chain.upper)
+    return q, converged
+
+
+@dataclass
+class IkResult:
+    """A solved camera pose: full configuration ``q`` (``None`` if unreachable) and the chain's
+    joint-space distance from the seed."""
+
+    q: np.ndarray | None
+    distance: float = float("inf")
+
+
+def solve_camera_pose(
+    chain: CameraChain,
+    target: np.ndarray,
+    current_q: np.ndarray,
+    rng: np.random.Generator,
+    settings: IkSettings = DEFAULT_IK,
+) -> IkResult:
+    """IK of one ``world_from_optical`` pose from the current full configuration.
+
+    The seed ``current_q`` and ``settings.restarts`` uniform random seeds within the limits run
+    as one batch until one converges; of the rows converged at that iteration the closest
+    (Euclidean, chain joints) to the seed wins.
+    """
+    current_q = np.asarray(current_q, dtype=np.float64)
+    start = current_q[chain.q_index]
+    seeds = np.vstack([start, rng.uniform(chain.lower, chain.upper, size=(settings.restarts, chain.n))])
+    q, ok = solve_batch(chain, np.broadcast_to(target, (seeds.shape[0], 4, 4)), seeds, settings, stop_at_first=True)
+    if not np.any(ok):
+        return IkResult(None)
+    distances = np.linalg.norm(q[ok] - start, axis=1)
+    best = int(np.argmin(distances))
+    return IkResult(chain.full_configuration(q[ok][best], current_q), float(distances[best]))

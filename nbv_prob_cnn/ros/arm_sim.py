@@ -1,0 +1,153 @@
+"""``arm_sim``: a simulated arm carrying the camera (kinematics only, velocity-limited joints).
+
+Publishes at ``rate_hz``:
+
+* ``/joint_states`` (``sensor_msgs/JointState``: every joint of the URDF, position and velocity)
+* ``/arm/camera_pose`` (``geometry_msgs/PoseStamped``: the camera_optical pose from forward
+  kinematics, in ``frame_id``)
+
+Moves with the service ``/arm_sim/move_to_joints`` (``nbv_prob_cnn_msgs/MoveToJoints``: answers
+at once with the motion's duration) or the topic ``/arm/joint_trajectory``
+(``trajectory_msgs/JointTrajectory``: its points in order, each segment at least as long as its
+``time_from_start`` difference). Joints move in straight joint-space segments, each joint at most
+at ``velocity_scale`` × its URDF velocity limit (:mod:`nbv_prob_cnn.arm.motion`). Unknown joint
+names, positions outside the limits and non-finite values are refused with a clear message.
+
+Run: ``nbv node arm_sim --ros-args -p velocity_scale:=0.5`` (default: the Panda beside the 3DT table).
+"""
+
+from __future__ import annotations
+
+import threading
+
+import numpy as np
+from geometry_msgs.msg import PoseStamped
+from nbv_prob_cnn_msgs.srv import MoveToJoints
+from rclpy.node import Node
+from sensor_msgs.msg import JointState
+from trajectory_msgs.msg import JointTrajectory
+
+from nbv_prob_cnn.arm.motion import JointMotion
+from nbv_prob_cnn.arm.robot import (
+    DEFAULT_BASE_XYZ,
+    DEFAULT_HAND_FROM_CAMERA_XYZ,
+    RobotModel,
+    robot_config,
+)
+from nbv_prob_cnn.camera import quaternion_from_matrix
+from nbv_prob_cnn.ros.common import declare, run_node
+
+NODE_NAME = "arm_sim"
+TOPIC_JOINT_STATES = "/joint_states"
+TOPIC_CAMERA_POSE = "/arm/camera_pose"
+TOPIC_TRAJECTORY = "/arm/joint_trajectory"
+SERVICE_MOVE = "/arm_sim/move_to_joints"
+
+
+class ArmSim(Node):
+    """Integrates velocity-limited joint motion and publishes joint states and the camera pose."""
+
+    def __init__(self) -> None:
+        super().__init__(NODE_NAME)
+        urdf = declare(self, "urdf_path", "", "robot URDF (empty = the Panda from pybullet_data)")
+        base_xyz = declare(self, "base_xyz", list(DEFAULT_BASE_XYZ), "root link position in frame_id (m)")
+        base_rpy = declare(self, "base_rpy", [0.0, 0.0, 0.0], "root link roll, pitch, yaw (rad)")
+        parent = declare(self, "camera_parent", "", "link carrying the camera (empty = panda_hand)")
+        cam_xyz = declare(self, "camera_xyz", list(DEFAULT_HAND_FROM_CAMERA_XYZ), "optical frame on the link (m)")
+        cam_rpy = declare(self, "camera_rpy", [0.0, 0.0, 0.0], "optical frame roll, pitch, yaw on the link (rad)")
+        self.frame_id = declare(self, "frame_id", "world", "frame of the base pose and the camera pose")
+        rate = declare(self, "rate_hz", 50.0, "publishing rate", min_value=0.1, max_value=1000.0)
+        scale = declare(
+            self, "velocity_scale", 0.5, "fraction of the URDF velocity limits", min_value=0.01, max_value=1.0
+        )
+        initial = declare(self, "initial_positions", [0.0], "initial joint positions in URDF order ([0.0] = reference)")
+        config = robot_config(urdf, base_xyz, base_rpy, parent, cam_xyz, cam_rpy)
+        self.robot = RobotModel(config)
+        limits = np.asarray(self.robot.model.velocityLimit, dtype=np.float64) * float(scale)
+        if not np.all(np.isfinite(limits) & (limits > 0)):
+            raise ValueError("velocity limits: every URDF joint needs a positive <limit velocity=...>")
+        q0 = self.robot.reference_q
+        if list(initial) != [0.0]:
+            q0 = self._checked(self.robot.check_q(np.asarray(initial, dtype=np.float64), "initial_positions"))
+        self._lock = threading.Lock()
+        self.motion = JointMotion(q0, limits, now=self._now())
+        self.joint_pub = self.create_publisher(JointState, TOPIC_JOINT_STATES, 10)
+        self.pose_pub = self.create_publisher(PoseStamped, TOPIC_CAMERA_POSE, 10)
+        self.create_subscription(JointTrajectory, TOPIC_TRAJECTORY, self._on_trajectory, 10)
+        self.create_service(MoveToJoints, SERVICE_MOVE, self._on_move)
+        self.create_timer(1.0 / float(rate), self._publish)
+        self.get_logger().info(f"arm_sim ready: joints {self.robot.joint_names}")
+
+    def _now(self) -> float:
+        return self.get_clock().now().nanoseconds * 1e-9
+
+    def _checked(self, q: np.ndarray) -> np.ndarray:
+        if not self.robot.within_limits(q, tol=1e-6):
+            names = [n for n, v, lo, hi in zip(self.robot.joint_names, q, self.robot.lower, self.robot.upper,
+                                                strict=True) if not lo - 1e-6 <= v <= hi + 1e-6]  # fmt: skip
+            raise ValueError(f"joint positions outside the URDF limits: {names}")
+        return q
+
+    def _target(self, names, positions, base: np.ndarray) -> np.ndarray:
+        if len(names) != len(positions):
+            raise ValueError(f"got {len(names)} joint names but {len(positions)} positions")
+        if len(set(names)) != len(names):
+            raise ValueError(f"duplicate joint names in {list(names)}")
+        return self._checked(self.robot.configuration(dict(zip(names, positions, strict=True)), base=base))
+
+    def _on_move(self, request: MoveToJoints.Request, response: MoveToJoints.Response):
+        try:
+            now = self._now()
+            with self._lock:
+                goal = self._target(list(request.name), list(request.position), self.motion.goal())
+                response.duration_s = self.motion.move_through([goal], now) - now
+            response.success = True
+        except ValueError as exc:
+            response.success = False
+            response.message = str(exc)
+            self.get_logger().warning(f"move_to_joints: {exc}")
+        return response
+
+    def _on_trajectory(self, msg: JointTrajectory) -> None:
+        try:
+            now = self._now()
+            with self._lock:
+                base = self.motion.goal()
+                waypoints, minimum, previous = [], [], 0.0
+                for point in msg.points:
+                    base = self._target(list(msg.joint_names), list(point.positions), base)
+                    t = point.time_from_start.sec + point.time_from_start.nanosec * 1e-9
+                    waypoints.append(base)
+                    minimum.append(max(0.0, t - previous))
+                    previous = t
+                self.motion.move_through(waypoints, now, minimum)
+        except ValueError as exc:
+            self.get_logger().warning(f"joint_trajectory refused: {exc}")
+
+    def _publish(self) -> None:
+        now_msg = self.get_clock().now().to_msg()
+        now = now_msg.sec + now_msg.nanosec * 1e-9
+        with self._lock:
+            q, dq = self.motion.position(now), self.motion.velocity(now)
+        joints = JointState()
+        joints.header.stamp = now_msg
+        joints.name = list(self.robot.joint_names)
+        joints.position = [float(v) for v in q]
+        joints.velocity = [float(v) for v in dq]
+        self.joint_pub.publish(joints)
+        pose = self.robot.camera_pose(q)
+        msg = PoseStamped()
+        msg.header.stamp = now_msg
+        msg.header.frame_id = self.frame_id
+        msg.pose.position.x, msg.pose.position.y, msg.pose.position.z = (float(v) for v in pose[:3, 3])
+        o = msg.pose.orientation
+        o.x, o.y, o.z, o.w = (float(v) for v in quaternion_from_matrix(pose[:3, :3]))
+        self.pose_pub.publish(msg)
+
+
+def main(args: list[str] | None = None) -> int:
+    return run_node(ArmSim, args, threads=2)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
