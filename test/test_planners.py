@@ -23,7 +23,7 @@ def test_top_k_matches_brute_force_across_blocks(rng, monkeypatch):
     origins = np.argwhere(state == 0)
     full = ray_gains(state, prob, context.directions, 8, origins, "numpy") @ context.membership
     order = np.lexsort((np.arange(full.size), -full.ravel()))[:25]
-    monkeypatch.setattr(base, "MAX_RAYS_PER_CALL", 56 * 37)  # 37 origins per block: many blocks
+    monkeypatch.setattr(base, "MAX_VIEWS_PER_CALL", 52 * 37)  # 37 origins per block: many blocks
     found = search_views(state, prob, origins, context, top_k=25)
     assert len(found) == 25
     np.testing.assert_allclose([f.gain for f in found], full.ravel()[order], atol=1e-5)

@@ -1,39 +1,30 @@
-// Probabilistic ray-casting gain (SPEC §4), one work-item per (origin, ray).
+// Probabilistic ray-casting gain (SPEC §4) and view gain (SPEC §5, equation (7)).
 //
-// The grid is one float per cell ("code"), C order [x][y][z] (2D grids have nz = 1):
+// The grid is one float per cell ("code"), C order [x][y][z] (2D grids have nz = 1), padded
+// with one known-occupied cell on every side (2D: on x and y only):
 //   code >= 0   unknown cell, occupancy probability p = code
 //   code == -1  known empty (p = 0)
 //   code == -2  known occupied (p = 1)
-// Sample t of ray h from origin v is v + offsets[h][t] (precomputed round(t * b_h)).
-// Cells outside the grid count as known occupied, so the ray stops there exactly.
+// Sample t of ray h from origin v is the padded cell v + offsets[h][t], a linear index offset
+// (precomputed from round(t * b_h)). Consecutive samples differ by at most one cell per axis,
+// so a ray leaving the grid always samples the occupied padding first and stops there, exactly
+// as if every cell outside the grid were known occupied: no bounds checks in the loop.
+//
+// march_ray is the one implementation of the ray marching; ray_gain stores it per (origin,
+// ray) (poses with their own frusta), view_gain sums it into the candidate views per origin.
 #pragma OPENCL FP_CONTRACT OFF
 
 #define MODE_PROBABILISTIC 0
 #define MODE_INFORMATION_GAIN 1
 
-__kernel void ray_gain(__global const float *code, const int nx, const int ny, const int nz,
-                       __global const int *origins, const int n_origins,
-                       __global const short *offsets, const int n_rays, const int n_samples,
-                       const int nu, const float inv_total, const float eps,
-                       const int mode, const float min_range,
-                       __global float *out)
+inline float march_ray(__global const float *code, const int origin, __global const int *off,
+                       const int n_samples, const int nu, const float inv_total, const float eps,
+                       const int mode, const float min_range)
 {
-    const int gid = get_global_id(0);
-    if (gid >= n_origins * n_rays) {
-        return;
-    }
-    const int n = gid / n_rays;
-    const int h = gid - n * n_rays;
-    const int ox = origins[3 * n], oy = origins[3 * n + 1], oz = origins[3 * n + 2];
-    __global const short *off = offsets + (size_t)h * n_samples * 3;
     float visible = 1.0f;  // Pr(r_t) = prod_{i<t} (1 - p_i)
     float hit = 0.0f;      // H(v, h)
     for (int t = 0; t < n_samples; ++t) {
-        const int x = ox + off[3 * t], y = oy + off[3 * t + 1], z = oz + off[3 * t + 2];
-        if ((uint)x >= (uint)nx || (uint)y >= (uint)ny || (uint)z >= (uint)nz) {
-            break;
-        }
-        const float c = code[((size_t)x * ny + y) * nz + z];
+        const float c = code[origin + off[t]];
         const float weight = (nu == 1) ? (float)t : (float)(t * t);
         if (mode == MODE_INFORMATION_GAIN) {
             if (c == -1.0f) {
@@ -48,11 +39,57 @@ __kernel void ray_gain(__global const float *code, const int nx, const int ny, c
             hit += visible * weight;
             visible *= 1.0f - c;
         } else if (c < -1.5f) {
-            break;  // known occupied: Pr = 0 from here on
+            break;  // known occupied (or outside the grid): Pr = 0 from here on
         }
         if (visible <= eps) {
             break;
         }
     }
-    out[gid] = hit * inv_total;
+    return hit * inv_total;
+}
+
+// G_r(v, h) for every (origin, ray): one work-item each, out is (n_origins, n_rays).
+__kernel void ray_gain(__global const float *code, __global const int *origins, const int n_origins,
+                       __global const int *offsets, const int n_rays, const int n_samples,
+                       const int nu, const float inv_total, const float eps,
+                       const int mode, const float min_range,
+                       __global float *out)
+{
+    const int gid = get_global_id(0);
+    if (gid >= n_origins * n_rays) {
+        return;
+    }
+    const int n = gid / n_rays;
+    const int h = gid - n * n_rays;
+    out[gid] = march_ray(code, origins[n], offsets + (size_t)h * n_samples, n_samples, nu, inv_total,
+                         eps, mode, min_range);
+}
+
+// G_W(v, W) for every origin and candidate view, without storing ray gains in global memory.
+// One work-group per origin: its work-items march the rays (h = lid, lid + size, ...) into
+// local memory, then each sums the rays of its views (view_start/view_rays: the view -> rays
+// membership as compressed rows, rays ascending). out is (n_origins, n_views).
+__kernel void view_gain(__global const float *code, __global const int *origins, const int n_origins,
+                        __global const int *offsets, const int n_rays, const int n_samples,
+                        const int nu, const float inv_total, const float eps,
+                        const int mode, const float min_range,
+                        __global const int *view_start, __global const int *view_rays, const int n_views,
+                        __local float *ray_gains, __global float *out)
+{
+    const int n = get_group_id(0);
+    const int lid = get_local_id(0);
+    const int size = get_local_size(0);
+    const int origin = origins[n];
+    for (int h = lid; h < n_rays; h += size) {
+        ray_gains[h] = march_ray(code, origin, offsets + (size_t)h * n_samples, n_samples, nu, inv_total,
+                                 eps, mode, min_range);
+    }
+    barrier(CLK_LOCAL_MEM_FENCE);
+    for (int w = lid; w < n_views; w += size) {
+        float sum = 0.0f;
+        for (int i = view_start[w]; i < view_start[w + 1]; ++i) {
+            sum += ray_gains[view_rays[i]];
+        }
+        out[(size_t)n * n_views + w] = sum;
+    }
 }

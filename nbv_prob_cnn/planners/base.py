@@ -9,10 +9,10 @@ from typing import Protocol
 import numpy as np
 
 from nbv_prob_cnn.camera import DatasetDefaults, Sensor, dataset_defaults, orientations, yaw_quaternion
-from nbv_prob_cnn.gain import empty_origins, ray_directions, ray_gains, view_membership
+from nbv_prob_cnn.gain import empty_origins, origin_view_gains, ray_directions, view_membership
 
-#: Upper bound on origins × rays per ray-casting call (bounds memory for N_rays = 16).
-MAX_RAYS_PER_CALL = 8_000_000
+#: Upper bound on origins × views per gain call (bounds the (origins, views) gains in memory).
+MAX_VIEWS_PER_CALL = 16_000_000
 
 
 @dataclass
@@ -92,26 +92,24 @@ def search_views(
 ) -> list[ViewChoice]:
     """The ``top_k`` (origin, orientation) pairs with the largest ``G_W``, best first (SPEC §5).
 
-    Ray gains are computed in blocks of origins (bounded memory) and each block is turned into
-    view gains with one matrix product. Ties go to the first origin, then the first view.
+    View gains are computed in blocks of origins (bounded memory) by
+    :func:`~nbv_prob_cnn.gain.origin_view_gains`. Ties go to the first origin, then the first view.
     Views with zero gain are never returned.
     """
     sensor = context.active_sensor
-    n_rays = context.directions.shape[0]
     n_views = context.membership.shape[1]
-    block = max(1, MAX_RAYS_PER_CALL // n_rays)
+    block = max(1, MAX_VIEWS_PER_CALL // n_views)
     kept_gain = np.zeros(0, dtype=np.float32)
     kept_index = np.zeros(0, dtype=np.int64)  # flat index origin * n_views + view
     t_ray = t_view = 0.0
     for start in range(0, origins.shape[0], block):
         chunk = origins[start : start + block]
         t0 = time.perf_counter()
-        gains = ray_gains(
-            state, prob, context.directions, sensor.r_max, chunk, context.backend,
+        views = origin_view_gains(
+            state, prob, context.directions, sensor.r_max, context.membership, chunk, context.backend,
             mode=mode, eps=context.eps, min_range=sensor.min_range,
-        )  # fmt: skip
+        ).ravel()  # fmt: skip
         t1 = time.perf_counter()
-        views = (gains @ context.membership).ravel()
         k = min(top_k, views.size)
         best = np.argpartition(-views, k - 1)[:k] if k < views.size else np.arange(views.size)
         kept_gain = np.concatenate([kept_gain, views[best]])
