@@ -1,14 +1,18 @@
 // Probabilistic ray-casting gain (SPEC §4) and view gain (SPEC §5, equation (7)).
 //
-// The grid is one float per cell ("code"), C order [x][y][z] (2D grids have nz = 1), padded
-// with one known-occupied cell on every side (2D: on x and y only):
+// The grid is one float per cell ("code", see opencl.py: march_grid), C order [x][y][z] (2D
+// grids have nz = 1), padded with one known-occupied cell on every side (2D: on x and y only):
 //   code >= 0   unknown cell, occupancy probability p = code
-//   code == -1  known empty (p = 0)
-//   code == -2  known occupied (p = 1)
+//   code == -1  known occupied (p = 1), also the padding
+//   code <= -2  known empty (p = 0), d = -1 - code >= 1 is the Chebyshev distance to the nearest
+//               non-empty cell
 // Sample t of ray h from origin v is the padded cell v + offsets[h][t], a linear index offset
-// (precomputed from round(t * b_h)). Consecutive samples differ by at most one cell per axis,
-// so a ray leaving the grid always samples the occupied padding first and stops there, exactly
-// as if every cell outside the grid were known occupied: no bounds checks in the loop.
+// (precomputed from round(t * b_h)). Consecutive samples differ by at most one cell per axis
+// (|b| <= 1), so samples t and t + k are at most k apart in the Chebyshev metric. Hence:
+//   * a ray leaving the grid samples the occupied padding first and stops there, exactly as if
+//     every cell outside the grid were known occupied: no bounds checks in the loop;
+//   * after an empty sample at distance d, samples t + 1 .. t + d - 1 are empty too and change
+//     neither H nor Pr (nor the information gain): the ray jumps to t + d. This is exact.
 //
 // march_ray is the one implementation of the ray marching; ray_gain stores it per (origin,
 // ray) (poses with their own frusta), view_gain sums it into the candidate views per origin.
@@ -18,29 +22,28 @@
 #define MODE_INFORMATION_GAIN 1
 
 inline float march_ray(__global const float *code, const int origin, __global const int *off,
-                       const int n_samples, const int nu, const float inv_total, const float eps,
+                       const int first_sample, const int n_samples, const int nu, const float inv_total, const float eps,
                        const int mode, const float min_range)
 {
     float visible = 1.0f;  // Pr(r_t) = prod_{i<t} (1 - p_i)
     float hit = 0.0f;      // H(v, h)
-    for (int t = 0; t < n_samples; ++t) {
+    for (int t = first_sample; t < n_samples; ++t) {
         const float c = code[origin + off[t]];
+        if (c <= -2.0f) {
+            continue;  // known empty
+        }
+        if (c < 0.0f) {
+            break;  // known occupied (or outside the grid): Pr = 0 from here on
+        }
         const float weight = (nu == 1) ? (float)t : (float)(t * t);
         if (mode == MODE_INFORMATION_GAIN) {
-            if (c == -1.0f) {
-                continue;
-            }
-            if (c >= 0.0f && (float)t >= min_range) {
+            if ((float)t >= min_range) {
                 hit = weight;
             }
             break;
         }
-        if (c >= 0.0f) {
-            hit += visible * weight;
-            visible *= 1.0f - c;
-        } else if (c < -1.5f) {
-            break;  // known occupied (or outside the grid): Pr = 0 from here on
-        }
+        hit += visible * weight;
+        visible *= 1.0f - c;
         if (visible <= eps) {
             break;
         }
@@ -61,35 +64,42 @@ __kernel void ray_gain(__global const float *code, __global const int *origins, 
     }
     const int n = gid / n_rays;
     const int h = gid - n * n_rays;
-    out[gid] = march_ray(code, origins[n], offsets + (size_t)h * n_samples, n_samples, nu, inv_total,
+    out[gid] = march_ray(code, origins[n], offsets + (size_t)h * n_samples, 0, n_samples, nu, inv_total,
                          eps, mode, min_range);
 }
 
 // G_W(v, W) for every origin and candidate view, without storing ray gains in global memory.
-// One work-group per origin: its work-items march the rays (h = lid, lid + size, ...) into
-// local memory, then each sums the rays of its views (view_start/view_rays: the view -> rays
-// membership as compressed rows, rays ascending). out is (n_origins, n_views).
+// One work-group per block of consecutive origins, one work-item per origin: neighbouring
+// work-items march the same ray from neighbouring cells (coherent loops and memory reads), into
+// local memory; then the group sums the rays of each (origin, view) pair (view_start/view_rays:
+// the view -> rays membership as compressed rows, rays ascending). out is (n_origins, n_views).
 __kernel void view_gain(__global const float *code, __global const int *origins, const int n_origins,
                         __global const int *offsets, const int n_rays, const int n_samples,
                         const int nu, const float inv_total, const float eps,
                         const int mode, const float min_range,
                         __global const int *view_start, __global const int *view_rays, const int n_views,
-                        __local float *ray_gains, __global float *out)
+                        __global const int *group_first_sample, __local float *ray_gains, __global float *out)
 {
-    const int n = get_group_id(0);
     const int lid = get_local_id(0);
     const int size = get_local_size(0);
-    const int origin = origins[n];
-    for (int h = lid; h < n_rays; h += size) {
-        ray_gains[h] = march_ray(code, origin, offsets + (size_t)h * n_samples, n_samples, nu, inv_total,
-                                 eps, mode, min_range);
+    const int first = get_group_id(0) * size;
+    const int first_sample = group_first_sample[get_group_id(0)];
+    const int origin = origins[min(first + lid, n_origins - 1)];
+    __local float *mine = ray_gains + (size_t)lid * n_rays;
+    for (int h = 0; h < n_rays; ++h) {
+        mine[h] = march_ray(code, origin, offsets + (size_t)h * n_samples, first_sample, n_samples, nu,
+                            inv_total, eps, mode, min_range);
     }
     barrier(CLK_LOCAL_MEM_FENCE);
-    for (int w = lid; w < n_views; w += size) {
+    const int count = min(size, n_origins - first);
+    for (int k = lid; k < count * n_views; k += size) {
+        const int o = k / n_views;
+        const int w = k - o * n_views;
+        __local const float *gains = ray_gains + (size_t)o * n_rays;
         float sum = 0.0f;
         for (int i = view_start[w]; i < view_start[w + 1]; ++i) {
-            sum += ray_gains[view_rays[i]];
+            sum += gains[view_rays[i]];
         }
-        out[(size_t)n * n_views + w] = sum;
+        out[(size_t)(first + o) * n_views + w] = sum;
     }
 }

@@ -27,6 +27,7 @@ class PlanningContext:
         n_rays: sub-cells per side of the ray square/cube (default: the data set's).
         sensor: overrides the data set's sensor.
         eps: early-stop tolerance of the kernel (0 = exact).
+        origin_stride: overrides the data set's origin stride (1 = every empty cell).
     """
 
     defaults: DatasetDefaults
@@ -36,8 +37,11 @@ class PlanningContext:
     n_rays: int | None = None
     sensor: Sensor | None = None
     eps: float = 0.0
+    origin_stride: int | None = None
 
     def __post_init__(self) -> None:
+        if self.origin_stride is not None and (not isinstance(self.origin_stride, int) or self.origin_stride < 1):
+            raise ValueError(f"origin_stride: expected a positive integer, got {self.origin_stride!r}")
         sensor = self.active_sensor
         self.directions = ray_directions(self.defaults.dims, self.n_rays or self.defaults.n_rays)
         self.orientations = orientations(self.defaults.dims)
@@ -59,8 +63,8 @@ class PlanningContext:
         return np.asarray(orientation, dtype=np.float64)
 
     def candidate_origins(self, state: np.ndarray) -> np.ndarray:
-        """Empty cells, on the data set's origin stride (1/8 of the cells on 3DT)."""
-        return empty_origins(state, self.defaults.origin_stride)
+        """Empty cells, on the origin stride (default: the data set's)."""
+        return empty_origins(state, self.origin_stride or self.defaults.origin_stride)
 
 
 @dataclass
