@@ -12,7 +12,7 @@ from nbv_prob_cnn.camera import DatasetDefaults, Sensor, dataset_defaults, orien
 from nbv_prob_cnn.gain import empty_origins, origin_view_gains, ray_directions, view_membership
 
 #: Upper bound on origins × views per gain call (bounds the (origins, views) gains in memory).
-MAX_VIEWS_PER_CALL = 16_000_000
+MAX_VIEWS_PER_CALL = 64_000_000
 
 
 @dataclass
@@ -115,7 +115,12 @@ def search_views(
         ).ravel()  # fmt: skip
         t1 = time.perf_counter()
         k = min(top_k, views.size)
-        best = np.argpartition(-views, k - 1)[:k] if k < views.size else np.arange(views.size)
+        if k == 1:
+            best = np.array([np.argmax(views)])  # the first of equal maxima
+        elif k < views.size:
+            best = np.argpartition(views, views.size - k)[views.size - k :]
+        else:
+            best = np.arange(views.size)
         kept_gain = np.concatenate([kept_gain, views[best]])
         kept_index = np.concatenate([kept_index, best + start * n_views])
         order = np.lexsort((kept_index, -kept_gain))[:top_k]  # gain descending, then index
