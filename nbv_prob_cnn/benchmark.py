@@ -66,8 +66,9 @@ DEFAULT_CASES = (
 
 @dataclass
 class Timing:
-    seconds: float
+    seconds: float  # best wall-clock time
     peak_bytes: int
+    cpu_seconds: float = 0.0  # CPU time of the process (all threads) in the best run
 
 
 @dataclass
@@ -110,15 +111,20 @@ def _time(fn, repeats: int) -> float:
 
 
 def _measure(fn, repeats: int, device_bytes: int = 0) -> Timing:
-    """Best of ``repeats`` wall-clock times; memory peak of the first run (tracemalloc)."""
+    """Best of ``repeats`` wall-clock times (and the CPU time of that run, less sensitive to other
+    processes on the machine); memory peak of the first run (tracemalloc)."""
     tracemalloc.start()
-    start = time.perf_counter()
-    fn()
-    first = time.perf_counter() - start
-    peak = tracemalloc.get_traced_memory()[1]
-    tracemalloc.stop()
-    best = min(first, _time(fn, repeats - 1)) if repeats > 1 else first
-    return Timing(best, peak + device_bytes)
+    best = Timing(float("inf"), 0)
+    for run in range(max(1, repeats)):
+        cpu, start = time.process_time(), time.perf_counter()
+        fn()
+        wall, cpu = time.perf_counter() - start, time.process_time() - cpu
+        if run == 0:
+            best.peak_bytes = tracemalloc.get_traced_memory()[1] + device_bytes
+            tracemalloc.stop()
+        if wall < best.seconds:
+            best.seconds, best.cpu_seconds = wall, cpu
+    return best
 
 
 @functools.lru_cache(maxsize=1)
@@ -226,7 +232,7 @@ def run_case(case: BenchCase, world: World, repeats: int = 3, numpy_origins: int
             found["best"] = baseline_view_search(state, prob, origins, context, kernel)
 
         timing = _measure(baseline, repeats)
-        timing.peak_bytes += found["best"][2]
+        timing.peak_bytes += found["best"][2]  # the baseline's OpenCL buffers
         result.timings[kernel] = timing
         if kernel == "two_step":
             gain, index = found["best"][:2]
@@ -253,10 +259,10 @@ def format_table(results: list[BenchResult]) -> str:
     """Markdown table: seconds per iteration, effective samples/s and peak memory per variant."""
     lines = [
         "| case | unknown | origins | rays | fused (s) | of which CNN (s) | two-step (s) | naive (s) | "
-        "numpy (s, extrap.) | "
+        "numpy (s, extrap.) | fused / two-step / naive CPU-s | "
         "fused vs two-step | fused vs naive | fused samples/s | naive samples/s | peak MB fused / two-step "
         "/ naive | same best view |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in results:
         t = r.timings
@@ -265,6 +271,7 @@ def format_table(results: list[BenchResult]) -> str:
             f"| {r.case.label} | {r.unknown_fraction:.2f} | {r.origins} | {r.rays} | {t['fused'].seconds:.3f} | "
             f"{r.cnn_s:.3f} | "
             f"{t['two_step'].seconds:.3f} | {t['naive'].seconds:.3f} | {t['numpy'].seconds:.1f} | "
+            f"{t['fused'].cpu_seconds:.2f} / {t['two_step'].cpu_seconds:.2f} / {t['naive'].cpu_seconds:.2f} | "
             f"{t['two_step'].seconds / t['fused'].seconds:.1f}× | {t['naive'].seconds / t['fused'].seconds:.1f}× | "
             f"{r.samples_per_s('fused'):.2e} | {r.samples_per_s('naive'):.2e} | {mb} | "
             f"{'yes' if r.same_best_view else 'NO'} |"
