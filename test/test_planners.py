@@ -63,3 +63,13 @@ def test_downsampled_method_evaluates_a_fixed_number_of_origins(rng):
     full = method_origins(GAIN_METHODS["cnn_prob"], state, context)
     assert sub.shape == (DOWNSAMPLED_ORIGINS[3], 3) == (500, 3) and full.shape[0] == 27000
     assert len({tuple(c) for c in sub}) == 500 and np.all(state[tuple(sub.T)] == 0)
+
+
+def test_origin_stride_overrides_the_dataset(rng):
+    state, _ = _grid(rng)
+    every = PlanningContext(SMALL_3D, origin_stride=1).candidate_origins(state)
+    np.testing.assert_array_equal(every, np.argwhere(state == 0))
+    strided = PlanningContext(SMALL_3D, origin_stride=2).candidate_origins(state)
+    assert strided.shape[0] < every.shape[0] and np.all(strided % 2 == 0)
+    with pytest.raises(ValueError, match="origin_stride"):
+        PlanningContext(SMALL_3D, origin_stride=0)
