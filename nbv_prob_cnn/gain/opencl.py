@@ -45,7 +45,8 @@ def march_grid(code: np.ndarray) -> np.ndarray:
     with one occupied cell of padding on each side of every axis the rays move along (2D grids
     get a trailing axis of size 1, not padded). Occupied cells (and the padding) become -1;
     known-empty cells become ``-1 - d`` with ``d`` the Chebyshev distance to the nearest
-    non-empty cell (capped at :data:`MAX_SKIP`), which lets rays jump over empty space exactly."""
+    non-empty cell (capped at :data:`MAX_SKIP`): the first samples of every ray from there are
+    empty (see :func:`group_first_samples`)."""
     code3 = code if code.ndim == 3 else code[:, :, None]
     pad = ((1, 1), (1, 1), (1, 1) if code.ndim == 3 else (0, 0))
     padded = np.pad(code3, pad, constant_values=np.float32(CODE_OCCUPIED))
