@@ -1,33 +1,75 @@
-"""Planning-iteration benchmarks (``nbv bench``): one ``prob_ig`` iteration at ~50 %
-explored on the default worlds, OpenCL kernel against the numpy reference in the same run."""
+"""Planning-iteration benchmarks (``nbv bench``): one planning iteration at ~50 % explored on
+the default worlds, measured side by side in one run for
+
+* ``iteration``: the planner's whole iteration (probability map, CNN inference included for
+  ``cnn_prob``, origins, view search);
+* ``fused``: its view search alone (``view_gain`` kernel, rays summed into views on the device);
+* ``two_step``: the previous path, kept here only as a baseline (``baseline_ray_gain``: per-ray
+  gains to memory, then an (origins × rays) @ (rays × views) product);
+* ``naive``: one work-item per (origin, ray) marching a float position, stopping at the first
+  occupied cell (the paper's scheme), then the same product;
+* ``numpy``: the reference on a random subset of origins, extrapolated linearly.
+
+Every variant gets the same grid, probabilities and origins. "Effective samples/s" counts the
+nominal ``origins × rays × (R_max + 1)`` samples per second for every variant (the work an
+exhaustive march would do), so its ratios are speed ratios. Peak memory is the tracemalloc peak
+of Python/numpy allocations during the iteration plus the OpenCL buffers it allocates (on a CPU
+device those live in host memory too); torch's allocations (the CNN) are not included.
+"""
 
 from __future__ import annotations
 
+import functools
 import time
-from dataclasses import dataclass
+import tracemalloc
+from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 
+from nbv_prob_cnn.gain.directions import distance_weights, sample_offsets
 from nbv_prob_cnn.grid import probability_with_constant, unknown_fraction
 from nbv_prob_cnn.observe import observe
 from nbv_prob_cnn.planners import PlanningContext, make_planner
 from nbv_prob_cnn.planners.base import search_best_view
 from nbv_prob_cnn.worlds.world import World
 
+BASELINE_SOURCE = Path(__file__).with_name("benchmark_baselines.cl")
+#: Origins × rays per baseline launch (the previous planners' block size).
+BASELINE_RAYS_PER_CALL = 8_000_000
+VARIANTS = ("iteration", "fused", "two_step", "naive", "numpy")
+
 
 @dataclass(frozen=True)
 class BenchCase:
-    """One benchmark row: a data set and its number of ray sub-cells per side."""
+    """One benchmark row: data set, ray sub-cells per side, origin stride and method."""
 
     dataset: str
     n_rays: int | None = None
+    stride: int = 1
+    method: str = "prob_ig"
 
     @property
     def label(self) -> str:
-        return f"{self.dataset.upper()} N_rays={self.n_rays}" if self.n_rays else self.dataset.upper()
+        rays = f" N_rays={self.n_rays}" if self.n_rays else ""
+        stride = f" stride {self.stride}" if self.stride > 1 else " all cells"
+        return f"{self.dataset.upper()}{rays}{stride} {self.method}"
 
 
-DEFAULT_CASES = (BenchCase("2d", 16), BenchCase("3du", 4), BenchCase("3du", 16), BenchCase("3dt", 4))
+DEFAULT_CASES = (
+    BenchCase("2d", 16),
+    BenchCase("3du", 4),
+    BenchCase("3du", 16),
+    BenchCase("3dt", 4, 2, "cnn_prob"),
+    BenchCase("3dt", 4, 1, "cnn_prob"),
+)
+
+
+@dataclass
+class Timing:
+    seconds: float  # best wall-clock time
+    peak_bytes: int
+    cpu_seconds: float = 0.0  # CPU time of the process (all threads) in the best run
 
 
 @dataclass
@@ -36,18 +78,14 @@ class BenchResult:
     unknown_fraction: float
     origins: int
     rays: int
-    opencl_s: float
-    numpy_s: float
-    numpy_origins: int
     nominal_samples: int
+    numpy_origins: int
+    timings: dict[str, Timing] = field(default_factory=dict)
+    same_best_view: bool = True
+    cnn_s: float = 0.0  # CNN inference alone (cnn_prob cases; included in the iteration)
 
-    @property
-    def speedup(self) -> float:
-        return self.numpy_s / self.opencl_s
-
-    @property
-    def samples_per_s(self) -> float:
-        return self.nominal_samples / self.opencl_s
+    def samples_per_s(self, variant: str) -> float:
+        return self.nominal_samples / self.timings[variant].seconds
 
 
 def half_explored(world: World, context: PlanningContext, target: float = 0.5, max_views: int = 400) -> np.ndarray:
@@ -73,38 +111,144 @@ def _time(fn, repeats: int) -> float:
     return best
 
 
+def _measure(fn, repeats: int, device_bytes: int = 0) -> Timing:
+    """Best of ``repeats`` wall-clock times (and the CPU time of that run, less sensitive to other
+    processes on the machine); memory peak of the first run (tracemalloc)."""
+    tracemalloc.start()
+    best = Timing(float("inf"), 0)
+    for run in range(max(1, repeats)):
+        cpu, start = time.process_time(), time.perf_counter()
+        fn()
+        wall, cpu = time.perf_counter() - start, time.process_time() - cpu
+        if run == 0:
+            best.peak_bytes = tracemalloc.get_traced_memory()[1] + device_bytes
+            tracemalloc.stop()
+        if wall < best.seconds:
+            best.seconds, best.cpu_seconds = wall, cpu
+    return best
+
+
+@functools.lru_cache(maxsize=1)
+def _baseline_kernels():
+    from nbv_prob_cnn.cl_device import cl_runtime
+
+    runtime = cl_runtime()
+    program = runtime.build(BASELINE_SOURCE)
+    return runtime, runtime.cl.Kernel(program, "baseline_ray_gain"), runtime.cl.Kernel(program, "naive_ray_gain")
+
+
+def baseline_view_search(
+    state: np.ndarray, prob: np.ndarray, origins: np.ndarray, context: PlanningContext, kernel: str
+) -> tuple[float, int, int]:
+    """Best view with a baseline kernel (``"two_step"`` or ``"naive"``): per-ray gains in
+    blocks, each block @ membership. Returns (best gain, flat best index, device bytes)."""
+    from nbv_prob_cnn.gain.opencl import encode_grid
+
+    runtime, two_step, naive = _baseline_kernels()
+    cl, mf = runtime.cl, runtime.cl.mem_flags
+    sensor = context.active_sensor
+    code = np.ascontiguousarray(encode_grid(state, prob))
+    shape3 = code.shape + (1,) * (3 - code.ndim)
+    rays = context.directions.shape[0]
+    inv_total = np.float32(1.0 / distance_weights(sensor.r_max, state.ndim).sum())
+    code_buf = cl.Buffer(runtime.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=code)
+    if kernel == "two_step":
+        offsets = sample_offsets(context.directions, sensor.r_max)
+        table = np.zeros(offsets.shape[:2] + (3,), dtype=np.int16)
+        table[..., : offsets.shape[2]] = offsets
+    else:
+        table = np.zeros((rays, 3), dtype=np.float32)
+        table[:, : state.ndim] = context.directions
+    table_buf = cl.Buffer(runtime.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=table)
+    block = max(1, BASELINE_RAYS_PER_CALL // rays)
+    best_gain, best_index, device_bytes = -1.0, -1, code.nbytes + table.nbytes
+    for begin in range(0, origins.shape[0], block):
+        chunk = origins[begin : begin + block]
+        n = chunk.shape[0]
+        origins3 = np.zeros((n, 3), dtype=np.int32 if kernel == "two_step" else np.float32)
+        origins3[:, : state.ndim] = chunk
+        origin_buf = cl.Buffer(runtime.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=origins3)
+        out = np.empty((n, rays), dtype=np.float32)
+        out_buf = cl.Buffer(runtime.context, mf.WRITE_ONLY, out.nbytes)
+        device_bytes = max(device_bytes, code.nbytes + table.nbytes + origins3.nbytes + out.nbytes)
+        dims = [np.int32(d) for d in shape3]
+        if kernel == "two_step":
+            two_step(runtime.queue, (n * rays,), None, code_buf, *dims, origin_buf, np.int32(n), table_buf,
+                     np.int32(rays), np.int32(sensor.r_max + 1), np.int32(state.ndim - 1), inv_total,
+                     np.float32(0.0), np.int32(0), np.float32(0.0), out_buf)  # fmt: skip
+        else:
+            naive(runtime.queue, (n * rays,), None, code_buf, *dims, origin_buf, np.int32(n), table_buf,
+                  np.int32(rays), np.int32(sensor.r_max + 1), np.int32(state.ndim - 1), inv_total, out_buf)  # fmt: skip
+        cl.enqueue_copy(runtime.queue, out, out_buf)
+        views = (out @ context.membership).ravel()
+        i = int(np.argmax(views))
+        if views[i] > best_gain:
+            best_gain, best_index = float(views[i]), i + begin * context.membership.shape[1]
+    return best_gain, best_index, device_bytes
+
+
+def fused_device_bytes(state: np.ndarray, origins: int, context: PlanningContext) -> int:
+    """OpenCL buffers of one fused search: padded grid, offsets, view table, origins, output."""
+    from nbv_prob_cnn.gain.opencl import VIEW_GAIN_ORIGINS_PER_LAUNCH
+    from nbv_prob_cnn.planners.base import MAX_VIEWS_PER_CALL
+
+    views = context.membership.shape[1]
+    block = min(origins, MAX_VIEWS_PER_CALL // views, VIEW_GAIN_ORIGINS_PER_LAUNCH)
+    grid = int(np.prod([s + 2 for s in state.shape]))
+    offsets = context.directions.shape[0] * (context.active_sensor.r_max + 1)
+    return 4 * (grid + offsets + block * (1 + views) + int(context.membership.sum()) + views + 1)
+
+
 def run_case(case: BenchCase, world: World, repeats: int = 3, numpy_origins: int = 3000) -> BenchResult:
-    """Time one full ``prob_ig`` planning iteration on OpenCL and the same search with the
-    numpy reference on (at most) ``numpy_origins`` origins, extrapolated linearly."""
+    """Time one planning iteration of ``case.method`` with every variant (see module doc)."""
     context = PlanningContext(
-        _defaults(case.dataset), rng=np.random.default_rng(world.seed), n_rays=case.n_rays, backend="opencl"
-    )
+        _defaults(case.dataset), rng=np.random.default_rng(world.seed), n_rays=case.n_rays, backend="opencl",
+        origin_stride=case.stride,
+    )  # fmt: skip
     state = half_explored(world, context)
     origins = context.candidate_origins(state)
-    planner = make_planner("prob_ig")
-    planner.plan(state, context)  # warm-up: kernel build, buffers
-    opencl_s = _time(lambda: planner.plan(state, context), repeats)
+    planner = make_planner(case.method)
+    if case.method == "cnn_prob":
+        from nbv_prob_cnn.completion import complete
+
+        prob = complete(state, dataset=case.dataset)
+        cnn_s = _time(lambda: complete(state, dataset=case.dataset), repeats)
+    else:
+        cnn_s = 0.0
+        prob = probability_with_constant(state, context.defaults.p0)
+    choice = planner.plan(state, context)  # warm-up: kernel build, weights, buffers
+    rays = context.directions.shape[0]
+    r_max = context.active_sensor.r_max
+    result = BenchResult(
+        case, unknown_fraction(state, world.ground_truth), origins.shape[0], rays,
+        origins.shape[0] * rays * (r_max + 1), min(numpy_origins, origins.shape[0]), cnn_s=cnn_s,
+    )  # fmt: skip
+    n_views = context.membership.shape[1]
+    fused_bytes = fused_device_bytes(state, origins.shape[0], context)
+    result.timings["iteration"] = _measure(lambda: planner.plan(state, context), repeats, fused_bytes)
+    result.timings["fused"] = _measure(lambda: search_best_view(state, prob, origins, context), repeats, fused_bytes)
+    for kernel in ("two_step", "naive"):
+        found = {}
+
+        def baseline(kernel=kernel, found=found):
+            found["best"] = baseline_view_search(state, prob, origins, context, kernel)
+
+        timing = _measure(baseline, repeats)
+        timing.peak_bytes += found["best"][2]  # the baseline's OpenCL buffers
+        result.timings[kernel] = timing
+        if kernel == "two_step":
+            gain, index = found["best"][:2]
+            best_cell = origins[index // n_views]
+            result.same_best_view = (
+                choice is not None and np.array_equal(best_cell, choice.cell) and index % n_views == choice.view_index
+            )
 
     subset = origins[np.random.default_rng(0).permutation(origins.shape[0])[:numpy_origins]]
     numpy_context = PlanningContext(context.defaults, n_rays=case.n_rays, backend="numpy")
-
-    def numpy_iteration():
-        prob = probability_with_constant(state, context.defaults.p0)
-        search_best_view(state, prob, subset, numpy_context)
-
-    numpy_s = _time(numpy_iteration, 1) * origins.shape[0] / max(1, subset.shape[0])
-    r_max = context.active_sensor.r_max
-    rays = context.directions.shape[0]
-    return BenchResult(
-        case,
-        unknown_fraction(state, world.ground_truth),
-        origins.shape[0],
-        rays,
-        opencl_s,
-        numpy_s,
-        subset.shape[0],
-        origins.shape[0] * rays * (r_max + 1),
-    )
+    numpy_timing = _measure(lambda: search_best_view(state, prob, subset, numpy_context), 1)
+    numpy_timing.seconds *= origins.shape[0] / max(1, subset.shape[0])
+    result.timings["numpy"] = numpy_timing
+    return result
 
 
 def _defaults(dataset: str):
@@ -114,16 +258,25 @@ def _defaults(dataset: str):
 
 
 def format_table(results: list[BenchResult]) -> str:
-    """Markdown table of the results."""
+    """Markdown table: seconds per iteration, effective samples/s and peak memory per variant."""
     lines = [
-        "| case | unknown | origins | rays | OpenCL iteration (s) | numpy iteration (s) | speed-up | "
-        "nominal samples/s |",
-        "|---|---|---|---|---|---|---|---|",
+        "| case | unknown | origins | rays | iteration (s) | CNN (s) | fused search (s) | two-step (s) | naive (s) | "
+        "numpy (s, extrap.) | fused / two-step / naive CPU-s | "
+        "fused vs two-step | fused vs naive | fused samples/s | naive samples/s | peak MB iteration / two-step "
+        "/ naive | same best view |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in results:
+        t = r.timings
+        mb = " / ".join(f"{t[v].peak_bytes / 2**20:.0f}" for v in ("iteration", "two_step", "naive"))
         lines.append(
-            f"| {r.case.label} | {r.unknown_fraction:.2f} | {r.origins} | {r.rays} | {r.opencl_s:.3f} | "
-            f"{r.numpy_s:.2f} | {r.speedup:.0f}× | {r.samples_per_s:.2e} |"
+            f"| {r.case.label} | {r.unknown_fraction:.2f} | {r.origins} | {r.rays} | {t['iteration'].seconds:.3f} | "
+            f"{r.cnn_s:.3f} | {t['fused'].seconds:.3f} | "
+            f"{t['two_step'].seconds:.3f} | {t['naive'].seconds:.3f} | {t['numpy'].seconds:.1f} | "
+            f"{t['fused'].cpu_seconds:.2f} / {t['two_step'].cpu_seconds:.2f} / {t['naive'].cpu_seconds:.2f} | "
+            f"{t['two_step'].seconds / t['fused'].seconds:.1f}× | {t['naive'].seconds / t['fused'].seconds:.1f}× | "
+            f"{r.samples_per_s('fused'):.2e} | {r.samples_per_s('naive'):.2e} | {mb} | "
+            f"{'yes' if r.same_best_view else 'NO'} |"
         )
     return "\n".join(lines)
 

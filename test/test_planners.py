@@ -23,7 +23,7 @@ def test_top_k_matches_brute_force_across_blocks(rng, monkeypatch):
     origins = np.argwhere(state == 0)
     full = ray_gains(state, prob, context.directions, 8, origins, "numpy") @ context.membership
     order = np.lexsort((np.arange(full.size), -full.ravel()))[:25]
-    monkeypatch.setattr(base, "MAX_RAYS_PER_CALL", 56 * 37)  # 37 origins per block: many blocks
+    monkeypatch.setattr(base, "MAX_VIEWS_PER_CALL", 52 * 37)  # 37 origins per block: many blocks
     found = search_views(state, prob, origins, context, top_k=25)
     assert len(found) == 25
     np.testing.assert_allclose([f.gain for f in found], full.ravel()[order], atol=1e-5)
@@ -116,3 +116,13 @@ def test_downsampled_origins_are_drawn_inside_the_filter():
     context = PlanningContext(DatasetDefaults("3du", 3, (30, 30, 30), 0.01, Sensor(60.0, 46.0, 8), 4, 3))
     kept = method_origins(GAIN_METHODS["cnn_prob_d"], state, context, lambda o: o[o[:, 0] < 10])
     assert kept.shape == (500, 3) and np.all(kept[:, 0] < 10)
+
+
+def test_origin_stride_overrides_the_dataset(rng):
+    state, _ = _grid(rng)
+    every = PlanningContext(SMALL_3D, origin_stride=1).candidate_origins(state)
+    np.testing.assert_array_equal(every, np.argwhere(state == 0))
+    strided = PlanningContext(SMALL_3D, origin_stride=2).candidate_origins(state)
+    assert strided.shape[0] < every.shape[0] and np.all(strided % 2 == 0)
+    with pytest.raises(ValueError, match="origin_stride"):
+        PlanningContext(SMALL_3D, origin_stride=0)

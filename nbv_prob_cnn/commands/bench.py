@@ -19,7 +19,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seed", type=int, default=1000, help="world seed of every case")
     parser.add_argument("--repeats", type=int, default=3, help="OpenCL repetitions (best is reported)")
     parser.add_argument("--numpy-origins", type=int, default=3000, help="origins timed on the numpy reference")
-    parser.add_argument("--cases", nargs="*", help="subset of cases, e.g. 2d:16 3du:4 3du:16 3dt:4 (default: all)")
+    parser.add_argument(
+        "--cases",
+        nargs="*",
+        help="subset of cases DATASET:N_RAYS[:STRIDE[:METHOD]], e.g. 2d:16 3du:4 3dt:4:1:cnn_prob (default: all)",
+    )
 
 
 def run(args: argparse.Namespace) -> int:
@@ -68,24 +72,38 @@ def run_cnn(args: argparse.Namespace) -> None:
 
 
 def run_planning(args: argparse.Namespace) -> None:
-    from nbv_prob_cnn.benchmark import BenchCase
     from nbv_prob_cnn.gain.opencl import get_ray_caster
     from nbv_prob_cnn.worlds import load_or_generate
 
     cases = DEFAULT_CASES
     if args.cases:
-        cases = tuple(BenchCase(c.split(":")[0], int(c.split(":")[1])) for c in args.cases)
+        cases = tuple(_parse_case(c) for c in args.cases)
     print(f"OpenCL device: {get_ray_caster().device.name.strip()}")
     results = []
     for case in cases:
         world = load_or_generate(case.dataset, args.seed)
         result = run_case(case, world, args.repeats, args.numpy_origins)
         results.append(result)
-        print(
-            f"{case.label}: {result.opencl_s:.3f} s per iteration "
-            f"(numpy {result.numpy_s:.2f} s, extrapolated from {result.numpy_origins} origins)",
-            flush=True,
-        )
+        seconds = ", ".join(f"{k} {t.seconds:.3f} s" for k, t in result.timings.items())
+        print(f"{case.label}: {seconds} (numpy extrapolated from {result.numpy_origins} origins)", flush=True)
     print()
-    print("nominal samples = origins × rays × (R_max + 1); the kernel stops rays early where exact.")
+    print(
+        "iteration = the planner's full iteration (CNN included for cnn_prob); fused = its view search alone; "
+        "two-step = the previous kernel + "
+        "(origins × rays) @ (rays × views); naive = float marching to the first occupied cell + the same "
+        "product. Effective samples/s = origins × rays × (R_max + 1) / time. Peak memory = tracemalloc peak "
+        "+ OpenCL buffers (torch not included)."
+    )
     print(format_table(results))
+
+
+def _parse_case(text: str):
+    from nbv_prob_cnn.benchmark import BenchCase
+
+    parts = text.split(":")
+    try:
+        dataset, n_rays = parts[0], int(parts[1])
+        stride = int(parts[2]) if len(parts) > 2 else 1
+    except (IndexError, ValueError):
+        raise SystemExit(f"--cases: expected DATASET:N_RAYS[:STRIDE[:METHOD]], got {text!r}") from None
+    return BenchCase(dataset, n_rays, stride, parts[3] if len(parts) > 3 else "prob_ig")

@@ -4,7 +4,10 @@ Public API:
     * :func:`ray_directions` — the ``H_r`` unit vectors.
     * :func:`ray_gains` — ``G_r(v, h)`` for every origin and ray, on the ``"opencl"`` kernel or
       the ``"numpy"`` reference.
-    * :func:`view_gains` — ``G_W(v, W)`` as one (origins × rays) @ (rays × views) product.
+    * :func:`origin_view_gains` — ``G_W(v, W)`` for every origin and candidate view (the
+      planners' path; on OpenCL one fused kernel that never stores per-ray gains).
+    * :func:`view_gains` — ``G_W(v, W)`` from given ray gains, one (origins × rays) @ (rays × views)
+      product (also the numpy reference of :func:`origin_view_gains`).
 """
 
 from __future__ import annotations
@@ -18,7 +21,10 @@ from nbv_prob_cnn.grid import check_probability, check_state
 
 BACKENDS = ("auto", "opencl", "numpy")
 
-__all__ = ["BACKENDS", "ray_directions", "ray_gains", "view_gains", "view_membership", "empty_origins"]
+__all__ = [
+    "BACKENDS", "ray_directions", "ray_gains", "origin_view_gains", "view_gains", "view_membership",
+    "empty_origins",
+]  # fmt: skip
 
 
 def empty_origins(state: np.ndarray, stride: int = 1) -> np.ndarray:
@@ -85,6 +91,73 @@ def ray_gains(
     Raises:
         ValueError: bad grid, probability map, directions, origins, range, mode or backend.
     """
+    state, prob, directions, origins, backend = _check_gain_inputs(
+        state, prob, directions, r_max, origins, backend, mode, eps
+    )
+    if backend == "numpy":
+        if mode == "ig":
+            return ig_gains_reference(state, directions, r_max, origins, min_range)
+        return ray_gains_reference(state, prob, directions, r_max, origins)
+
+    from nbv_prob_cnn.gain.opencl import encode_grid, get_ray_caster
+
+    code = encode_grid(state, prob if mode == "prob" else None)
+    offsets = sample_offsets(directions, r_max)
+    total = float(distance_weights(r_max, state.ndim).sum())
+    return get_ray_caster().run(code, origins, offsets, total, mode, eps, min_range)
+
+
+def origin_view_gains(
+    state: np.ndarray,
+    prob: np.ndarray | None,
+    directions: np.ndarray,
+    r_max: int,
+    membership: np.ndarray,
+    origins: np.ndarray | None = None,
+    backend: str = "auto",
+    *,
+    mode: str = "prob",
+    eps: float = 0.0,
+    min_range: float = 0.0,
+) -> np.ndarray:
+    """``G_W(v, W)`` (equation (7)) for every origin ``v`` and candidate view ``W``.
+
+    The same gain as ``ray_gains(...) @ membership``; the OpenCL backend sums the rays of each
+    view in local memory and never stores the ``(N, R)`` ray gains.
+
+    Args:
+        membership: ``(R, V)`` 0/1 matrix, ray ``h`` inside view ``W`` (:func:`view_membership`).
+        Others: as :func:`ray_gains`.
+
+    Returns:
+        ``(N, V)`` float32.
+
+    Raises:
+        ValueError: bad inputs (as :func:`ray_gains`) or a membership matrix of the wrong shape.
+    """
+    state, prob, directions, origins, backend = _check_gain_inputs(
+        state, prob, directions, r_max, origins, backend, mode, eps
+    )
+    member = np.asarray(membership)
+    if member.ndim != 2 or member.shape[0] != directions.shape[0] or not np.all((member == 0) | (member == 1)):
+        raise ValueError(f"membership: expected a ({directions.shape[0]}, V) 0/1 matrix, got shape {member.shape}")
+    if backend == "numpy":
+        if mode == "ig":
+            gains = ig_gains_reference(state, directions, r_max, origins, min_range)
+        else:
+            gains = ray_gains_reference(state, prob, directions, r_max, origins)
+        return gains @ member.astype(np.float32)
+
+    from nbv_prob_cnn.gain.opencl import encode_grid, get_ray_caster
+
+    code = encode_grid(state, prob if mode == "prob" else None)
+    offsets = sample_offsets(directions, r_max)
+    total = float(distance_weights(r_max, state.ndim).sum())
+    return get_ray_caster().run_views(code, origins, offsets, member, total, mode, eps, min_range)
+
+
+def _check_gain_inputs(state, prob, directions, r_max, origins, backend, mode, eps):
+    """Validate the shared arguments of the gain functions; resolve ``backend="auto"``."""
     state = check_state(state)
     if mode not in ("prob", "ig"):
         raise ValueError(f"mode: expected 'prob' or 'ig', got {mode!r}")
@@ -100,22 +173,11 @@ def ray_gains(
         prob = check_probability(prob, state.shape)
     directions = check_directions(directions, state.ndim)
     origins = _check_origins(origins, state)
-
     if backend == "auto":
         from nbv_prob_cnn.cl_device import opencl_available
 
         backend = "opencl" if opencl_available() else "numpy"
-    if backend == "numpy":
-        if mode == "ig":
-            return ig_gains_reference(state, directions, r_max, origins, min_range)
-        return ray_gains_reference(state, prob, directions, r_max, origins)
-
-    from nbv_prob_cnn.gain.opencl import encode_grid, get_ray_caster
-
-    code = encode_grid(state, prob if mode == "prob" else None)
-    offsets = sample_offsets(directions, r_max)
-    total = float(distance_weights(r_max, state.ndim).sum())
-    return get_ray_caster().run(code, origins, offsets, total, mode, eps, min_range)
+    return state, prob, directions, origins, backend
 
 
 def view_membership(

@@ -10,10 +10,10 @@ from typing import Protocol
 import numpy as np
 
 from nbv_prob_cnn.camera import DatasetDefaults, Sensor, dataset_defaults, orientations, yaw_quaternion
-from nbv_prob_cnn.gain import empty_origins, ray_directions, ray_gains, view_membership
+from nbv_prob_cnn.gain import empty_origins, origin_view_gains, ray_directions, view_membership
 
-#: Upper bound on origins × rays per ray-casting call (bounds memory for N_rays = 16).
-MAX_RAYS_PER_CALL = 8_000_000
+#: Upper bound on origins × views per gain call (bounds the (origins, views) gains in memory).
+MAX_VIEWS_PER_CALL = 64_000_000
 
 
 #: ``completion(state, context) -> P``: a probabilistic map of ``state`` (SPEC §3).
@@ -41,6 +41,7 @@ class PlanningContext:
         ranker: hook ``ranker(method, state, prob, top_k) -> [ViewChoice]`` that replaces the
             local view search (e.g. a call to ``/nbv/rank_views``); ``prob`` is the completed map
             for CNN-probability methods, else None. None: search in this process.
+        origin_stride: overrides the data set's origin stride (1 = every empty cell).
     """
 
     defaults: DatasetDefaults
@@ -52,8 +53,11 @@ class PlanningContext:
     eps: float = 0.0
     completion: CompletionHook | None = None
     ranker: RankHook | None = None
+    origin_stride: int | None = None
 
     def __post_init__(self) -> None:
+        if self.origin_stride is not None and (not isinstance(self.origin_stride, int) or self.origin_stride < 1):
+            raise ValueError(f"origin_stride: expected a positive integer, got {self.origin_stride!r}")
         sensor = self.active_sensor
         self.directions = ray_directions(self.defaults.dims, self.n_rays or self.defaults.n_rays)
         self.orientations = orientations(self.defaults.dims)
@@ -75,8 +79,8 @@ class PlanningContext:
         return np.asarray(orientation, dtype=np.float64)
 
     def candidate_origins(self, state: np.ndarray) -> np.ndarray:
-        """Empty cells, on the data set's origin stride (1/8 of the cells on 3DT)."""
-        return empty_origins(state, self.defaults.origin_stride)
+        """Empty cells, on the origin stride (default: the data set's)."""
+        return empty_origins(state, self.origin_stride or self.defaults.origin_stride)
 
 
 @dataclass
@@ -136,28 +140,31 @@ def search_views(
 ) -> list[ViewChoice]:
     """The ``top_k`` (origin, orientation) pairs with the largest ``G_W``, best first (SPEC §5).
 
-    Ray gains are computed in blocks of origins (bounded memory) and each block is turned into
-    view gains with one matrix product. Ties go to the first origin, then the first view.
+    View gains are computed in blocks of origins (bounded memory) by
+    :func:`~nbv_prob_cnn.gain.origin_view_gains`. Ties go to the first origin, then the first view.
     Views with zero gain are never returned.
     """
     sensor = context.active_sensor
-    n_rays = context.directions.shape[0]
     n_views = context.membership.shape[1]
-    block = max(1, MAX_RAYS_PER_CALL // n_rays)
+    block = max(1, MAX_VIEWS_PER_CALL // n_views)
     kept_gain = np.zeros(0, dtype=np.float32)
     kept_index = np.zeros(0, dtype=np.int64)  # flat index origin * n_views + view
     t_ray = t_view = 0.0
     for start in range(0, origins.shape[0], block):
         chunk = origins[start : start + block]
         t0 = time.perf_counter()
-        gains = ray_gains(
-            state, prob, context.directions, sensor.r_max, chunk, context.backend,
+        views = origin_view_gains(
+            state, prob, context.directions, sensor.r_max, context.membership, chunk, context.backend,
             mode=mode, eps=context.eps, min_range=sensor.min_range,
-        )  # fmt: skip
+        ).ravel()  # fmt: skip
         t1 = time.perf_counter()
-        views = (gains @ context.membership).ravel()
         k = min(top_k, views.size)
-        best = np.argpartition(-views, k - 1)[:k] if k < views.size else np.arange(views.size)
+        if k == 1:
+            best = np.array([np.argmax(views)])  # the first of equal maxima
+        elif k < views.size:
+            best = np.argpartition(views, views.size - k)[views.size - k :]
+        else:
+            best = np.arange(views.size)
         kept_gain = np.concatenate([kept_gain, views[best]])
         kept_index = np.concatenate([kept_index, best + start * n_views])
         order = np.lexsort((kept_index, -kept_gain))[:top_k]  # gain descending, then index
