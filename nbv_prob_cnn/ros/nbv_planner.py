@@ -34,6 +34,10 @@ from nbv_prob_cnn.ros.conversions import arrays_to_pose_stamped, msg_to_grid, po
 from nbv_prob_cnn.ros.markers import planning_markers
 
 
+#: Planning's message when every candidate view has zero gain (a normal end of an exploration).
+NO_POSITIVE_GAIN = "no view with positive gain"
+
+
 def _stamp_ns(stamp) -> int:
     return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
 
@@ -82,7 +86,9 @@ class NbvPlanner(Node):
         self._grid: VoxelGrid | None = None
         self._camera_lock = threading.Condition()
         self._camera_pose: TransformStamped | None = None
-        self._explore_lock = threading.Lock()
+        self._explore_lock = threading.Lock()  # guards the two fields below
+        self._active_goal = None  # the running exploration's goal handle
+        self._refused_goals: set[bytes] = set()  # accepted while another ran: aborted on execution
         group = ReentrantCallbackGroup()
         self.create_subscription(VoxelGrid, "/nbv/grid", self._on_grid, GRID_QOS, callback_group=group)
         self.create_subscription(TransformStamped, "/camera/pose", self._on_camera_pose, 10, callback_group=group)
@@ -95,7 +101,8 @@ class NbvPlanner(Node):
         self.create_service(PlanNextBestView, "/nbv/plan", self._plan_service, callback_group=group)
         self._action = ActionServer(
             self, Explore, "/nbv/explore", execute_callback=self._explore,
-            goal_callback=self._accept_goal, cancel_callback=lambda _: CancelResponse.ACCEPT, callback_group=group,
+            goal_callback=self._check_goal, handle_accepted_callback=self._claim_goal,
+            cancel_callback=lambda _: CancelResponse.ACCEPT, callback_group=group,
         )  # fmt: skip
         mode = "in-process" if self.in_process else "via /nbv/complete and /nbv/rank_views"
         self.get_logger().info(f"nbv_planner ready: dataset {self.dataset}, method {self.method}, {mode}")
@@ -156,7 +163,7 @@ class NbvPlanner(Node):
             else:
                 views = self._plan_via_servers(grid, method, request, top_k, response)
             if not views:
-                raise ValueError("no view with positive gain")
+                raise ValueError(NO_POSITIVE_GAIN)
             ranked_msgs = [
                 ViewScore(pose=arrays_to_pose_stamped(p, q, frame, grid.header.stamp), gain=float(g))
                 for p, q, g in views
@@ -211,14 +218,24 @@ class NbvPlanner(Node):
         return response
 
     # -- exploration --------------------------------------------------------------------------
-    def _accept_goal(self, goal: Explore.Goal) -> GoalResponse:
+    def _check_goal(self, goal: Explore.Goal) -> GoalResponse:
+        """Refuse goals that cannot run (as ros2/examples ``server_single_goal.py``, the
+        one-at-a-time decision is taken later, under a lock, in :meth:`_claim_goal`)."""
         if goal.max_views < 1 or not np.isfinite(goal.stop_unknown_fraction) or not np.isfinite(goal.stop_gain):
             self.get_logger().warning("explore: rejected a goal with max_views < 1 or non-finite thresholds")
             return GoalResponse.REJECT
-        if self._explore_lock.locked():
-            self.get_logger().warning("explore: rejected, another exploration is running")
-            return GoalResponse.REJECT
         return GoalResponse.ACCEPT
+
+    def _claim_goal(self, goal_handle) -> None:
+        """Accepted goals arrive here: the first one while none runs takes the exploration slot;
+        one that arrives while another runs is executed only to be aborted with a reason."""
+        with self._explore_lock:
+            busy = self._active_goal is not None and self._active_goal.is_active
+            if busy:
+                self._refused_goals.add(bytes(goal_handle.goal_id.uuid))
+            else:
+                self._active_goal = goal_handle
+        goal_handle.execute()
 
     def _move_camera(self, target: PoseStamped) -> int:
         """Move the camera; returns the stamp (ns) of the first frame taken at the target."""
@@ -244,48 +261,63 @@ class NbvPlanner(Node):
             return _stamp_ns(self._camera_pose.header.stamp)
 
     def _explore(self, goal_handle) -> Explore.Result:
+        """Run one exploration; the goal ends SUCCEEDED when a stop condition is met, CANCELED
+        when the client cancels, ABORTED on any error (with the error as ``reason_stopped``)."""
         goal: Explore.Goal = goal_handle.request
         result = Explore.Result()
         with self._explore_lock:
-            reason = f"reached {goal.max_views} views"
-            fraction = 1.0
-            try:
-                fraction = unknown_fraction_all(msg_to_grid(self._wait_for_grid(0, self.grid_timeout_s))[0])
-                for index in range(goal.max_views):
-                    if goal_handle.is_cancel_requested:
-                        goal_handle.canceled()
-                        reason = "canceled"
-                        break
-                    if goal.stop_unknown_fraction > 0 and fraction <= goal.stop_unknown_fraction:
-                        reason = f"unknown fraction {fraction:.4f} <= {goal.stop_unknown_fraction}"
-                        break
-                    planned = self.plan(PlanNextBestView.Request(method=goal.method))
-                    if not planned.success:
-                        reason = f"planning stopped: {planned.message}"
-                        break
-                    if planned.best_gain <= goal.stop_gain:
-                        reason = f"best gain {planned.best_gain:.4f} <= {goal.stop_gain}"
-                        break
-                    frame_ns = self._move_camera(planned.best_pose)
-                    grid = self._wait_for_grid(frame_ns, self.grid_timeout_s)
-                    fraction = unknown_fraction_all(msg_to_grid(grid)[0])
-                    result.poses.append(planned.best_pose)
-                    feedback = Explore.Feedback(
-                        view_index=index, pose=planned.best_pose, gain=planned.best_gain, unknown_fraction=fraction
-                    )
-                    goal_handle.publish_feedback(feedback)
-                    self.get_logger().info(
-                        f"view {index}: gain {planned.best_gain:.4f}, unknown fraction {fraction:.4f}"
-                    )
-            except (ValueError, TimeoutError, RuntimeError) as exc:
-                reason = f"error: {exc}"
-                self.get_logger().error(f"explore: {exc}")
-            result.views = len(result.poses)
-            result.final_unknown_fraction = float(fraction)
-            result.reason_stopped = reason
-            if reason != "canceled":
-                goal_handle.succeed()
+            refused = bytes(goal_handle.goal_id.uuid) in self._refused_goals
+            self._refused_goals.discard(bytes(goal_handle.goal_id.uuid))
+        if refused:
+            result.reason_stopped = "refused: another exploration is running"
+            self.get_logger().warning(f"explore: {result.reason_stopped}")
+            goal_handle.abort()
             return result
+        outcome, result.reason_stopped, fraction = self._run_exploration(goal_handle, goal, result)
+        result.views = len(result.poses)
+        result.final_unknown_fraction = float(fraction)
+        with self._explore_lock:
+            if outcome == "canceled":
+                goal_handle.canceled()
+            elif outcome == "aborted":
+                goal_handle.abort()
+            else:
+                goal_handle.succeed()
+            self._active_goal = None
+        return result
+
+    def _run_exploration(self, goal_handle, goal: Explore.Goal, result: Explore.Result) -> tuple[str, str, float]:
+        """The exploration loop; returns (outcome: succeeded/canceled/aborted, reason, unknown fraction)."""
+        fraction = 1.0
+        try:
+            fraction = unknown_fraction_all(msg_to_grid(self._wait_for_grid(0, self.grid_timeout_s))[0])
+            for index in range(goal.max_views):
+                if goal_handle.is_cancel_requested:
+                    return "canceled", f"canceled after {index} views", fraction
+                if goal.stop_unknown_fraction > 0 and fraction <= goal.stop_unknown_fraction:
+                    return "succeeded", f"unknown fraction {fraction:.4f} <= {goal.stop_unknown_fraction}", fraction
+                planned = self.plan(PlanNextBestView.Request(method=goal.method))
+                if not planned.success:
+                    if planned.message == NO_POSITIVE_GAIN:
+                        return "succeeded", NO_POSITIVE_GAIN, fraction
+                    return "aborted", f"error: planning failed: {planned.message}", fraction
+                if planned.best_gain <= goal.stop_gain:
+                    return "succeeded", f"best gain {planned.best_gain:.4f} <= {goal.stop_gain}", fraction
+                frame_ns = self._move_camera(planned.best_pose)
+                grid = self._wait_for_grid(frame_ns, self.grid_timeout_s)
+                fraction = unknown_fraction_all(msg_to_grid(grid)[0])
+                result.poses.append(planned.best_pose)
+                feedback = Explore.Feedback(
+                    view_index=index, pose=planned.best_pose, gain=planned.best_gain, unknown_fraction=fraction
+                )
+                goal_handle.publish_feedback(feedback)
+                self.get_logger().info(f"view {index}: gain {planned.best_gain:.4f}, unknown fraction {fraction:.4f}")
+        except (ValueError, TimeoutError, RuntimeError) as exc:
+            self.get_logger().error(f"explore: {exc}")
+            return "aborted", f"error: {exc}", fraction
+        if goal_handle.is_cancel_requested:
+            return "canceled", f"canceled after {goal.max_views} views", fraction
+        return "succeeded", f"reached {goal.max_views} views", fraction
 
 
 def main(args: list[str] | None = None) -> int:
