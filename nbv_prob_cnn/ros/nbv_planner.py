@@ -33,7 +33,6 @@ from nbv_prob_cnn.ros.common import GRID_QOS, allow_updates, call_service, decla
 from nbv_prob_cnn.ros.conversions import arrays_to_pose_stamped, msg_to_grid, pose_to_arrays
 from nbv_prob_cnn.ros.markers import planning_markers
 
-
 #: Planning's message when every candidate view has zero gain (a normal end of an exploration).
 NO_POSITIVE_GAIN = "no view with positive gain"
 
