@@ -32,6 +32,7 @@ from nbv_prob_cnn.perception.bags import (
     BagError,
     typestore,
 )
+from nbv_prob_cnn.ros import names
 from nbv_prob_cnn.ros.common import declare_subscription_qos, descriptor, run_node
 
 NODE_NAME = "bag_record"
@@ -60,9 +61,9 @@ class BagRecord(Node):
         self._connections: dict[str, Any] = {}
         store = typestore()
         for default_topic, (msg_class, msgtype) in TOPICS.items():
-            topic = self.resolve_topic_name(default_topic)  # recorded under its remapped name
+            topic = self.resolve_topic_name(names.relative(default_topic))  # recorded under its resolved name
             self._connections[topic] = self._writer.add_connection(topic, msgtype, typestore=store)
-            self.create_subscription(msg_class, default_topic, self._callback(topic), qos, raw=True)
+            self.create_subscription(msg_class, names.relative(default_topic), self._callback(topic), qos, raw=True)
         self.get_logger().info(f"recording {sorted(self._connections)} to {self.path}")
 
     def _open_writer(self) -> Any:

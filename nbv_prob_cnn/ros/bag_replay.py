@@ -35,6 +35,7 @@ from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
 from nbv_prob_cnn.perception.bags import BagError, bag_topics, read_raw_messages
+from nbv_prob_cnn.ros import names
 from nbv_prob_cnn.ros.common import descriptor, run_node
 
 NODE_NAME = "bag_replay"
@@ -122,7 +123,9 @@ class BagReplay(Node):
             reliability=ReliabilityPolicy.RELIABLE,
             durability=DurabilityPolicy.VOLATILE,
         )
-        self._topic_publishers = {topic: self.create_publisher(classes[topic], topic, qos) for topic in self.topics}
+        self._topic_publishers = {
+            topic: self.create_publisher(classes[topic], names.relative(topic), qos) for topic in self.topics
+        }
         self.published: Counter[str] = Counter()
         self.passes = 0
         self.get_logger().info(

@@ -13,6 +13,7 @@ from nbv_prob_cnn_msgs.srv import CompleteGrid
 from rclpy.node import Node
 
 from nbv_prob_cnn.camera import DATASETS
+from nbv_prob_cnn.ros import names
 from nbv_prob_cnn.ros.common import declare, run_node
 from nbv_prob_cnn.ros.conversions import msg_to_grid, probability_to_msg
 
@@ -36,7 +37,7 @@ class CompletionServer(Node):
             self.get_logger().info(f"completion_server ready: {self.dataset} weights on {self._device}")
         except WeightsError as exc:
             self.get_logger().error(str(exc))
-        self.create_service(CompleteGrid, "/nbv/complete", self._complete)
+        self.create_service(CompleteGrid, names.COMPLETE, self._complete)
 
     def _model_for(self, dataset: str):
         path = self.weights_file if (self.weights_file and dataset == self.dataset) else None

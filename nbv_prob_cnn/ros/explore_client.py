@@ -19,6 +19,7 @@ from rclpy.action import ActionClient
 from rclpy.executors import SingleThreadedExecutor
 
 from nbv_prob_cnn.grid import unknown_fraction_all
+from nbv_prob_cnn.ros import names
 from nbv_prob_cnn.ros.common import GRID_QOS
 from nbv_prob_cnn.ros.conversions import msg_to_grid, pose_to_arrays
 
@@ -28,10 +29,10 @@ class ExploreClient:
 
     def __init__(self) -> None:
         self.node = rclpy.create_node("explore_client")
-        self._action = ActionClient(self.node, Explore, "/nbv/explore")
+        self._action = ActionClient(self.node, Explore, names.EXPLORE)
         self._grid: VoxelGrid | None = None
         self._grid_lock = threading.Lock()
-        self.node.create_subscription(VoxelGrid, "/nbv/grid", self._on_grid, GRID_QOS)
+        self.node.create_subscription(VoxelGrid, names.GRID, self._on_grid, GRID_QOS)
         self.feedback: list[tuple[float, Explore.Feedback]] = []
         self._executor = SingleThreadedExecutor()
         self._executor.add_node(self.node)

@@ -24,6 +24,7 @@ from nbv_prob_cnn.planners import GainPlanner, PlanningContext
 from nbv_prob_cnn.planners.methods import GainMethod, cnn_completion, probability_map
 from nbv_prob_cnn.planners.requests import gain_method, origin_filter, planning_context, view_pose
 from nbv_prob_cnn.pose_scoring import INVALID_POSE, score_poses
+from nbv_prob_cnn.ros import names
 from nbv_prob_cnn.ros.common import GRID_QOS, allow_updates, call_service, declare, positive_seconds, run_node
 from nbv_prob_cnn.ros.conversions import (
     arrays_to_pose_stamped,
@@ -69,10 +70,10 @@ class GainServer(Node):
         self._lock = threading.Lock()
         self._grid: VoxelGrid | None = None
         group = ReentrantCallbackGroup()
-        self.create_subscription(VoxelGrid, "/nbv/grid", self._on_grid, GRID_QOS, callback_group=group)
-        self._complete_client = self.create_client(CompleteGrid, "/nbv/complete", callback_group=group)
-        self.create_service(EvaluateViews, "/nbv/evaluate_views", self._evaluate_views, callback_group=group)
-        self.create_service(RankViews, "/nbv/rank_views", self._rank_views, callback_group=group)
+        self.create_subscription(VoxelGrid, names.GRID, self._on_grid, GRID_QOS, callback_group=group)
+        self._complete_client = self.create_client(CompleteGrid, names.COMPLETE, callback_group=group)
+        self.create_service(EvaluateViews, names.EVALUATE_VIEWS, self._evaluate_views, callback_group=group)
+        self.create_service(RankViews, names.RANK_VIEWS, self._rank_views, callback_group=group)
         self.get_logger().info(f"gain_server ready: dataset {self.dataset}, method {self.method}")
 
     def _on_grid(self, msg: VoxelGrid) -> None:

@@ -36,9 +36,14 @@ def free_domain_id() -> int:
     return 1 + os.getpid() % 100
 
 
-def node_command(node: str, parameters: dict | None = None, remappings: dict | None = None) -> list[str]:
-    """Command line that runs one of our nodes (``nbv_prob_cnn.ros.<node>``) with parameters."""
+def node_command(
+    node: str, parameters: dict | None = None, remappings: dict | None = None, namespace: str = ""
+) -> list[str]:
+    """Command line that runs one of our nodes (``nbv_prob_cnn.ros.<node>``) with parameters,
+    remappings and, optionally, a namespace (``/robot1``: every name of the node moves under it)."""
     cmd = [sys.executable, "-m", f"nbv_prob_cnn.ros.{node}", "--ros-args"]
+    if namespace:
+        cmd += ["-r", f"__ns:={namespace}"]
     for name, value in (parameters or {}).items():
         if isinstance(value, bool):
             value = "true" if value else "false"
@@ -73,8 +78,15 @@ class NodeGraph:
         self.processes[name] = proc
         return proc
 
-    def start_node(self, name: str, node: str, parameters: dict | None = None, remappings: dict | None = None):
-        return self.start(name, node_command(node, parameters, remappings))
+    def start_node(
+        self,
+        name: str,
+        node: str,
+        parameters: dict | None = None,
+        remappings: dict | None = None,
+        namespace: str = "",
+    ):
+        return self.start(name, node_command(node, parameters, remappings, namespace))
 
     def alive(self) -> dict[str, bool]:
         return {name: proc.poll() is None for name, proc in self.processes.items()}

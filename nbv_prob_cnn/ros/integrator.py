@@ -77,13 +77,14 @@ from nbv_prob_cnn.perception.tsdf import (
     DEFAULT_VOXEL_M,
     TsdfIntegrator,
 )
+from nbv_prob_cnn.ros import names
 from nbv_prob_cnn.ros.common import GRID_QOS, declare_subscription_qos, descriptor, run_node
 from nbv_prob_cnn.ros.conversions import grid_to_msg
 
 NODE_NAME = "integrator"
-TOPIC_GRID = "/nbv/grid"
-SERVICE_RESET = "/integrator/reset"
-SERVICE_SAVE = "/integrator/save"
+TOPIC_GRID = names.GRID
+SERVICE_RESET = names.INTEGRATOR_RESET
+SERVICE_SAVE = names.INTEGRATOR_SAVE
 ENCODINGS = ("32FC1", "16UC1")
 #: Most frames waiting for integration with ``drop_when_behind:=false`` (older ones are dropped beyond it).
 MAX_BACKLOG = 1000
@@ -292,12 +293,12 @@ class Integrator(Node):
         self._grid_pub = self.create_publisher(VoxelGrid, TOPIC_GRID, GRID_QOS)
         inputs = MutuallyExclusiveCallbackGroup()
         services = MutuallyExclusiveCallbackGroup()
-        self.create_subscription(Image, TOPIC_IMAGE, self._on_image, camera_qos, callback_group=inputs, raw=True)
+        self.create_subscription(Image, names.DEPTH_IMAGE, self._on_image, camera_qos, callback_group=inputs, raw=True)
         self.create_subscription(
-            CameraInfo, TOPIC_CAMERA_INFO, self._on_info, camera_qos, callback_group=inputs, raw=True
+            CameraInfo, names.CAMERA_INFO, self._on_info, camera_qos, callback_group=inputs, raw=True
         )
         self.create_subscription(
-            TransformStamped, TOPIC_POSE, self._on_pose, camera_qos, callback_group=inputs, raw=True
+            TransformStamped, names.CAMERA_POSE, self._on_pose, camera_qos, callback_group=inputs, raw=True
         )
         self.create_timer(0.1, self._on_expire_timer, callback_group=inputs)
         self.create_service(Trigger, SERVICE_RESET, self._on_reset, callback_group=services)

@@ -29,6 +29,7 @@ from nbv_prob_cnn.grid import unknown_fraction_all
 from nbv_prob_cnn.planners import GainPlanner
 from nbv_prob_cnn.planners.methods import DOWNSAMPLED_ORIGINS
 from nbv_prob_cnn.planners.requests import gain_method, origin_filter, planning_context, view_pose
+from nbv_prob_cnn.ros import names
 from nbv_prob_cnn.ros.common import GRID_QOS, allow_updates, call_service, declare, positive_seconds, run_node
 from nbv_prob_cnn.ros.conversions import arrays_to_pose_stamped, msg_to_grid, pose_to_arrays
 from nbv_prob_cnn.ros.markers import planning_markers
@@ -89,17 +90,17 @@ class NbvPlanner(Node):
         self._active_goal = None  # the running exploration's goal handle
         self._refused_goals: set[bytes] = set()  # accepted while another ran: aborted on execution
         group = ReentrantCallbackGroup()
-        self.create_subscription(VoxelGrid, "/nbv/grid", self._on_grid, GRID_QOS, callback_group=group)
-        self.create_subscription(TransformStamped, "/camera/pose", self._on_camera_pose, 10, callback_group=group)
-        self._nbv_pub = self.create_publisher(PoseStamped, "/nbv/next_best_view", 10)
-        self._marker_pub = self.create_publisher(MarkerArray, "/nbv/markers", 10)
-        self._goal_pub = self.create_publisher(PoseStamped, "/camera/goal_pose", 10)
-        self._complete_client = self.create_client(CompleteGrid, "/nbv/complete", callback_group=group)
-        self._rank_client = self.create_client(RankViews, "/nbv/rank_views", callback_group=group)
-        self._move_client = self.create_client(MoveCamera, "/sim_camera/move_to", callback_group=group)
-        self.create_service(PlanNextBestView, "/nbv/plan", self._plan_service, callback_group=group)
+        self.create_subscription(VoxelGrid, names.GRID, self._on_grid, GRID_QOS, callback_group=group)
+        self.create_subscription(TransformStamped, names.CAMERA_POSE, self._on_camera_pose, 10, callback_group=group)
+        self._nbv_pub = self.create_publisher(PoseStamped, names.NEXT_BEST_VIEW, 10)
+        self._marker_pub = self.create_publisher(MarkerArray, names.MARKERS, 10)
+        self._goal_pub = self.create_publisher(PoseStamped, names.GOAL_POSE, 10)
+        self._complete_client = self.create_client(CompleteGrid, names.COMPLETE, callback_group=group)
+        self._rank_client = self.create_client(RankViews, names.RANK_VIEWS, callback_group=group)
+        self._move_client = self.create_client(MoveCamera, names.MOVE_TO, callback_group=group)
+        self.create_service(PlanNextBestView, names.PLAN, self._plan_service, callback_group=group)
         self._action = ActionServer(
-            self, Explore, "/nbv/explore", execute_callback=self._explore,
+            self, Explore, names.EXPLORE, execute_callback=self._explore,
             goal_callback=self._check_goal, handle_accepted_callback=self._claim_goal,
             cancel_callback=lambda _: CancelResponse.ACCEPT, callback_group=group,
         )  # fmt: skip

@@ -37,21 +37,19 @@ from nbv_prob_cnn.perception.bags import (
     MSG_CAMERA_INFO,
     MSG_IMAGE,
     MSG_TRANSFORM,
-    TOPIC_CAMERA_INFO,
-    TOPIC_IMAGE,
-    TOPIC_POSE,
     depth_to_image_msg,
     intrinsics_to_camera_info,
     pose_to_transform_msg,
     typestore,
 )
 from nbv_prob_cnn.perception.depth_camera import DepthCamera, DepthNoise, Intrinsics, room_mesh
+from nbv_prob_cnn.ros import names
 from nbv_prob_cnn.ros.common import descriptor, run_node
 from nbv_prob_cnn.ros.conversions import pose_to_arrays
 
 NODE_NAME = "sim_camera"
-TOPIC_GOAL_POSE = "/camera/goal_pose"
-SERVICE_MOVE_TO = "/sim_camera/move_to"
+TOPIC_GOAL_POSE = names.GOAL_POSE
+SERVICE_MOVE_TO = names.MOVE_TO
 ENCODINGS = ("32FC1", "16UC1")
 
 
@@ -218,9 +216,9 @@ class SimCamera(Node):
             reliability=ReliabilityPolicy.RELIABLE,
             durability=DurabilityPolicy.VOLATILE,
         )
-        self._image_pub = self.create_publisher(Image, TOPIC_IMAGE, qos)
-        self._info_pub = self.create_publisher(CameraInfo, TOPIC_CAMERA_INFO, qos)
-        self._pose_pub = self.create_publisher(TransformStamped, TOPIC_POSE, qos)
+        self._image_pub = self.create_publisher(Image, names.DEPTH_IMAGE, qos)
+        self._info_pub = self.create_publisher(CameraInfo, names.CAMERA_INFO, qos)
+        self._pose_pub = self.create_publisher(TransformStamped, names.CAMERA_POSE, qos)
         self.create_service(MoveCamera, SERVICE_MOVE_TO, self._on_move_to)
         self.create_subscription(PoseStamped, TOPIC_GOAL_POSE, self._on_goal_pose, 10)
         self._timer = self.create_timer(1.0 / rate, self._on_timer) if rate > 0 else None
