@@ -83,9 +83,12 @@ def allow_updates(node: Node, validators: dict[str, Callable[[object], None]]) -
     node.add_on_set_parameters_callback(on_set)
 
 
-def declare_subscription_qos(node: Node, default_depth: int, what: str) -> QoSProfile:
+def declare_subscription_qos(
+    node: Node, default_depth: int, what: str, default_reliability: str = "reliable"
+) -> QoSProfile:
     """Declare ``queue_size`` and ``qos_reliability`` (``reliable``/``best_effort``) for a node's
-    input subscriptions and return the resulting volatile QoS profile.
+    input subscriptions and return the resulting volatile QoS profile (``best_effort`` with
+    depth 5 is rclpy's SENSOR_DATA profile).
 
     Raises:
         ValueError: an unknown reliability name.
@@ -94,7 +97,9 @@ def declare_subscription_qos(node: Node, default_depth: int, what: str) -> QoSPr
         "queue_size", default_depth, descriptor(f"depth of the {what}", int_range=(1, 10000))
     ).value
     reliability = node.declare_parameter(
-        "qos_reliability", "reliable", descriptor(f"{what}: 'reliable' or 'best_effort' (for sensor_data publishers)")
+        "qos_reliability",
+        default_reliability,
+        descriptor(f"{what}: 'reliable' or 'best_effort' (for sensor_data publishers)"),
     ).value
     if reliability not in ("reliable", "best_effort"):
         raise ValueError(f"qos_reliability: expected 'reliable' or 'best_effort', got {reliability!r}")

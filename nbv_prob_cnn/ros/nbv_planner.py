@@ -26,6 +26,7 @@ from visualization_msgs.msg import MarkerArray
 from nbv_prob_cnn.camera import DATASETS
 from nbv_prob_cnn.gain import BACKENDS
 from nbv_prob_cnn.grid import unknown_fraction_all
+from nbv_prob_cnn.perception.messages import stamp_ns
 from nbv_prob_cnn.planners import GainPlanner
 from nbv_prob_cnn.planners.methods import DOWNSAMPLED_ORIGINS
 from nbv_prob_cnn.planners.requests import gain_method, origin_filter, planning_context, view_pose
@@ -36,10 +37,6 @@ from nbv_prob_cnn.ros.markers import planning_markers
 
 #: Planning's message when every candidate view has zero gain (a normal end of an exploration).
 NO_POSITIVE_GAIN = "no view with positive gain"
-
-
-def _stamp_ns(stamp) -> int:
-    return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
 
 
 class NbvPlanner(Node):
@@ -127,7 +124,7 @@ class NbvPlanner(Node):
     def _wait_for_grid(self, min_stamp_ns: int, timeout_s: float) -> VoxelGrid:
         with self._grid_lock:
             ok = self._grid_lock.wait_for(
-                lambda: self._grid is not None and _stamp_ns(self._grid.header.stamp) >= min_stamp_ns, timeout_s
+                lambda: self._grid is not None and stamp_ns(self._grid.header.stamp) >= min_stamp_ns, timeout_s
             )
             if not ok:
                 raise TimeoutError(f"no grid including the frame at {min_stamp_ns} ns within {timeout_s:.0f} s")
@@ -243,14 +240,14 @@ class NbvPlanner(Node):
             reply = call_service(self, self._move_client, MoveCamera.Request(target=target), self.move_timeout_s)
             if not reply.success:
                 raise ValueError(f"camera move failed: {reply.message}")
-            return _stamp_ns(reply.frame_stamp)
+            return stamp_ns(reply.frame_stamp)
         goal_position, _ = pose_to_arrays(target.pose)
         self._goal_pub.publish(target)
         sent = self.get_clock().now().nanoseconds
 
         def arrived() -> bool:
             pose = self._camera_pose
-            if pose is None or _stamp_ns(pose.header.stamp) < sent:
+            if pose is None or stamp_ns(pose.header.stamp) < sent:
                 return False
             t = pose.transform.translation
             return float(np.linalg.norm(np.array([t.x, t.y, t.z]) - goal_position)) <= self.arrival_tolerance_m
@@ -258,7 +255,7 @@ class NbvPlanner(Node):
         with self._camera_lock:
             if not self._camera_lock.wait_for(arrived, self.move_timeout_s):
                 raise TimeoutError(f"camera did not report arrival within {self.move_timeout_s:.0f} s")
-            return _stamp_ns(self._camera_pose.header.stamp)
+            return stamp_ns(self._camera_pose.header.stamp)
 
     def _explore(self, goal_handle) -> Explore.Result:
         """Run one exploration; the goal ends SUCCEEDED when a stop condition is met, CANCELED

@@ -25,7 +25,6 @@ import threading
 from pathlib import Path
 
 import numpy as np
-from builtin_interfaces.msg import Time
 from geometry_msgs.msg import PoseStamped, TransformStamped
 from nbv_prob_cnn_msgs.srv import MoveCamera
 from rclpy.node import Node
@@ -33,7 +32,8 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 from sensor_msgs.msg import CameraInfo, Image
 
 from nbv_prob_cnn.camera import look_rotation, matrix_from_quaternion, quaternion_from_matrix
-from nbv_prob_cnn.perception.bags import (
+from nbv_prob_cnn.perception.depth_camera import DepthCamera, DepthNoise, Intrinsics, room_mesh
+from nbv_prob_cnn.perception.messages import (
     MSG_CAMERA_INFO,
     MSG_IMAGE,
     MSG_TRANSFORM,
@@ -42,10 +42,9 @@ from nbv_prob_cnn.perception.bags import (
     pose_to_transform_msg,
     typestore,
 )
-from nbv_prob_cnn.perception.depth_camera import DepthCamera, DepthNoise, Intrinsics, room_mesh
 from nbv_prob_cnn.ros import names
 from nbv_prob_cnn.ros.common import descriptor, run_node
-from nbv_prob_cnn.ros.conversions import pose_to_arrays
+from nbv_prob_cnn.ros.conversions import pose_to_arrays, time_msg
 
 NODE_NAME = "sim_camera"
 TOPIC_GOAL_POSE = names.GOAL_POSE
@@ -86,10 +85,6 @@ def pose_matrix(values) -> np.ndarray:
     pose[:3, :3] = matrix_from_quaternion(values[3:])  # raises on a zero quaternion
     pose[:3, 3] = values[:3]
     return pose
-
-
-def stamp_to_time(stamp_ns: int) -> Time:
-    return Time(sec=int(stamp_ns // 1_000_000_000), nanosec=int(stamp_ns % 1_000_000_000))
 
 
 def load_meshes(dataset: str, seed: int, mesh_file: str, room_margin_m: float = 0.0) -> tuple[list, str]:
@@ -275,7 +270,7 @@ class SimCamera(Node):
         response.success = True
         p = request.target.pose.position
         response.message = f"moved to ({p.x:.3f}, {p.y:.3f}, {p.z:.3f}); frame published"
-        response.frame_stamp = stamp_to_time(stamp_ns)
+        response.frame_stamp = time_msg(stamp_ns)
         return response
 
     def _on_goal_pose(self, msg: PoseStamped) -> None:
