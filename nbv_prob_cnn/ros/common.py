@@ -117,16 +117,17 @@ def call_service(node: Node, client, request, timeout_s: float):
     Raises:
         TimeoutError: the service is not available or did not answer in time.
     """
+    name = node.resolve_service_name(client.srv_name)  # the full name, namespace included
     if not client.wait_for_service(timeout_sec=min(timeout_s, 5.0)):
-        raise TimeoutError(f"service {client.srv_name} is not available")
+        raise TimeoutError(f"service {name} is not available")
     done = threading.Event()
     future = client.call_async(request)
     future.add_done_callback(lambda _: done.set())
     if not done.wait(timeout_s):
         client.remove_pending_request(future)
-        raise TimeoutError(f"service {client.srv_name} did not answer within {timeout_s:.1f} s")
+        raise TimeoutError(f"service {name} did not answer within {timeout_s:.1f} s")
     if future.exception() is not None:
-        raise RuntimeError(f"service {client.srv_name} failed: {future.exception()}")
+        raise RuntimeError(f"service {name} failed: {future.exception()}")
     return future.result()
 
 
