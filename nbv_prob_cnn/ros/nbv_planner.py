@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import threading
 import time
+from dataclasses import dataclass
 
 import numpy as np
 from geometry_msgs.msg import PoseStamped, TransformStamped
@@ -31,7 +32,7 @@ from nbv_prob_cnn.planners import GainPlanner
 from nbv_prob_cnn.planners.methods import DOWNSAMPLED_ORIGINS
 from nbv_prob_cnn.planners.requests import gain_method, origin_filter, planning_context, view_pose
 from nbv_prob_cnn.ros import names
-from nbv_prob_cnn.ros.common import GRID_QOS, allow_updates, call_service, declare, positive_seconds, run_node
+from nbv_prob_cnn.ros.common import GRID_QOS, call_service, declare_config, param, positive_seconds, run_node
 from nbv_prob_cnn.ros.conversions import arrays_to_pose_stamped, msg_to_grid, pose_to_arrays
 from nbv_prob_cnn.ros.markers import planning_markers
 
@@ -39,45 +40,38 @@ from nbv_prob_cnn.ros.markers import planning_markers
 NO_POSITIVE_GAIN = "no view with positive gain"
 
 
+def _check_method(name: str) -> None:
+    gain_method(name, name)
+
+
+@dataclass
+class PlannerConfig:
+    """Parameters of ``nbv_planner`` (``method`` and ``service_timeout_s`` may change at run time)."""
+
+    dataset: str = param("3dt", "sensor/ray defaults and CNN weights", choices=tuple(sorted(DATASETS)))
+    method: str = param("cnn_prob", "method when a request names none", dynamic=True, check=_check_method)
+    in_process: bool = param(False, "complete and ray-cast here instead of via the servers")
+    backend: str = param("auto", "ray-casting backend (in-process mode)", choices=BACKENDS)
+    n_rays: int = param(0, "ray sub-cells per side (0 = default)", min_value=0, max_value=64)
+    frame_id: str = param("world", "frame of grids that carry none")
+    service_timeout_s: float = param(
+        60.0, "completion/ranking wait", min_value=0.1, max_value=600.0, dynamic=True, check=positive_seconds
+    )
+    move_mode: str = param(
+        "service", "'service' (sim_camera/move_to) or 'topic' (goal pose)", choices=("service", "topic")
+    )
+    move_timeout_s: float = param(30.0, "wait for the camera to arrive", min_value=0.1, max_value=600.0)
+    grid_timeout_s: float = param(30.0, "wait for the grid with the new frame", min_value=0.1, max_value=600.0)
+    arrival_tolerance_m: float = param(0.01, "topic mode: position tolerance", min_value=0.0, max_value=1.0)
+    markers_top_k: int = param(20, "candidate views shown as markers", min_value=1, max_value=1000)
+
+
 class NbvPlanner(Node):
     """Plans views on the latest grid and runs explorations."""
 
     def __init__(self) -> None:
         super().__init__("nbv_planner")
-        self.dataset = declare(self, "dataset", "3dt", f"sensor/ray defaults and CNN weights: {sorted(DATASETS)}")
-        self.method = declare(self, "method", "cnn_prob", "method when a request names none")
-        self.in_process = declare(self, "in_process", False, "complete and ray-cast here instead of via the servers")
-        self.backend = declare(self, "backend", "auto", f"ray-casting backend (in-process mode): {BACKENDS}")
-        self.n_rays = declare(self, "n_rays", 0, "ray sub-cells per side (0 = default)", min_value=0, max_value=64)
-        self.frame_id = declare(self, "frame_id", "world", "frame of grids that carry none")
-        self.service_timeout_s = declare(
-            self, "service_timeout_s", 60.0, "completion/ranking wait", min_value=0.1, max_value=600.0
-        )
-        self.move_mode = declare(self, "move_mode", "service", "'service' (/sim_camera/move_to) or 'topic' (goal pose)")
-        self.move_timeout_s = declare(
-            self, "move_timeout_s", 30.0, "wait for the camera to arrive", min_value=0.1, max_value=600.0
-        )
-        self.grid_timeout_s = declare(
-            self, "grid_timeout_s", 30.0, "wait for the grid with the new frame", min_value=0.1, max_value=600.0
-        )
-        self.arrival_tolerance_m = declare(
-            self, "arrival_tolerance_m", 0.01, "topic mode: position tolerance", min_value=0.0, max_value=1.0
-        )
-        self.markers_top_k = declare(
-            self, "markers_top_k", 20, "candidate views shown as markers", min_value=1, max_value=1000
-        )
-        if self.dataset not in DATASETS or self.backend not in BACKENDS or self.move_mode not in ("service", "topic"):
-            raise ValueError(
-                f"bad parameters: dataset={self.dataset!r} backend={self.backend!r} move_mode={self.move_mode!r}"
-            )
-        gain_method(self.method, self.method)  # validates the default
-        allow_updates(
-            self,
-            {
-                "method": lambda value: gain_method(value, value),
-                "service_timeout_s": positive_seconds,
-            },
-        )
+        self.config = declare_config(self, PlannerConfig)  # also sets self.<name> for each parameter
         self._rng = np.random.default_rng()
         self._grid_lock = threading.Condition()
         self._grid: VoxelGrid | None = None
