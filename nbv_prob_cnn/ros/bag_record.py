@@ -15,6 +15,7 @@ Run: ``nbv node bag_record --ros-args -p output:=/tmp/run1``
 from __future__ import annotations
 
 from collections import Counter
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -33,7 +34,7 @@ from nbv_prob_cnn.perception.bags import (
     typestore,
 )
 from nbv_prob_cnn.ros import names
-from nbv_prob_cnn.ros.common import declare_subscription_qos, descriptor, run_node
+from nbv_prob_cnn.ros.common import RELIABILITY, declare_config, param, run_node, subscription_qos
 
 NODE_NAME = "bag_record"
 #: topic -> (rclpy class, rosbag2 type name)
@@ -44,15 +45,23 @@ TOPICS = {
 }
 
 
+@dataclass
+class BagRecordConfig:
+    """Parameters of ``bag_record``."""
+
+    output: str = param("", "new rosbag2 directory to create (required; never overwritten)")
+    queue_size: int = param(100, "depth of the subscriptions", min_value=1, max_value=10000)
+    qos_reliability: str = param("reliable", "subscriptions: reliable or best_effort", choices=RELIABILITY)
+
+
 class BagRecord(Node):
     """Writes every message of the camera topics to a new mcap bag."""
 
     def __init__(self) -> None:
         super().__init__(NODE_NAME)
-        output = self.declare_parameter(
-            "output", "", descriptor("new rosbag2 directory to create (required; never overwritten)")
-        ).value
-        qos = declare_subscription_qos(self, 100, "subscriptions")
+        self.config = declare_config(self, BagRecordConfig)
+        output = self.config.output
+        qos = subscription_qos(self.config.queue_size, self.config.qos_reliability)
         if not output:
             raise ValueError("parameter 'output' is required (path of the new bag directory)")
         self.path = Path(output).expanduser()

@@ -111,7 +111,7 @@ def declare_config(node: Node, config_type: type[ConfigT], *, mirror: bool = Tru
             text,
             float_range=bounds if (bounds and isinstance(default, float)) else None,
             int_range=(int(bounds[0]), int(bounds[1])) if (bounds and is_int) else None,
-            dynamic_typing=isinstance(default, list) and any(isinstance(v, float) for v in default),
+            dynamic_typing=isinstance(default, list),  # [0, 1, 2] for a float list, [] for an empty one
             read_only=not spec.dynamic,
         )
         value = node.declare_parameter(item.name, default, desc).value
@@ -155,26 +155,18 @@ def positive_seconds(value) -> None:
         raise ValueError(f"expected a positive number of seconds, got {value!r}")
 
 
-def declare_subscription_qos(
-    node: Node, default_depth: int, what: str, default_reliability: str = "reliable"
-) -> QoSProfile:
-    """Declare ``queue_size`` and ``qos_reliability`` (``reliable``/``best_effort``) for a node's
-    input subscriptions and return the resulting volatile QoS profile (``best_effort`` with
-    depth 5 is rclpy's SENSOR_DATA profile).
+#: Reliability names of :func:`subscription_qos` (``best_effort`` with depth 5 is SENSOR_DATA).
+RELIABILITY = ("best_effort", "reliable")
+
+
+def subscription_qos(depth: int, reliability: str) -> QoSProfile:
+    """A volatile keep-last QoS profile for input subscriptions.
 
     Raises:
         ValueError: an unknown reliability name.
     """
-    depth = node.declare_parameter(
-        "queue_size", default_depth, descriptor(f"depth of the {what}", int_range=(1, 10000))
-    ).value
-    reliability = node.declare_parameter(
-        "qos_reliability",
-        default_reliability,
-        descriptor(f"{what}: 'reliable' or 'best_effort' (for sensor_data publishers)"),
-    ).value
-    if reliability not in ("reliable", "best_effort"):
-        raise ValueError(f"qos_reliability: expected 'reliable' or 'best_effort', got {reliability!r}")
+    if reliability not in RELIABILITY:
+        raise ValueError(f"qos_reliability: expected one of {list(RELIABILITY)}, got {reliability!r}")
     return QoSProfile(
         depth=int(depth),
         reliability=ReliabilityPolicy.RELIABLE if reliability == "reliable" else ReliabilityPolicy.BEST_EFFORT,

@@ -49,6 +49,7 @@ import json
 import threading
 import time
 from collections import deque
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -88,7 +89,7 @@ from nbv_prob_cnn.perception.tsdf import (
     TsdfIntegrator,
 )
 from nbv_prob_cnn.ros import names
-from nbv_prob_cnn.ros.common import GRID_QOS, declare_subscription_qos, descriptor, run_node
+from nbv_prob_cnn.ros.common import GRID_QOS, RELIABILITY, declare_config, param, run_node, subscription_qos
 from nbv_prob_cnn.ros.conversions import grid_to_msg, time_msg
 
 NODE_NAME = "integrator"
@@ -104,87 +105,77 @@ MAX_BACKLOG = 1000
 __all__ = ["ENCODINGS", "Integrator", "PairedFrame", "StampSync", "main"]
 
 
+def _check_origin(value) -> None:
+    if len(value) != 3 or not all(isinstance(v, int | float) and np.isfinite(v) for v in value):
+        raise ValueError(f"origin: expected 3 finite numbers [m], got {value!r}")
+
+
+def _check_shape(value) -> None:
+    if len(value) != 3 or min(value) < 1:
+        raise ValueError(f"shape: expected 3 positive sizes, got {list(value)}")
+
+
+@dataclass
+class IntegratorConfig:
+    """Parameters of ``integrator`` (all fixed after start-up)."""
+
+    frame_id: str = param("world", "fixed frame of the grid; poses must be given in it")
+    origin: list = param([float(v) for v in DEFAULT_ORIGIN_M], "world coordinates [m] of the corner of cell (0, 0, 0)",
+                         check=_check_origin)  # fmt: skip
+    shape: list = param([int(v) for v in DEFAULT_SHAPE], "grid size [cells] nx, ny, nz", check=_check_shape)
+    voxel_size: float = param(DEFAULT_VOXEL_M, "cell edge [m]", min_value=1e-4, max_value=10.0)
+    trunc_voxels: float = param(DEFAULT_TRUNC_VOXELS, "TSDF truncation [voxels]", min_value=0.5, max_value=100.0)
+    empty_margin_voxels: float = param(
+        DEFAULT_EMPTY_MARGIN_VOXELS, "cells farther than this in front of a surface are empty [voxels]",
+        min_value=0.0, max_value=100.0,
+    )  # fmt: skip
+    depth_max_m: float = param(
+        3.0, "returns beyond this depth are ignored [m]", min_value=0.01, max_value=100.0, attribute="depth_max"
+    )
+    refine_pose_icp: bool = param(False, "refine each pose by frame-to-model odometry (slow)")
+    device: str = param("CPU:0", "open3d device, e.g. CPU:0 or CUDA:0")
+    sync_tolerance_s: float = param(
+        0.01, "largest stamp difference of an image and its pose / camera_info [s]", min_value=0.0, max_value=10.0
+    )
+    pose_timeout_s: float = param(
+        1.0, "an image whose pose / camera_info is missing this long is dropped [s]", min_value=0.0, max_value=60.0,
+        attribute="pose_timeout",
+    )  # fmt: skip
+    publish_rate_hz: float = param(
+        2.0, "most grids per second; 0 = a grid after every integrated frame", min_value=0.0, max_value=100.0,
+        attribute="publish_rate",
+    )  # fmt: skip
+    drop_when_behind: bool = param(
+        True, "when integration falls behind, only the newest waiting frame is kept (false: all, in order)"
+    )
+    diagnostics_period_s: float = param(
+        1.0, "period of the drop counts on /diagnostics [s]", min_value=0.05, max_value=3600.0,
+        attribute="diagnostics_period",
+    )  # fmt: skip
+    queue_size: int = param(5, "depth of the camera subscriptions", min_value=1, max_value=10000)
+    qos_reliability: str = param(
+        "best_effort", "camera subscriptions: best_effort (SENSOR_DATA, as drivers publish) or reliable "
+        "(lossless bag replays)", choices=RELIABILITY,
+    )  # fmt: skip
+
+
 class Integrator(Node):
     """Fuses posed depth frames into a ternary grid and publishes it."""
 
     def __init__(self) -> None:
         super().__init__(NODE_NAME)
-        self.frame_id = self.declare_parameter(
-            "frame_id", "world", descriptor("fixed frame of the grid; poses must be given in it")
-        ).value
-        origin = self.declare_parameter(
-            "origin",
-            [float(v) for v in DEFAULT_ORIGIN_M],
-            descriptor("world coordinates [m] of the corner of cell (0, 0, 0)", dynamic_typing=True),
-        ).value
-        shape = self.declare_parameter(
-            "shape", [int(v) for v in DEFAULT_SHAPE], descriptor("grid size [cells] nx, ny, nz")
-        ).value
-        voxel = self.declare_parameter(
-            "voxel_size", DEFAULT_VOXEL_M, descriptor("cell edge [m]", float_range=(1e-4, 10.0))
-        ).value
-        trunc = self.declare_parameter(
-            "trunc_voxels", DEFAULT_TRUNC_VOXELS, descriptor("TSDF truncation [voxels]", float_range=(0.5, 100.0))
-        ).value
-        margin = self.declare_parameter(
-            "empty_margin_voxels",
-            DEFAULT_EMPTY_MARGIN_VOXELS,
-            descriptor("cells farther than this in front of a surface are empty [voxels]", float_range=(0.0, 100.0)),
-        ).value
-        self.depth_max = self.declare_parameter(
-            "depth_max_m", 3.0, descriptor("returns beyond this depth are ignored [m]", float_range=(0.01, 100.0))
-        ).value
-        refine = self.declare_parameter(
-            "refine_pose_icp", False, descriptor("refine each pose by frame-to-model odometry (slow)")
-        ).value
-        device = self.declare_parameter("device", "CPU:0", descriptor("open3d device, e.g. CPU:0 or CUDA:0")).value
-        tolerance = self.declare_parameter(
-            "sync_tolerance_s",
-            0.01,
-            descriptor("largest stamp difference of an image and its pose / camera_info [s]", float_range=(0.0, 10.0)),
-        ).value
-        self.pose_timeout = self.declare_parameter(
-            "pose_timeout_s",
-            1.0,
-            descriptor(
-                "an image whose pose / camera_info is missing this long is dropped [s]", float_range=(0.0, 60.0)
-            ),
-        ).value
-        self.publish_rate = self.declare_parameter(
-            "publish_rate_hz",
-            2.0,
-            descriptor("most grids per second; 0 = a grid after every integrated frame", float_range=(0.0, 100.0)),
-        ).value
-        self.drop_when_behind = self.declare_parameter(
-            "drop_when_behind",
-            True,
-            descriptor("when integration falls behind, only the newest waiting frame is kept (false: all, in order)"),
-        ).value
-        self.diagnostics_period = self.declare_parameter(
-            "diagnostics_period_s",
-            1.0,
-            descriptor("period of the drop counts on /diagnostics [s]", float_range=(0.05, 3600.0)),
-        ).value
-        # SENSOR_DATA by default (best effort, depth 5), as camera drivers publish; 'reliable' for lossless replays
-        camera_qos = declare_subscription_qos(self, 5, "camera subscriptions", default_reliability="best_effort")
-
-        if (
-            not isinstance(origin, list | tuple)
-            or len(origin) != 3
-            or not all(isinstance(v, int | float) for v in origin)
-        ):
-            raise ValueError(f"origin: expected 3 numbers [m], got {origin!r}")
-        if len(shape) != 3 or min(shape) < 1:
-            raise ValueError(f"shape: expected 3 positive sizes, got {list(shape)}")
+        self.config = cfg = declare_config(self, IntegratorConfig)  # also sets self.<name> per parameter
+        camera_qos = subscription_qos(cfg.queue_size, cfg.qos_reliability)
+        origin, shape, voxel, tolerance = cfg.origin, cfg.shape, cfg.voxel_size, cfg.sync_tolerance_s
         self.geometry = GridGeometry(tuple(float(v) for v in origin), float(voxel), tuple(int(v) for v in shape))
         self._tsdf = TsdfIntegrator(
             origin_m=np.array(self.geometry.origin),
             shape_cells=self.geometry.shape,
             voxel_size_m=voxel,
-            trunc_voxels=trunc,
-            empty_margin_voxels=margin,
-            device=device,
-            refine_pose_icp=refine,
+            trunc_voxels=cfg.trunc_voxels,
+            empty_margin_voxels=cfg.empty_margin_voxels,
+            device=cfg.device,
+            refine_pose_icp=cfg.refine_pose_icp,
         )
 
         # state shared by the executor threads and the worker: _cv guards the pairing and the queue,
