@@ -384,3 +384,39 @@ def decode_frame(frame: PairedFrame) -> tuple[np.ndarray, Intrinsics, np.ndarray
     except ValueError as exc:
         raise FrameRejectedError(DropReason.NON_FINITE_POSE, str(exc)) from exc
     return depth, intrinsics, pose
+
+
+# ------------------------------------------------------------------------ planning results
+MSG_POINT_CLOUD = "sensor_msgs/msg/PointCloud2"
+MSG_POSE_STAMPED = "geometry_msgs/msg/PoseStamped"
+MSG_MARKER_ARRAY = "visualization_msgs/msg/MarkerArray"
+
+
+def points_to_cloud_msg(points: np.ndarray, stamp: int, frame_id: str = WORLD_FRAME) -> Any:
+    """A ``sensor_msgs/msg/PointCloud2`` (x, y, z float32, unorganised) of ``(N, 3)`` points."""
+    types = typestore().types
+    xyz = np.ascontiguousarray(np.asarray(points, dtype="<f4").reshape(-1, 3))
+    field = types["sensor_msgs/msg/PointField"]
+    fields = [field(name=n, offset=4 * i, datatype=7, count=1) for i, n in enumerate("xyz")]  # 7 = FLOAT32
+    return types[MSG_POINT_CLOUD](
+        header=_header(stamp, frame_id), height=1, width=len(xyz), fields=fields, is_bigendian=False,
+        point_step=12, row_step=12 * len(xyz), data=np.frombuffer(xyz.tobytes(), dtype=np.uint8), is_dense=True,
+    )  # fmt: skip
+
+
+def cloud_msg_to_points(msg: Any) -> np.ndarray:
+    """``(N, 3)`` float32 points of a PointCloud2 with float32 x, y, z fields.
+
+    Raises:
+        ValueError: missing x/y/z float32 fields or inconsistent sizes.
+    """
+    offsets = {f.name: int(f.offset) for f in msg.fields if int(f.datatype) == 7}
+    if not {"x", "y", "z"} <= set(offsets):
+        raise ValueError("point cloud: expected float32 fields x, y, z")
+    n, step = int(msg.width) * int(msg.height), int(msg.point_step)
+    raw = np.asarray(msg.data, dtype=np.uint8)
+    if raw.size < n * step:
+        raise ValueError(f"point cloud: {raw.size} data bytes, expected {n} x {step}")
+    rows = raw[: n * step].reshape(n, step)
+    dtype = np.dtype(">f4" if msg.is_bigendian else "<f4")
+    return np.stack([rows[:, offsets[a] : offsets[a] + 4].copy().view(dtype)[:, 0] for a in "xyz"], axis=1)
