@@ -72,34 +72,6 @@ def check_ground_truth(
     return np.ascontiguousarray(truth, dtype=np.uint8)
 
 
-def empty_mask(state: np.ndarray) -> np.ndarray:
-    """``E``: True where the cell is known empty."""
-    return state == EMPTY
-
-
-def occupied_mask(state: np.ndarray) -> np.ndarray:
-    """``O``: True where the cell is known occupied."""
-    return state == OCCUPIED
-
-
-def unknown_mask(state: np.ndarray) -> np.ndarray:
-    """``U = 1 - E - O``: True where the cell is unknown."""
-    return state == UNKNOWN
-
-
-def frontier_mask(state: np.ndarray) -> np.ndarray:
-    """``F``: unknown cells with at least one empty face neighbour (4-/6-connectivity)."""
-    empty = state == EMPTY
-    near_empty = np.zeros_like(empty)
-    for axis in range(state.ndim):
-        lead = [slice(None)] * state.ndim
-        trail = [slice(None)] * state.ndim
-        lead[axis], trail[axis] = slice(1, None), slice(None, -1)
-        near_empty[tuple(lead)] |= empty[tuple(trail)]
-        near_empty[tuple(trail)] |= empty[tuple(lead)]
-    return near_empty & (state == UNKNOWN)
-
-
 def unknown_fraction(state: np.ndarray, ground_truth: np.ndarray) -> float:
     """Ground-truth-empty cells not yet observed / ground-truth-empty cells (SPEC §9)."""
     free = ground_truth == 0
