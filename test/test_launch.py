@@ -20,6 +20,8 @@ pytest.importorskip("nbv_prob_cnn_msgs")
 from nbv_prob_cnn.geometry import GridGeometry  # noqa: E402
 from nbv_prob_cnn.ros.graph import leaked_segments, shm_segments  # noqa: E402
 
+pytestmark = pytest.mark.slow  # multi-process ROS graphs
+
 REPO = Path(__file__).resolve().parents[1]
 SCRIPT = REPO / "launch_scripts" / "explore_sim.py"
 

@@ -55,6 +55,8 @@ from nbv_prob_cnn.perception.bags import (  # noqa: E402
 from nbv_prob_cnn.ros.conversions import msg_to_grid  # noqa: E402
 from nbv_prob_cnn.ros.graph import NodeGraph, leaked_segments, segment_domain, shm_segments, wait_for  # noqa: E402
 
+pytestmark = pytest.mark.slow  # multi-process ROS graphs
+
 REPO = Path(__file__).resolve().parents[1]
 SAMPLE_BAG = REPO / "bags" / "3dt_seed1000_sample"
 S = 1_000_000_000  # one second in ns
@@ -191,7 +193,6 @@ def test_integrator_battery(ros_env: dict, tmp_path: Path) -> None:  # noqa: F81
     assert wait_for(lambda: not leaked_segments(before, domain), 5.0), leaked_segments(before, domain)
 
 
-@pytest.mark.slow
 def test_planning_battery(tmp_path: Path) -> None:
     """Calls before any grid, a 2^24+1-cell grid, SIGKILL of completion_server while the planner
     waits on it (and recovery after its restart), then SIGINT with no leaked shared memory."""

@@ -27,6 +27,8 @@ from nbv_prob_cnn.ros.common import GRID_QOS  # noqa: E402
 from nbv_prob_cnn.ros.conversions import grid_to_msg  # noqa: E402
 from nbv_prob_cnn.ros.graph import NodeGraph, ros_environment  # noqa: E402
 
+pytestmark = pytest.mark.slow  # multi-process ROS graphs
+
 GEOMETRY = GridGeometry((0.0, 0.0, 0.0), 0.02, (24, 24, 24))
 _counter = iter(range(1000))
 

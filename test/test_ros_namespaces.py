@@ -64,6 +64,7 @@ def room(low: int, high: int) -> np.ndarray:
     return state
 
 
+@pytest.mark.slow
 def test_two_namespaced_graphs_in_one_domain(tmp_path):
     env = ros_environment(111 + os.getpid() % 9)  # 111..119: no other test module uses these
     saved = {k: os.environ.get(k) for k in env}

@@ -42,6 +42,8 @@ from nbv_prob_cnn.ros.common import GRID_QOS  # noqa: E402
 from nbv_prob_cnn.ros.conversions import msg_to_grid  # noqa: E402
 from nbv_prob_cnn.ros.graph import NodeGraph, leaked_segments, ros_environment, shm_segments, wait_for  # noqa: E402
 
+pytestmark = pytest.mark.slow  # multi-process ROS graphs
+
 REPO = Path(__file__).resolve().parents[1]
 SAMPLE_BAG = REPO / "bags" / "3dt_seed1000_sample"
 SCENE_CENTRE = np.array([0.742, 0.742, 0.29])

@@ -37,6 +37,7 @@ def test_gain_heat_map_keeps_the_best_gain_per_cell():
     assert {tuple(c): g for c, g in zip(cells.tolist(), best.tolist(), strict=True)} == {(0, 0): 0.7, (2, 0): 0.4}
 
 
+@pytest.mark.slow
 def test_recorded_run_renders(tmp_path: Path, monkeypatch: pytest.MonkeyPatch):
     env = ros_environment(domain_id(5))
     for key in (
