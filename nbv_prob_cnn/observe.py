@@ -24,6 +24,7 @@ import numpy as np
 
 from nbv_prob_cnn.camera import Sensor, matrix_from_quaternion
 from nbv_prob_cnn.grid import check_ground_truth, check_state
+from nbv_prob_cnn.modes import Backend
 from nbv_prob_cnn.sensor_noise import SensorNoise
 
 #: Largest spacing (cells) between neighbouring simulated rays at ``R_max``.
@@ -62,7 +63,7 @@ def world_rays(orientation: np.ndarray | float, sensor: Sensor, dims: int) -> np
         c, s = math.cos(yaw), math.sin(yaw)
         rot = np.array([[c, -s], [s, c]])
     else:
-        rot = matrix_from_quaternion(orientation)
+        rot = matrix_from_quaternion(np.asarray(orientation))
     return rays @ rot.T
 
 
@@ -168,7 +169,7 @@ def observe(
     position: np.ndarray,
     orientation: np.ndarray | float,
     sensor: Sensor,
-    backend: str = "auto",
+    backend: Backend = "auto",
     noise: SensorNoise | None = None,
     rng: np.random.Generator | None = None,
     resolution_m: float | None = None,
@@ -265,10 +266,10 @@ def _observe_noisy(
     end = np.floor(pos[None, :] + rays * measured[:, None] + 0.5).astype(np.int64)
     end_ok = returned & np.all((end >= 0) & (end < shape), axis=1)
     empty_cells = np.unique(flat[before])
-    occupied_cells = np.unique(np.ravel_multi_index(tuple(end[end_ok].T), state.shape)) if end_ok.any() else []
+    occupied_cells = np.unique(np.ravel_multi_index(tuple(end[end_ok].T), state.shape).astype(np.int64))
     flat_state = state.reshape(-1)
     known = np.union1d(empty_cells, occupied_cells).astype(np.int64)
     newly = int(np.count_nonzero(flat_state[known] == -1))
     flat_state[empty_cells] = 0
-    flat_state[np.asarray(occupied_cells, dtype=np.int64)] = 1  # a surface seen by one ray wins
+    flat_state[occupied_cells] = 1  # a surface seen by one ray wins
     return newly

@@ -19,8 +19,8 @@ from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.node import Node
 
 from nbv_prob_cnn.camera import DATASETS
-from nbv_prob_cnn.gain import BACKENDS
 from nbv_prob_cnn.geometry import GridGeometry
+from nbv_prob_cnn.modes import BACKEND_NAMES, Backend
 from nbv_prob_cnn.planners import GainPlanner, PlanningContext
 from nbv_prob_cnn.planners.methods import GainMethod, cnn_completion, probability_map
 from nbv_prob_cnn.planners.requests import gain_method, origin_filter, planning_context, view_pose
@@ -49,7 +49,7 @@ class GainServerConfig:
 
     dataset: str = param("3dt", "sensor/ray defaults and CNN weights", choices=tuple(sorted(DATASETS)))
     method: str = param("prob_ig", "method when a request names none", dynamic=True, check=_check_method)
-    backend: str = param("auto", "ray-casting backend", choices=BACKENDS)
+    backend: Backend = param("auto", "ray-casting backend", choices=BACKEND_NAMES)
     n_rays: int = param(0, "ray sub-cells per side (0 = data set default)", min_value=0, max_value=64)
     completion: str = param(
         "service", "CNN maps from the completion service or in this process", choices=("service", "in_process"),

@@ -12,8 +12,9 @@ import signal
 import subprocess
 import sys
 import time
-from collections.abc import Callable, Iterable
+from collections.abc import Callable
 from pathlib import Path
+from typing import IO
 
 PROFILE = Path(__file__).with_name("fastdds_shm_profile.xml")
 
@@ -69,11 +70,10 @@ class NodeGraph:
         self.processes: dict[str, subprocess.Popen] = {}
 
     def start(self, name: str, command: list[str]) -> subprocess.Popen:
+        out: IO[str] | int = subprocess.DEVNULL
         if self.log_dir:
             self.log_dir.mkdir(parents=True, exist_ok=True)
             out = open(self.log_dir / f"{name}.log", "w")  # noqa: SIM115 - closed with the process
-        else:
-            out = subprocess.DEVNULL
         proc = subprocess.Popen(command, env=self.env, stdout=out, stderr=subprocess.STDOUT, start_new_session=True)
         self.processes[name] = proc
         return proc
@@ -215,7 +215,7 @@ def wait_for(predicate, timeout_s: float, interval_s: float = 0.1) -> bool:
     return bool(predicate())
 
 
-__all__: Iterable[str] = [
+__all__ = [
     "NodeGraph",
     "leaked_segments",
     "node_command",

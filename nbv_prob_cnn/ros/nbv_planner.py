@@ -25,8 +25,8 @@ from rclpy.node import Node
 from visualization_msgs.msg import MarkerArray
 
 from nbv_prob_cnn.camera import DATASETS
-from nbv_prob_cnn.gain import BACKENDS
 from nbv_prob_cnn.grid import unknown_fraction_all
+from nbv_prob_cnn.modes import BACKEND_NAMES, MOVE_MODES, Backend, MoveMode
 from nbv_prob_cnn.perception.messages import stamp_ns
 from nbv_prob_cnn.planners import GainPlanner
 from nbv_prob_cnn.planners.methods import DOWNSAMPLED_ORIGINS
@@ -51,15 +51,13 @@ class PlannerConfig:
     dataset: str = param("3dt", "sensor/ray defaults and CNN weights", choices=tuple(sorted(DATASETS)))
     method: str = param("cnn_prob", "method when a request names none", dynamic=True, check=_check_method)
     in_process: bool = param(False, "complete and ray-cast here instead of via the servers")
-    backend: str = param("auto", "ray-casting backend (in-process mode)", choices=BACKENDS)
+    backend: Backend = param("auto", "ray-casting backend (in-process mode)", choices=BACKEND_NAMES)
     n_rays: int = param(0, "ray sub-cells per side (0 = default)", min_value=0, max_value=64)
     frame_id: str = param("world", "frame of grids that carry none")
     service_timeout_s: float = param(
         60.0, "completion/ranking wait", min_value=0.1, max_value=600.0, dynamic=True, check=positive_seconds
     )
-    move_mode: str = param(
-        "service", "'service' (sim_camera/move_to) or 'topic' (goal pose)", choices=("service", "topic")
-    )
+    move_mode: MoveMode = param("service", "'service' (sim_camera/move_to) or 'topic' (goal pose)", choices=MOVE_MODES)
     move_timeout_s: float = param(30.0, "wait for the camera to arrive", min_value=0.1, max_value=600.0)
     grid_timeout_s: float = param(30.0, "wait for the grid with the new frame", min_value=0.1, max_value=600.0)
     arrival_tolerance_m: float = param(0.01, "topic mode: position tolerance", min_value=0.0, max_value=1.0)
