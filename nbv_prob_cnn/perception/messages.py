@@ -302,9 +302,12 @@ class StampSync:
         i = bisect.bisect_left(history, stamp, key=lambda item: item[0])
         best = None
         for j in (i - 1, i):
-            if 0 <= j < len(history) and abs(history[j][0] - stamp) <= self.tolerance_ns:
-                if best is None or abs(history[j][0] - stamp) < abs(best[0] - stamp):
-                    best = history[j]
+            if (
+                0 <= j < len(history)
+                and abs(history[j][0] - stamp) <= self.tolerance_ns
+                and (best is None or abs(history[j][0] - stamp) < abs(best[0] - stamp))
+            ):
+                best = history[j]
         return best
 
     def add_image(self, stamp: int, msg: Any, now: float) -> tuple[list[PairedFrame], list[int]]:

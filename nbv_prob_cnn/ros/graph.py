@@ -6,6 +6,7 @@ localhost-only discovery, its own ``ROS_DOMAIN_ID`` and the Fast DDS shared-memo
 
 from __future__ import annotations
 
+import contextlib
 import os
 import re
 import signal
@@ -98,10 +99,8 @@ class NodeGraph:
             if not running:
                 break
             for proc in running:
-                try:
+                with contextlib.suppress(ProcessLookupError):
                     os.killpg(proc.pid, sig)
-                except ProcessLookupError:
-                    pass
             deadline = time.monotonic() + grace_s
             while time.monotonic() < deadline and any(p.poll() is None for p in running):
                 time.sleep(0.05)
@@ -185,10 +184,8 @@ def run_graph(
         signal.signal(signal.SIGINT, signal.SIG_IGN)  # a second Ctrl-C must not cut the clean-up short
         if client is not None and client.poll() is None:
             client.send_signal(signal.SIGINT)
-            try:
+            with contextlib.suppress(subprocess.TimeoutExpired):
                 client.wait(timeout=15)
-            except subprocess.TimeoutExpired:
-                pass
         code = 130
     finally:
         codes = graph.stop()
@@ -197,10 +194,8 @@ def run_graph(
             client.wait()
         leaked = leaked_segments(shm_before, domain)
         for name in leaked:  # files of our stopped processes that nothing uses any more
-            try:
+            with contextlib.suppress(OSError):
                 os.unlink(f"/dev/shm/{name}")
-            except OSError:
-                pass
         print(f"[{label}] stopped {len(codes)} processes; removed {len(leaked)} stale shared-memory files", flush=True)
     return code
 

@@ -75,7 +75,9 @@ def ros_latency_benchmark(dataset: str = "3du", method: str = "cnn_prob", seed: 
         [
             "| grid | method | in-process planning (s) | /nbv/plan round trip (s) | transport overhead |",
             "|---|---|---|---|---|",
-            f"| {dataset.upper()} {'×'.join(map(str, world.shape))} | {method} | {t_local:.3f} | {t_remote:.3f} | "
-            f"{100 * (t_remote - t_local) / t_local:+.0f} % |",
+            (
+                f"| {dataset.upper()} {'×'.join(map(str, world.shape))} | {method} | {t_local:.3f} | {t_remote:.3f} | "
+                f"{100 * (t_remote - t_local) / t_local:+.0f} % |"
+            ),
         ]
     )
