@@ -14,6 +14,7 @@ from tqdm import tqdm
 from nbv_prob_cnn.grid import unknown_fraction, unknown_fraction_all
 from nbv_prob_cnn.observe import observe
 from nbv_prob_cnn.planners import Planner, PlanningContext, ViewChoice
+from nbv_prob_cnn.sensor_noise import SensorNoise
 from nbv_prob_cnn.worlds.world import World
 
 CSV_COLUMNS = (
@@ -72,12 +73,17 @@ def first_view(world: World, context: PlanningContext) -> ViewChoice:
 
 
 def explore(
-    world: World, planner: Planner, context: PlanningContext, views: int, progress: bool = True
+    world: World,
+    planner: Planner,
+    context: PlanningContext,
+    views: int,
+    progress: bool = True,
+    noise: SensorNoise | None = None,
 ) -> ExplorationResult:
     """Run one exploration of ``world`` with ``planner`` for at most ``views`` views.
 
     The first view is random (SPEC §9); the run stops early when the planner finds no view
-    with positive gain.
+    with positive gain. ``noise``: a depth-sensor model for the simulated views (exact if None).
     """
     if views < 1:
         raise ValueError(f"views: expected at least 1 view, got {views}")
@@ -97,7 +103,8 @@ def explore(
                 stop_reason = f"no view with positive gain after {iteration} views"
                 break
         orientation = context.orientations[choice.view_index]
-        observe(state, world.ground_truth, choice.cell, orientation, context.active_sensor)
+        observe(state, world.ground_truth, choice.cell, orientation, context.active_sensor,
+                noise=noise, rng=context.rng, resolution_m=world.resolution)  # fmt: skip
         records.append(
             IterationRecord(
                 iteration=iteration,

@@ -236,26 +236,54 @@ def _observe_noisy(
     noise: SensorNoise,
     rng: np.random.Generator,
     resolution_m: float,
+    chunk: int = 1024,
 ) -> int:
-    """:func:`observe` with a noise model: rays sampled every quarter cell (numpy)."""
+    """:func:`observe` with a noise model: rays sampled every quarter cell (numpy, ``chunk`` rays at a time)."""
     shape = np.array(state.shape)
     t = np.arange(0.0, float(r_max) + 1e-9, 0.25)  # distances along the ray [cells]
+    empty_parts, occupied_parts = [], []
+    for first_ray in range(0, len(rays), chunk):
+        part = rays[first_ray : first_ray + chunk]
+        empty, occupied = _noisy_rays(state.shape, shape, truth, pos, part, t, noise, rng, resolution_m)
+        empty_parts.append(empty)
+        occupied_parts.append(occupied)
+    empty_cells = np.unique(np.concatenate(empty_parts))
+    occupied_cells = np.unique(np.concatenate(occupied_parts))
+    flat_state = state.reshape(-1)
+    known = np.union1d(empty_cells, occupied_cells)
+    newly = int(np.count_nonzero(flat_state[known] == -1))
+    flat_state[empty_cells] = 0
+    flat_state[occupied_cells] = 1  # a surface seen by one ray wins over another ray's free space
+    return newly
+
+
+def _noisy_rays(
+    dims: tuple[int, ...],
+    shape: np.ndarray,
+    truth: np.ndarray,
+    pos: np.ndarray,
+    rays: np.ndarray,
+    t: np.ndarray,
+    noise: SensorNoise,
+    rng: np.random.Generator,
+    resolution_m: float,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Flat indices of the cells some of ``rays`` measure empty, and of those they measure occupied."""
     cells = np.floor(pos[None, None, :] + rays[:, None, :] * t[None, :, None] + 0.5).astype(np.int64)
     inside = np.all((cells >= 0) & (cells < shape), axis=-1)
     inside &= np.cumprod(inside, axis=1).astype(bool)  # a ray that left the grid stays out
-    flat = np.where(
-        inside, np.ravel_multi_index(tuple(np.clip(cells, 0, shape - 1).transpose(2, 0, 1)), state.shape), 0
-    )
+    flat = np.where(inside, np.ravel_multi_index(tuple(np.clip(cells, 0, shape - 1).transpose(2, 0, 1)), dims), 0)
     occupied = inside & truth.reshape(-1)[flat].astype(bool)
     hit = occupied.any(axis=1)
     first = np.argmax(occupied, axis=1)
     # surface normal at the hit cell: the (negative) gradient of the occupancy
     hit_cells = cells[np.arange(len(rays)), first]
     normal = np.zeros(rays.shape)
-    for axis in range(state.ndim):
+    for axis in range(len(dims)):
         up, down = hit_cells.copy(), hit_cells.copy()
-        up[:, axis] = np.minimum(up[:, axis] + 1, shape[axis] - 1)
-        down[:, axis] = np.maximum(down[:, axis] - 1, 0)
+        up[:, axis] = np.clip(up[:, axis] + 1, 0, shape[axis] - 1)
+        down[:, axis] = np.clip(down[:, axis] - 1, 0, shape[axis] - 1)
+        up, down = np.clip(up, 0, shape - 1), np.clip(down, 0, shape - 1)
         normal[:, axis] = truth[tuple(down.T)].astype(float) - truth[tuple(up.T)].astype(float)
     norm = np.linalg.norm(normal, axis=1)
     cos_incidence = np.where(norm > 0, np.abs(np.sum(normal * rays, axis=1)) / np.maximum(norm, 1e-12), 1.0)
@@ -265,11 +293,5 @@ def _observe_noisy(
     before = inside & returned[:, None] & (t[None, :] < measured[:, None] - 0.5)
     end = np.floor(pos[None, :] + rays * measured[:, None] + 0.5).astype(np.int64)
     end_ok = returned & np.all((end >= 0) & (end < shape), axis=1)
-    empty_cells = np.unique(flat[before])
-    occupied_cells = np.unique(np.ravel_multi_index(tuple(end[end_ok].T), state.shape).astype(np.int64))
-    flat_state = state.reshape(-1)
-    known = np.union1d(empty_cells, occupied_cells).astype(np.int64)
-    newly = int(np.count_nonzero(flat_state[known] == -1))
-    flat_state[empty_cells] = 0
-    flat_state[occupied_cells] = 1  # a surface seen by one ray wins
-    return newly
+    occupied_cells = np.ravel_multi_index(tuple(end[end_ok].T), dims).astype(np.int64)
+    return flat[before].astype(np.int64), occupied_cells
