@@ -10,27 +10,35 @@ from pathlib import Path
 import pytest
 
 REPO = Path(__file__).resolve().parents[1]
-#: Core modules under mypy; add a module here once it passes.
-TYPED = [
-    "nbv_prob_cnn/modes.py",
-    "nbv_prob_cnn/sensor_noise.py",
-    "nbv_prob_cnn/observe.py",
-    "nbv_prob_cnn/grid.py",
-    "nbv_prob_cnn/geometry.py",
-    "nbv_prob_cnn/planners/methods.py",
-    "nbv_prob_cnn/visualize_run.py",
-    "nbv_prob_cnn/perception/messages.py",
-    "nbv_prob_cnn/perception/bags.py",
-    "nbv_prob_cnn/ros/names.py",
-    "nbv_prob_cnn/ros/graph.py",
-]
+#: The core (every module outside ``ros/`` and ``gain/``, plus rclpy-free ``ros`` helpers) is
+#: type-checked, except these modules with known errors that other branches are changing now.
+NOT_YET = {
+    "nbv_prob_cnn/camera.py",
+    "nbv_prob_cnn/cl_device.py",
+    "nbv_prob_cnn/commands/bench.py",  # gain.get_ray_caster() is untyped (gain/ is issue 11's)
+    "nbv_prob_cnn/completion/inference.py",
+    "nbv_prob_cnn/completion/model.py",
+    "nbv_prob_cnn/completion/train.py",
+    "nbv_prob_cnn/explore.py",
+    "nbv_prob_cnn/planners/__init__.py",
+    "nbv_prob_cnn/worlds/tabletop3d.py",
+    "nbv_prob_cnn/worlds/ycb.py",
+}
 
 
-def test_mypy_on_the_typed_core():
+def typed_modules() -> list[str]:
+    core = [p for p in (REPO / "nbv_prob_cnn").rglob("*.py") if not {"ros", "gain"} & set(p.parts)]
+    names = sorted(str(p.relative_to(REPO)) for p in core)
+    return [n for n in names if n not in NOT_YET] + ["nbv_prob_cnn/ros/names.py", "nbv_prob_cnn/ros/graph.py"]
+
+
+@pytest.mark.slow  # ~15 s without a mypy cache
+def test_mypy_on_the_core():
     pytest.importorskip("mypy")
+    modules = typed_modules()
+    assert len(modules) > 30 and "nbv_prob_cnn/sensor_noise.py" in modules
     run = subprocess.run(
-        [sys.executable, "-m", "mypy", "--ignore-missing-imports", "--follow-imports=silent",
-         "--no-error-summary", *TYPED],
+        [sys.executable, "-m", "mypy", "--no-error-summary", *modules],
         cwd=REPO, capture_output=True, text=True, timeout=600,
     )  # fmt: skip
     assert run.returncode == 0, run.stdout + run.stderr

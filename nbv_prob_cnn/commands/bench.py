@@ -65,7 +65,7 @@ def run_planning(args: argparse.Namespace) -> None:
     from nbv_prob_cnn.gain.opencl import get_ray_caster
     from nbv_prob_cnn.worlds import load_or_generate
 
-    cases = DEFAULT_CASES
+    cases: tuple[BenchCase, ...] = DEFAULT_CASES
     if args.cases:
         cases = tuple(BenchCase(c.split(":")[0], int(c.split(":")[1])) for c in args.cases)
     print(f"OpenCL device: {get_ray_caster().device.name.strip()}")

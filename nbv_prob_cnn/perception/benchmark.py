@@ -131,7 +131,8 @@ def tsdf_quality(
     noisy_camera = DepthCamera(world.triangle_meshes(), intrinsics, noise=sensor_noise(noise), noise_seed=noise_seed)
     origin = np.asarray(world.origin, dtype=np.float64)
     shape = np.array(world.shape)
-    integrator = TsdfIntegrator(origin, tuple(world.shape), world.resolution)
+    nx, ny, nz = world.shape
+    integrator = TsdfIntegrator(origin, (nx, ny, nz), world.resolution)
     seen = np.zeros(world.shape, dtype=bool)
     for pose in benchmark_poses(views, float(world.table["height_m"])):
         depth = camera.render(pose)

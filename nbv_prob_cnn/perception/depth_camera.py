@@ -169,8 +169,8 @@ class DepthCamera:
             if len(faces) == 0:
                 continue
             self._scene.add_triangles(
-                o3d.core.Tensor(np.ascontiguousarray(vertices, dtype=np.float32)),
-                o3d.core.Tensor(np.ascontiguousarray(faces, dtype=np.uint32)),
+                o3d.core.Tensor(np.ascontiguousarray(vertices, dtype=np.float32)),  # type: ignore[call-overload]
+                o3d.core.Tensor(np.ascontiguousarray(faces, dtype=np.uint32)),  # type: ignore[call-overload]
             )
             self.n_meshes += 1
         self._rays_optical = self.intrinsics.pixel_rays()
@@ -183,7 +183,7 @@ class DepthCamera:
         directions = self._rays_optical @ pose[:3, :3].T
         origins = np.broadcast_to(pose[:3, 3], directions.shape)
         rays = np.concatenate([origins, directions], axis=-1).astype(np.float32)
-        result = self._scene.cast_rays(o3d.core.Tensor(rays))
+        result = self._scene.cast_rays(o3d.core.Tensor(rays))  # type: ignore[call-overload]  # open3d stubs
         hit = result["t_hit"].numpy()
         depth = np.where(np.isfinite(hit), hit, 0.0).astype(np.float32)
         depth[(depth < self.depth_min) | (depth > self.depth_max)] = 0.0
