@@ -79,11 +79,13 @@ def explore(
     views: int,
     progress: bool = True,
     noise: SensorNoise | None = None,
+    room_margin_m: float | None = None,
 ) -> ExplorationResult:
     """Run one exploration of ``world`` with ``planner`` for at most ``views`` views.
 
     The first view is random (SPEC §9); the run stops early when the planner finds no view
-    with positive gain. ``noise``: a depth-sensor model for the simulated views (exact if None).
+    with positive gain. ``noise``: a depth-sensor model for the simulated views (exact if None);
+    ``room_margin_m``: with ``noise``, walls this far outside the grid (see :func:`observe`).
     """
     if views < 1:
         raise ValueError(f"views: expected at least 1 view, got {views}")
@@ -104,7 +106,7 @@ def explore(
                 break
         orientation = context.orientations[choice.view_index]
         observe(state, world.ground_truth, choice.cell, orientation, context.active_sensor,
-                noise=noise, rng=context.rng, resolution_m=world.resolution)  # fmt: skip
+                noise=noise, rng=context.rng, resolution_m=world.resolution, room_margin_m=room_margin_m)  # fmt: skip
         records.append(
             IterationRecord(
                 iteration=iteration,

@@ -173,6 +173,7 @@ def observe(
     noise: SensorNoise | None = None,
     rng: np.random.Generator | None = None,
     resolution_m: float | None = None,
+    room_margin_m: float | None = None,
 ) -> int:
     """Simulate one depth view and merge it into ``state`` in place.
 
@@ -192,6 +193,9 @@ def observe(
             return labels nothing). Runs on numpy.
         rng: generator of the noise (seed it for repeatable runs); needed with ``noise``.
         resolution_m: cell size in metres; needed with ``noise`` (its parameters are metric).
+        room_margin_m: with ``noise``, walls this far outside the grid (as ``sim_camera``'s
+            room): a ray that leaves the grid within range returns from the wall, so the cells
+            it crossed are measured empty. ``None``: no walls (such rays return nothing).
 
     Returns:
         The number of cells that were unknown and are now known.
@@ -216,7 +220,8 @@ def observe(
     if noise is not None and not noise.is_ideal:
         if rng is None or resolution_m is None or not resolution_m > 0:
             raise ValueError("observe: a noise model needs rng and a positive resolution_m")
-        return _observe_noisy(state, truth, pos, rays, sensor.r_max, noise, rng, float(resolution_m))
+        margin = None if room_margin_m is None else float(room_margin_m) / float(resolution_m)
+        return _observe_noisy(state, truth, pos, rays, sensor.r_max, noise, rng, float(resolution_m), margin)
     if backend == "opencl":
         cells = traverse_opencl(state.shape, pos, rays, sensor.r_max, flat_truth)
     else:
@@ -236,6 +241,7 @@ def _observe_noisy(
     noise: SensorNoise,
     rng: np.random.Generator,
     resolution_m: float,
+    margin_cells: float | None = None,
     chunk: int = 1024,
 ) -> int:
     """:func:`observe` with a noise model: rays sampled every quarter cell (numpy, ``chunk`` rays at a time)."""
@@ -244,7 +250,7 @@ def _observe_noisy(
     empty_parts, occupied_parts = [], []
     for first_ray in range(0, len(rays), chunk):
         part = rays[first_ray : first_ray + chunk]
-        empty, occupied = _noisy_rays(state.shape, shape, truth, pos, part, t, noise, rng, resolution_m)
+        empty, occupied = _noisy_rays(state.shape, shape, truth, pos, part, t, noise, rng, resolution_m, margin_cells)
         empty_parts.append(empty)
         occupied_parts.append(occupied)
     empty_cells = np.unique(np.concatenate(empty_parts))
@@ -267,6 +273,7 @@ def _noisy_rays(
     noise: SensorNoise,
     rng: np.random.Generator,
     resolution_m: float,
+    margin_cells: float | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Flat indices of the cells some of ``rays`` measure empty, and of those they measure occupied."""
     cells = np.floor(pos[None, None, :] + rays[:, None, :] * t[None, :, None] + 0.5).astype(np.int64)
@@ -287,7 +294,15 @@ def _noisy_rays(
         normal[:, axis] = truth[tuple(down.T)].astype(float) - truth[tuple(up.T)].astype(float)
     norm = np.linalg.norm(normal, axis=1)
     cos_incidence = np.where(norm > 0, np.abs(np.sum(normal * rays, axis=1)) / np.maximum(norm, 1e-12), 1.0)
-    depth_m = np.where(hit, t[first] * resolution_m, 0.0)
+    depth_cells = np.where(hit, t[first], 0.0)
+    if margin_cells is not None:  # a wall outside the grid: rays that leave it see the wall
+        n_inside = inside.sum(axis=1)
+        left = ~hit & (n_inside < len(t))
+        t_exit = t[np.minimum(n_inside, len(t) - 1)]
+        depth_cells = np.where(left, t_exit + margin_cells, depth_cells)
+        wall_cos = np.max(np.abs(rays), axis=1)  # an axis-aligned wall: the largest direction component
+        cos_incidence = np.where(left, wall_cos, cos_incidence)
+    depth_m = depth_cells * resolution_m
     measured = noise.perturb_ranges(depth_m, rng, cos_incidence) / resolution_m  # [cells], 0 = no return
     returned = measured > 0
     before = inside & returned[:, None] & (t[None, :] < measured[:, None] - 0.5)

@@ -114,3 +114,16 @@ def test_depth_camera_takes_the_same_model():
     assert seen.sum() > 100 and np.median(np.abs(noisy[seen] - exact[seen]) / exact[seen]) < 0.05
     ideal = DepthCamera([floor], intrinsics, noise=sensor_noise("ideal")).render(pose)
     assert np.array_equal(ideal, exact)
+
+
+def test_walls_outside_the_grid_give_returns_to_rays_that_leave_it():
+    empty_world = np.zeros(WALL_SHAPE, np.uint8)  # no surface inside the grid
+    kinect = sensor_noise("kinect_v1")
+    assert np.all(_look_up_at(empty_world, kinect) == -1)  # no wall: no return, nothing known
+    state = np.full(WALL_SHAPE, -1, np.int8)
+    quat = quaternion_from_matrix(look_rotation(np.array([0.0, 0.0, 1.0])))
+    sensor = dataset_defaults("3du").sensor  # range 24 cells: from z = 50 the rays leave through z = 63.5
+    observe(state, empty_world, np.array([32.0, 32.0, 50.0]), quat, sensor, noise=kinect,
+            rng=np.random.default_rng(0), resolution_m=0.05, room_margin_m=0.3)  # fmt: skip
+    assert np.all(state != 1)  # the wall is outside the grid
+    assert np.all(state[32, 32, 51:64] == 0) and np.all(state[28:37, 28:37, 60:64] == 0)  # measured empty
