@@ -38,7 +38,11 @@ def main(argv=None) -> int:
 
     def start_nodes(graph: NodeGraph) -> None:
         box = {"origin": [0.0, 0.0, 0.0], "shape": list(defaults.shape), "voxel_size": defaults.resolution_m}
-        graph.start_node("integrator", "integrator", {**box, "drop_when_behind": False, "queue_size": 200})
+        graph.start_node(
+            "integrator",
+            "integrator",
+            {**box, "drop_when_behind": False, "queue_size": 200, "qos_reliability": "reliable"},
+        )
         graph.start_node("completion_server", "completion_server", common)
         graph.start_node("gain_server", "gain_server", common)
         graph.start_node("nbv_planner", "nbv_planner", {**common, "method": args.method})

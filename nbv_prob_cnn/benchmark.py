@@ -228,7 +228,7 @@ def run_case(case: BenchCase, world: World, repeats: int = 3, numpy_origins: int
     result.timings["iteration"] = _measure(lambda: planner.plan(state, context), repeats, fused_bytes)
     result.timings["fused"] = _measure(lambda: search_best_view(state, prob, origins, context), repeats, fused_bytes)
     for kernel in ("two_step", "naive"):
-        found = {}
+        found: dict[str, tuple] = {}
 
         def baseline(kernel=kernel, found=found):
             found["best"] = baseline_view_search(state, prob, origins, context, kernel)
@@ -260,10 +260,10 @@ def _defaults(dataset: str):
 def format_table(results: list[BenchResult]) -> str:
     """Markdown table: seconds per iteration, effective samples/s and peak memory per variant."""
     lines = [
-        "| case | unknown | origins | rays | iteration (s) | CNN (s) | fused search (s) | two-step (s) | naive (s) | "
+        ("| case | unknown | origins | rays | iteration (s) | CNN (s) | fused search (s) | two-step (s) | naive (s) | "
         "numpy (s, extrap.) | fused / two-step / naive CPU-s | "
         "fused vs two-step | fused vs naive | fused samples/s | naive samples/s | peak MB iteration / two-step "
-        "/ naive | same best view |",
+        "/ naive | same best view |"),
         "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in results:

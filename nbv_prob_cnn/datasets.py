@@ -21,7 +21,7 @@ from nbv_prob_cnn.sensor import Sensor
 
 #: Number of environments per data set (SPEC §8).
 N_ENVIRONMENTS = 180
-TRAIN_SEEDS: tuple[int, ...] = tuple(range(0, 100))
+TRAIN_SEEDS: tuple[int, ...] = tuple(range(100))
 VALIDATION_SEEDS: tuple[int, ...] = tuple(range(100, 120))
 TEST_SEEDS: tuple[int, ...] = tuple(range(120, 180))
 #: Seeds from here on are reserved for users' evaluations.

@@ -19,6 +19,7 @@ import json
 import os
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from matplotlib.figure import Figure
@@ -147,7 +148,7 @@ def _run_on_ray(dataset, pending, views, out, workers, address, backend, bar) ->
     import ray
 
     env = {k: os.environ[k] for k in FORWARDED_ENV if k in os.environ}
-    options = {"runtime_env": {"env_vars": env}, "include_dashboard": False, "log_to_driver": False}
+    options: dict[str, Any] = {"runtime_env": {"env_vars": env}, "include_dashboard": False, "log_to_driver": False}
     if address is None:
         options["num_cpus"] = workers or os.cpu_count()
     started_here = not ray.is_initialized()

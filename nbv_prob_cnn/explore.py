@@ -15,12 +15,14 @@ from tqdm import tqdm
 from nbv_prob_cnn.grid import unknown_fraction, unknown_fraction_all
 from nbv_prob_cnn.observe import observe
 from nbv_prob_cnn.planners import Planner, PlanningContext, ViewChoice
+from nbv_prob_cnn.sensor_noise import SensorNoise
 from nbv_prob_cnn.worlds.world import World
 
-CSV_COLUMNS = (
-    "iteration,unknown_fraction,unknown_fraction_all,gain,time_total_s,time_cnn_s,time_raycast_s,"
-    "time_views_s,x,y,z,qx,qy,qz,qw"
-).split(",")
+CSV_COLUMNS = [
+    "iteration", "unknown_fraction", "unknown_fraction_all", "gain",
+    "time_total_s", "time_cnn_s", "time_raycast_s", "time_views_s",
+    "x", "y", "z", "qx", "qy", "qz", "qw",
+]  # fmt: skip
 
 
 @dataclass
@@ -73,12 +75,19 @@ def first_view(world: World, context: PlanningContext) -> ViewChoice:
 
 
 def explore(
-    world: World, planner: Planner, context: PlanningContext, views: int, progress: bool = True
+    world: World,
+    planner: Planner,
+    context: PlanningContext,
+    views: int,
+    progress: bool = True,
+    noise: SensorNoise | None = None,
+    room_margin_m: float | None = None,
 ) -> ExplorationResult:
     """Run one exploration of ``world`` with ``planner`` for at most ``views`` views.
 
     The first view is random (SPEC §9); the run stops early when the planner finds no view
-    with positive gain.
+    with positive gain. ``noise``: a depth-sensor model for the simulated views (exact if None);
+    ``room_margin_m``: with ``noise``, walls this far outside the grid (see :func:`observe`).
     """
     if views < 1:
         raise ValueError(f"views: expected at least 1 view, got {views}")
@@ -98,7 +107,8 @@ def explore(
                 stop_reason = f"no view with positive gain after {iteration} views"
                 break
         orientation = context.orientations[choice.view_index]
-        observe(state, world.ground_truth, choice.cell, orientation, context.active_sensor)
+        observe(state, world.ground_truth, choice.cell, orientation, context.active_sensor,
+                noise=noise, rng=context.rng, resolution_m=world.resolution, room_margin_m=room_margin_m)  # fmt: skip
         records.append(
             IterationRecord(
                 iteration=iteration,

@@ -72,21 +72,6 @@ def check_ground_truth(
     return np.ascontiguousarray(truth, dtype=np.uint8)
 
 
-def empty_mask(state: np.ndarray) -> np.ndarray:
-    """``E``: True where the cell is known empty."""
-    return state == EMPTY
-
-
-def occupied_mask(state: np.ndarray) -> np.ndarray:
-    """``O``: True where the cell is known occupied."""
-    return state == OCCUPIED
-
-
-def unknown_mask(state: np.ndarray) -> np.ndarray:
-    """``U = 1 - E - O``: True where the cell is unknown."""
-    return state == UNKNOWN
-
-
 def frontier_mask(state: np.ndarray) -> np.ndarray:
     """``F``: unknown cells with at least one empty face neighbour (4-/6-connectivity)."""
     empty = state == EMPTY

@@ -165,7 +165,10 @@ def test_train_and_plan_with_a_tiny_city_cnn(tmp_path, monkeypatch, method):
     monkeypatch.setattr(data_mod, "load_environment", boxes)
     monkeypatch.setattr(data_mod, "current_generator_version", lambda: 1)
     out = tmp_path / f"2d_{method}.pt"
-    kwargs = dict(n_train_envs=2, n_val_envs=1, n_test_envs=1, crop=16, test_crop=24, progress=False, threads=2)
+    kwargs = {
+        "n_train_envs": 2, "n_val_envs": 1, "n_test_envs": 1, "crop": 16, "test_crop": 24, "progress": False,
+        "threads": 2,
+    }  # fmt: skip
     result = train("2d", 1, out, method=method, device="cpu", first_channels=2, backend="numpy", **kwargs)
     assert result.ece is None and np.isfinite(result.test_mse) and out.is_file()
     assert f"nbv train --dataset 2d --method {method} --epochs 1" in out.with_suffix(".md").read_text()
@@ -221,3 +224,11 @@ def test_city_networks_learn_a_tiny_dataset(rng, method):
     finally:
         torch.set_num_threads(threads)
     assert losses[-1] < zero_output / 3, (zero_output, losses[0], losses[-1], len(losses))
+
+
+def test_frontier_is_unknown_next_to_empty_by_a_face():
+    from nbv_prob_cnn.grid import frontier_mask
+
+    state = np.array([[-1, -1, -1, -1], [-1, 0, -1, 1], [-1, -1, 1, -1]], dtype=np.int8)
+    expected = np.array([[0, 1, 0, 0], [1, 0, 1, 0], [0, 1, 0, 0]], dtype=bool)
+    np.testing.assert_array_equal(frontier_mask(state), expected)

@@ -3,6 +3,7 @@ machine (both stopped at the end), the runs as Ray tasks, results equal to the i
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import shutil
@@ -37,10 +38,8 @@ def _stop(proc: subprocess.Popen) -> None:
         except subprocess.TimeoutExpired:
             os.killpg(proc.pid, signal.SIGKILL)
             proc.wait(timeout=10)
-    try:  # children that outlived their `ray start`
+    with contextlib.suppress(ProcessLookupError):  # children that outlived their `ray start`
         os.killpg(proc.pid, signal.SIGKILL)
-    except ProcessLookupError:
-        pass
 
 
 @pytest.fixture

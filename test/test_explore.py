@@ -27,8 +27,7 @@ def _box_world(defaults: DatasetDefaults, seed: int, n_boxes: int) -> World:
 
 def _final_unknown(defaults, world, method, views, seed):
     context = PlanningContext(defaults, rng=np.random.default_rng(seed), ground_truth=world.ground_truth)
-    result = explore(world, make_planner(method), context, views, progress=False)
-    return result
+    return explore(world, make_planner(method), context, views, progress=False)
 
 
 @pytest.mark.parametrize("defaults,n_boxes", [(SMALL_2D, 14), (SMALL_3D, 10)])

@@ -20,6 +20,8 @@ pytest.importorskip("nbv_prob_cnn_msgs")
 from nbv_prob_cnn.geometry import GridGeometry  # noqa: E402
 from nbv_prob_cnn.ros.graph import leaked_segments, shm_segments  # noqa: E402
 
+pytestmark = pytest.mark.slow  # multi-process ROS graphs
+
 REPO = Path(__file__).resolve().parents[1]
 SCRIPT = REPO / "launch_scripts" / "explore_sim.py"
 
@@ -52,7 +54,7 @@ def test_simulated_graph_explores_a_small_scene(tmp_path):
            "--method", "cnn_prob", "--out", str(out), "--domain-id", _domain(0)]  # fmt: skip
     run = subprocess.run(cmd, capture_output=True, text=True, timeout=600)
     assert run.returncode == 0, run.stdout[-3000:] + run.stderr[-3000:]
-    assert "view 5/5" in run.stdout and "done: 5 views" in run.stdout
+    assert "view 5/5" in run.stdout and "done: 5 views" in run.stdout and "succeeded: reached 5 views" in run.stdout
     with open(out / "views.csv") as handle:
         rows = list(csv.DictReader(handle))
     assert len(rows) == 5

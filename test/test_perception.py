@@ -448,3 +448,122 @@ def test_tsdf_grid_matches_a_generated_3dt_world() -> None:
     assert quality["empty_cells"] > 100_000 and quality["seen_surface_cells"] > 5_000
     assert quality["empty_precision"] >= 0.95
     assert quality["surface_recall"] >= 0.90
+
+
+# ------------------------------------------------------------------ messages (pure: no rclpy)
+def test_messages_module_imports_no_rclpy() -> None:
+    import subprocess
+    import sys
+
+    code = "import sys, nbv_prob_cnn.perception.messages; print('rclpy' in sys.modules)"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    assert out.strip() == "False"
+
+
+def test_stamp_conversion_is_exact() -> None:
+    from types import SimpleNamespace
+
+    from nbv_prob_cnn.perception.messages import stamp_ns, stamp_parts
+
+    assert stamp_parts(1_700_000_000_123_456_789) == (1_700_000_000, 123_456_789)
+    assert stamp_parts(999_999_999) == (0, 999_999_999)
+    assert stamp_ns(SimpleNamespace(sec=3, nanosec=5)) == 3_000_000_005
+    header = depth_to_image_msg(np.zeros((2, 2), np.float32), 42_000_000_017).header.stamp
+    assert (header.sec, header.nanosec) == (42, 17)
+    with pytest.raises(ValueError, match=">= 0"):
+        stamp_parts(-1)
+
+
+def _paired(image=None, info=None, pose=None, stamp: int = 5_000_000_000):
+    from nbv_prob_cnn.perception.messages import PairedFrame
+
+    intrinsics = Intrinsics.from_hfov(8, 6, 60.0)
+    if image is None:
+        image = depth_to_image_msg(np.full((6, 8), 0.6, np.float32), stamp, "16UC1")
+    if info is None:
+        info = intrinsics_to_camera_info(intrinsics, stamp)
+    if pose is None:
+        pose = pose_to_transform_msg(np.eye(4), stamp)
+    return PairedFrame(stamp, image, info, pose)
+
+
+def test_decode_frame_gives_rep118_depth_and_a_reason_for_each_rejection() -> None:
+    from nbv_prob_cnn.perception.messages import DropReason, FrameRejectedError, decode_frame
+
+    # 16UC1 millimetres -> metres, 0 = no return; 32FC1 metres, NaN kept (no return)
+    mm = np.array([[600, 0], [1500, 65535]], np.uint16)
+    frame = _paired(
+        image=depth_to_image_msg(mm, 1, "16UC1"), info=intrinsics_to_camera_info(Intrinsics.from_hfov(2, 2, 60.0), 1)
+    )
+    depth, intrinsics, pose = decode_frame(frame)
+    np.testing.assert_allclose(depth, [[0.6, 0.0], [1.5, 65.535]], rtol=1e-6)
+    assert intrinsics.shape == (2, 2) and np.array_equal(pose, np.eye(4))
+    metres = np.array([[0.5, np.nan]], np.float32)
+    frame = _paired(
+        image=depth_to_image_msg(metres, 1), info=intrinsics_to_camera_info(Intrinsics.from_hfov(2, 1, 60.0), 1)
+    )
+    depth, _, _ = decode_frame(frame)
+    assert depth[0, 0] == pytest.approx(0.5) and np.isnan(depth[0, 1])
+
+    store = typestore()
+    rgb = _paired().image
+    rgb.encoding = "rgb8"
+    truncated = _paired().image
+    truncated.data = truncated.data[:-2]
+    nan_pose = _paired().pose
+    nan_pose.transform.translation.x = float("nan")
+    zero_quat = _paired().pose
+    q = zero_quat.transform.rotation
+    q.x = q.y = q.z = q.w = 0.0
+    cases = [
+        (_paired(image=rgb), DropReason.BAD_ENCODING, "rgb8"),
+        (_paired(image=truncated), DropReason.SIZE_MISMATCH, "data bytes"),
+        (_paired(info=intrinsics_to_camera_info(Intrinsics.from_hfov(16, 12, 60.0), 1)), DropReason.SIZE_MISMATCH,
+         "does not match camera_info 16x12"),
+        (_paired(pose=nan_pose), DropReason.NON_FINITE_POSE, "finite"),
+        (_paired(pose=zero_quat), DropReason.NON_FINITE_POSE, "non-zero quaternion"),
+    ]  # fmt: skip
+    for frame, reason, text in cases:
+        with pytest.raises(FrameRejectedError, match=text) as info:
+            decode_frame(frame)
+        assert info.value.reason == reason
+    # the messages survive a CDR round trip unchanged (what the node receives)
+    raw = store.serialize_cdr(_paired().image, "sensor_msgs/msg/Image")
+    assert decode_frame(_paired(image=store.deserialize_cdr(raw, "sensor_msgs/msg/Image")))[0].shape == (6, 8)
+
+
+def test_drop_counts_name_every_reason() -> None:
+    from nbv_prob_cnn.perception.messages import DropCounts, DropReason
+
+    counts = DropCounts()
+    assert set(counts.as_dict()) == {r.value for r in DropReason} and counts.total() == 0
+    counts.add(DropReason.NO_POSE, 3)
+    counts.add(DropReason.BAD_ENCODING)
+    assert counts.as_dict()["no_pose"] == 3 and counts.total() == 4
+
+
+def test_stamp_sync_pairs_by_stamp_within_tolerance() -> None:
+    from nbv_prob_cnn.perception.messages import DropReason, StampSync
+
+    sync = StampSync(tolerance_ns=10_000_000)  # 10 ms
+    frames, overflow = sync.add_image(1_000_000_000, "image1", now=0.0)
+    assert frames == [] and overflow == []
+    assert sync.add_info(1_000_000_000, "info1") == []
+    assert sync.add_pose(1_020_000_000, "pose_far") == []  # 20 ms off: not a partner
+    (frame,) = sync.add_pose(1_008_000_000, "pose_near")  # 8 ms off: paired as soon as it is there
+    assert (frame.stamp_ns, frame.image, frame.info, frame.pose) == (1_000_000_000, "image1", "info1", "pose_near")
+    # the nearest pose wins when several are within the tolerance
+    sync = StampSync(tolerance_ns=10_000_000)
+    sync.add_info(2_000_000_000, "info")
+    sync.add_pose(1_995_000_000, "pose_a")
+    sync.add_pose(2_002_000_000, "pose_b")
+    (frame,), _ = sync.add_image(2_000_000_000, "image", now=0.0)
+    assert (frame.stamp_ns, frame.image, frame.info, frame.pose) == (2_000_000_000, "image", "info", "pose_b")
+    # an image whose pose is too old (outside the tolerance) waits, then expires with a reason
+    frames, _ = sync.add_image(3_000_000_000, "image3", now=10.0)
+    assert frames == []
+    assert sync.expire(now=10.5, timeout_s=1.0) == []
+    ((stamp, kind, reason),) = sync.expire(now=11.5, timeout_s=1.0)
+    assert stamp == 3_000_000_000 and kind == DropReason.NO_POSE
+    assert "no pose within ±0.01 s (nearest is -0.998 s away)" in reason and "camera_info" in reason
+    assert sync.images == {}

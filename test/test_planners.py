@@ -27,7 +27,7 @@ def test_top_k_matches_brute_force_across_blocks(rng, monkeypatch):
     found = search_views(state, prob, origins, context, top_k=25)
     assert len(found) == 25
     np.testing.assert_allclose([f.gain for f in found], full.ravel()[order], atol=1e-5)
-    flat = [i for i in order]
+    flat = list(order)
     got = [np.flatnonzero((origins == f.cell).all(axis=1))[0] * full.shape[1] + f.view_index for f in found]
     # same pairs (ties between equal gains may swap within float noise, so compare as sets)
     assert set(got) == set(flat)

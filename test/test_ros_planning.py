@@ -27,6 +27,8 @@ from nbv_prob_cnn.ros.common import GRID_QOS  # noqa: E402
 from nbv_prob_cnn.ros.conversions import grid_to_msg  # noqa: E402
 from nbv_prob_cnn.ros.graph import NodeGraph, ros_environment, wait_for  # noqa: E402
 
+pytestmark = pytest.mark.slow  # multi-process ROS graphs
+
 REPO = Path(__file__).resolve().parents[1]
 GEOMETRY = GridGeometry((0.1, -0.2, 0.0), 0.0116, (64, 64, 64))
 _counter = iter(range(1000))

@@ -44,13 +44,19 @@ def run(args: argparse.Namespace) -> int:
 
 def run_integrator(args: argparse.Namespace) -> None:
     from nbv_prob_cnn.perception.benchmark import integrator_benchmark, tsdf_quality
+    from nbv_prob_cnn.sensor_noise import PRESETS
 
     print(integrator_benchmark(seed=args.seed))
-    q = tsdf_quality(seed=args.seed)
-    print(
-        f"\nGrid quality on the 3DT world (8 views): empty precision {q['empty_precision']:.4f}, "
-        f"seen-surface recall {q['surface_recall']:.4f}, occupied precision {q['occupied_precision']:.4f}"
-    )
+    print("\n| grid quality, 3DT world, 8 views, 640×480 | empty precision | seen-surface recall | "
+          "occupied precision | observed fraction |")  # fmt: skip
+    print("|---|---|---|---|---|")
+    for preset in PRESETS:
+        q = tsdf_quality(seed=args.seed, noise=preset)
+        print(
+            f"| depth noise `{preset}` | {q['empty_precision']:.4f} | {q['surface_recall']:.4f} | "
+            f"{q['occupied_precision']:.4f} | {q['observed_fraction']:.4f} |",
+            flush=True,
+        )
 
 
 def run_arm(args: argparse.Namespace) -> None:

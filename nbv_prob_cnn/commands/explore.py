@@ -26,6 +26,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--backend", choices=BACKENDS, default="auto", help="ray-casting backend")
     parser.add_argument("--n-rays", type=int, help="sub-cells per side of the ray square/cube")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
+    parser.add_argument("--noise", default="ideal", help="depth-sensor noise preset: ideal, kinect_v1, astra")
+    parser.add_argument("--room-margin", type=float, default=None,
+                        help="with --noise: walls this far [m] outside the grid (default: none)")  # fmt: skip
 
 
 def run(args: argparse.Namespace) -> int:
@@ -46,7 +49,10 @@ def run(args: argparse.Namespace) -> int:
         backend=args.backend,
         n_rays=args.n_rays,
     )
-    result = explore(world, planner, context, args.views, progress=not args.quiet)
+    from nbv_prob_cnn.sensor_noise import sensor_noise
+
+    result = explore(world, planner, context, args.views, progress=not args.quiet, noise=sensor_noise(args.noise),
+                     room_margin_m=args.room_margin)  # fmt: skip
     write_csv(result.records, args.log)
     written = [args.log]
     if args.png:

@@ -18,8 +18,10 @@ from nbv_prob_cnn.camera import in_frustum
 from nbv_prob_cnn.gain.directions import check_directions, distance_weights, ray_directions, sample_offsets
 from nbv_prob_cnn.gain.reference import ig_gains_reference, ray_gains_reference
 from nbv_prob_cnn.grid import check_probability, check_state
+from nbv_prob_cnn.modes import BACKEND_NAMES
 
-BACKENDS = ("auto", "opencl", "numpy")
+#: Ray-casting backends (defined once, in :mod:`nbv_prob_cnn.modes`).
+BACKENDS = BACKEND_NAMES
 
 __all__ = [
     "BACKENDS", "ray_directions", "ray_gains", "origin_view_gains", "view_gains", "view_membership",

@@ -5,6 +5,7 @@ Topics (SPEC §10 defaults):
     * ``/camera/depth/camera_info``  ``sensor_msgs/msg/CameraInfo`` (pinhole ``K``; rectified images assumed)
     * ``/camera/pose``               ``geometry_msgs/msg/TransformStamped``, ``world`` -> ``camera_optical``
 
+The message codecs live in :mod:`nbv_prob_cnn.perception.messages` (re-exported here).
 Messages are CDR-serialized with the ROS 2 Jazzy type store: ``rclpy.serialization`` reads them,
 and its bytes read back here (checked field by field; only the alignment padding bytes, which
 rclpy leaves uninitialised, can differ). A frame is the triple of messages sharing one header stamp.
@@ -19,21 +20,39 @@ from __future__ import annotations
 import warnings
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
-from functools import lru_cache
 from pathlib import Path
 from types import TracebackType
 from typing import Any
 
 import numpy as np
 
-from nbv_prob_cnn.camera import matrix_from_quaternion, quaternion_from_matrix
-from nbv_prob_cnn.perception.depth_camera import Intrinsics, check_pose
+from nbv_prob_cnn.perception.depth_camera import Intrinsics
+from nbv_prob_cnn.perception.messages import (
+    MSG_CAMERA_INFO,
+    MSG_IMAGE,
+    MSG_TRANSFORM,
+    OPTICAL_FRAME,
+    WORLD_FRAME,
+    camera_info_to_intrinsics,
+    depth_to_image_msg,
+    image_msg_to_depth,
+    intrinsics_to_camera_info,
+    pose_to_transform_msg,
+    stamp_of,
+    transform_msg_to_pose,
+    typestore,
+)
 
 __all__ = [
     "BagError",
     "BagWarning",
     "BagWriter",
     "Frame",
+    "MSG_CAMERA_INFO",
+    "MSG_IMAGE",
+    "MSG_TRANSFORM",
+    "OPTICAL_FRAME",
+    "WORLD_FRAME",
     "RawMessage",
     "TOPIC_CAMERA_INFO",
     "TOPIC_IMAGE",
@@ -46,21 +65,16 @@ __all__ = [
     "pose_to_transform_msg",
     "read_frames",
     "read_raw_messages",
+    "stamp_of",
     "transform_msg_to_pose",
+    "typestore",
 ]
 
 TOPIC_IMAGE = "/camera/depth/image"
 TOPIC_CAMERA_INFO = "/camera/depth/camera_info"
 TOPIC_POSE = "/camera/pose"
-WORLD_FRAME = "world"
-OPTICAL_FRAME = "camera_optical"
-
-MSG_IMAGE = "sensor_msgs/msg/Image"
-MSG_CAMERA_INFO = "sensor_msgs/msg/CameraInfo"
-MSG_TRANSFORM = "geometry_msgs/msg/TransformStamped"
 
 _TOPICS = {TOPIC_IMAGE: MSG_IMAGE, TOPIC_CAMERA_INFO: MSG_CAMERA_INFO, TOPIC_POSE: MSG_TRANSFORM}
-_ENCODINGS = {"32FC1": ("f4", 4), "16UC1": ("u2", 2)}
 
 
 class BagError(ValueError):
@@ -79,153 +93,6 @@ class Frame:
     depth_m: np.ndarray  # float32 (H, W) metres, 0 or NaN = no return
     intrinsics: Intrinsics
     pose_4x4: np.ndarray  # float64 world_from_optical
-
-
-@lru_cache(maxsize=1)
-def typestore() -> Any:
-    """The ROS 2 Jazzy message type store."""
-    from rosbags.typesys import Stores, get_typestore
-
-    return get_typestore(Stores.ROS2_JAZZY)
-
-
-# ----------------------------------------------------------------------------- conversions
-def _header(stamp_ns: int, frame_id: str) -> Any:
-    stamp_ns = int(stamp_ns)
-    if stamp_ns < 0:
-        raise ValueError(f"stamp_ns: must be >= 0, got {stamp_ns}")
-    types = typestore().types
-    stamp = types["builtin_interfaces/msg/Time"](sec=stamp_ns // 1_000_000_000, nanosec=stamp_ns % 1_000_000_000)
-    return types["std_msgs/msg/Header"](stamp=stamp, frame_id=frame_id)
-
-
-def stamp_of(msg: Any) -> int:
-    """Header stamp of a message in nanoseconds."""
-    return int(msg.header.stamp.sec) * 1_000_000_000 + int(msg.header.stamp.nanosec)
-
-
-def depth_to_image_msg(
-    depth_m: np.ndarray, stamp_ns: int, encoding: str = "32FC1", frame_id: str = OPTICAL_FRAME
-) -> Any:
-    """A ``sensor_msgs/msg/Image`` of a depth image.
-
-    Args:
-        depth_m: ``(H, W)`` depth in metres (0/NaN = no return), or ``uint16`` millimetres when
-            ``encoding`` is ``16UC1``.
-        encoding: ``32FC1`` (float metres, written as given, NaN kept) or ``16UC1`` (millimetres,
-            rounded; no return, negative and > 65.535 m become 0).
-
-    Raises:
-        ValueError: another encoding, or not a 2D image.
-    """
-    depth = np.asarray(depth_m)
-    if depth.ndim != 2:
-        raise ValueError(f"depth: expected a 2D (H, W) image, got shape {depth.shape}")
-    if encoding == "32FC1":
-        data = depth.astype("<f4")
-    elif encoding == "16UC1":
-        if depth.dtype == np.uint16:
-            data = depth.astype("<u2")
-        else:
-            mm = np.round(np.asarray(depth, dtype=np.float64) * 1000.0)
-            mm[~np.isfinite(mm) | (mm <= 0) | (mm > 65535)] = 0
-            data = mm.astype("<u2")
-    else:
-        raise ValueError(f"depth image encoding {encoding!r} is not supported; use '32FC1' (m) or '16UC1' (mm)")
-    height, width = depth.shape
-    return typestore().types[MSG_IMAGE](
-        header=_header(stamp_ns, frame_id),
-        height=height,
-        width=width,
-        encoding=encoding,
-        is_bigendian=0,
-        step=width * data.itemsize,
-        data=np.frombuffer(np.ascontiguousarray(data).tobytes(), dtype=np.uint8),
-    )
-
-
-def image_msg_to_depth(msg: Any) -> np.ndarray:
-    """Depth in ``float32`` metres of a ``sensor_msgs/msg/Image`` (32FC1 metres or 16UC1 mm).
-
-    Handles row padding (``step`` > width × pixel size) and big-endian data. 16UC1 value 0
-    stays 0 (no return); 32FC1 values are returned as stored (NaN kept).
-
-    Raises:
-        ValueError: an unsupported encoding (named in the message), or inconsistent sizes.
-    """
-    encoding = str(msg.encoding)
-    if encoding not in _ENCODINGS:
-        raise ValueError(
-            f"depth image encoding {encoding!r} is not supported; expected '32FC1' (metres) or '16UC1' (millimetres)"
-        )
-    kind, size = _ENCODINGS[encoding]
-    height, width, step = int(msg.height), int(msg.width), int(msg.step)
-    if step < width * size:
-        raise ValueError(f"depth image: step {step} is smaller than width {width} x {size} bytes")
-    raw = np.asarray(msg.data, dtype=np.uint8)
-    if raw.size < step * height:
-        raise ValueError(f"depth image: {raw.size} data bytes, expected step x height = {step * height}")
-    rows = raw[: step * height].reshape(height, step)[:, : width * size]
-    dtype = np.dtype((">" if msg.is_bigendian else "<") + kind)
-    values = np.ascontiguousarray(rows).view(dtype).reshape(height, width)
-    if encoding == "16UC1":
-        return values.astype(np.float32) / np.float32(1000.0)
-    return values.astype(np.float32)
-
-
-def intrinsics_to_camera_info(intrinsics: Intrinsics, stamp_ns: int, frame_id: str = OPTICAL_FRAME) -> Any:
-    """A ``sensor_msgs/msg/CameraInfo`` (plumb_bob, zero distortion) of pinhole intrinsics."""
-    types = typestore().types
-    fx, fy, cx, cy = (float(v) for v in (intrinsics.fx, intrinsics.fy, intrinsics.cx, intrinsics.cy))
-    return types[MSG_CAMERA_INFO](
-        header=_header(stamp_ns, frame_id),
-        height=int(intrinsics.height),
-        width=int(intrinsics.width),
-        distortion_model="plumb_bob",
-        d=np.zeros(5, dtype=np.float64),
-        k=np.array([fx, 0.0, cx, 0.0, fy, cy, 0.0, 0.0, 1.0]),
-        r=np.eye(3).reshape(9),
-        p=np.array([fx, 0.0, cx, 0.0, 0.0, fy, cy, 0.0, 0.0, 0.0, 1.0, 0.0]),
-        binning_x=0,
-        binning_y=0,
-        roi=types["sensor_msgs/msg/RegionOfInterest"](x_offset=0, y_offset=0, height=0, width=0, do_rectify=False),
-    )
-
-
-def camera_info_to_intrinsics(msg: Any) -> Intrinsics:
-    """Pinhole intrinsics (from ``K``) of a ``sensor_msgs/msg/CameraInfo``.
-
-    Raises:
-        ValueError: ``K`` missing or not a valid pinhole matrix.
-    """
-    k = np.asarray(msg.k, dtype=np.float64).reshape(-1)
-    if k.size != 9:
-        raise ValueError(f"camera_info: K must have 9 values, got {k.size}")
-    return Intrinsics(int(msg.width), int(msg.height), float(k[0]), float(k[4]), float(k[2]), float(k[5]))
-
-
-def pose_to_transform_msg(
-    pose_4x4: np.ndarray, stamp_ns: int, parent: str = WORLD_FRAME, child: str = OPTICAL_FRAME
-) -> Any:
-    """A ``geometry_msgs/msg/TransformStamped`` (parent -> child) of a 4×4 ``parent_from_child`` pose."""
-    pose = check_pose(pose_4x4, "pose_4x4")
-    types = typestore().types
-    qx, qy, qz, qw = (float(v) for v in quaternion_from_matrix(pose[:3, :3]))
-    tx, ty, tz = (float(v) for v in pose[:3, 3])
-    transform = types["geometry_msgs/msg/Transform"](
-        translation=types["geometry_msgs/msg/Vector3"](x=tx, y=ty, z=tz),
-        rotation=types["geometry_msgs/msg/Quaternion"](x=qx, y=qy, z=qz, w=qw),
-    )
-    return types[MSG_TRANSFORM](header=_header(stamp_ns, parent), child_frame_id=child, transform=transform)
-
-
-def transform_msg_to_pose(msg: Any) -> np.ndarray:
-    """4×4 ``parent_from_child`` matrix of a ``geometry_msgs/msg/TransformStamped``."""
-    t, q = msg.transform.translation, msg.transform.rotation
-    pose = np.eye(4)
-    pose[:3, :3] = matrix_from_quaternion(np.array([q.x, q.y, q.z, q.w]))
-    pose[:3, 3] = [t.x, t.y, t.z]
-    return pose
 
 
 # ----------------------------------------------------------------------------------- writing

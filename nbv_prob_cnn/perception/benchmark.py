@@ -102,8 +102,14 @@ if __name__ == "__main__":
     print(integrator_benchmark())
 
 
-def tsdf_quality(seed: int = 1000, views: int = 8, width: int = 640, height: int = 480) -> dict[str, float]:
+def tsdf_quality(
+    seed: int = 1000, views: int = 8, width: int = 640, height: int = 480, noise: str = "ideal", noise_seed: int = 0
+) -> dict[str, float]:
     """How well the integrated grid of a generated 3DT world matches its ground truth.
+
+    ``noise`` names a :mod:`nbv_prob_cnn.sensor_noise` preset for the rendered depth (the
+    *seen* surface cells always come from the exact depth, so the presets are compared on the
+    same reference).
 
     Depth frames from ``views`` poses around the table (:func:`benchmark_poses`) are fused; a
     ground-truth surface cell counts as *seen* when a depth pixel back-projects into it.
@@ -119,14 +125,18 @@ def tsdf_quality(seed: int = 1000, views: int = 8, width: int = 640, height: int
 
     world = load_or_generate("3dt", seed)
     intrinsics = Intrinsics.from_hfov(width, height, 60.0)
+    from nbv_prob_cnn.sensor_noise import sensor_noise
+
     camera = DepthCamera(world.triangle_meshes(), intrinsics)
+    noisy_camera = DepthCamera(world.triangle_meshes(), intrinsics, noise=sensor_noise(noise), noise_seed=noise_seed)
     origin = np.asarray(world.origin, dtype=np.float64)
     shape = np.array(world.shape)
-    integrator = TsdfIntegrator(origin, tuple(world.shape), world.resolution)
+    nx, ny, nz = world.shape
+    integrator = TsdfIntegrator(origin, (nx, ny, nz), world.resolution)
     seen = np.zeros(world.shape, dtype=bool)
     for pose in benchmark_poses(views, float(world.table["height_m"])):
         depth = camera.render(pose)
-        integrator.integrate(depth, intrinsics, pose)
+        integrator.integrate(noisy_camera.render(pose), intrinsics, pose)
         points = intrinsics.backproject(depth) @ pose[:3, :3].T + pose[:3, 3]
         ijk = np.floor((points - origin) / world.resolution).astype(int)
         seen[tuple(ijk[np.all((ijk >= 0) & (ijk < shape), axis=1)].T)] = True

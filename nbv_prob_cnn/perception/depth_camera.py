@@ -18,6 +18,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from nbv_prob_cnn.sensor_noise import SensorNoise
+
 __all__ = ["DepthCamera", "DepthNoise", "Intrinsics", "check_pose"]
 
 
@@ -136,7 +138,10 @@ class DepthCamera:
         meshes: triangle meshes in world metres (``trimesh.Trimesh``, ``open3d.geometry.TriangleMesh``,
             ``open3d.t.geometry.TriangleMesh`` or ``(vertices, faces)`` pairs).
         intrinsics: image size and pinhole parameters (default 640×480, 60° HFOV).
-        noise: optional :class:`DepthNoise`; off by default (exact depth).
+        noise: optional :class:`~nbv_prob_cnn.sensor_noise.SensorNoise` (a sensor model, e.g.
+            ``sensor_noise("kinect_v1")``; grazing angles use the ray-cast surface normals) or
+            the older :class:`DepthNoise`; off by default (exact depth).
+        noise_seed: seed of the generator of a ``SensorNoise`` (same seed, same noisy images).
         depth_min, depth_max: returns outside ``[depth_min, depth_max]`` (z-depth, metres)
             become 0 (no return).
     """
@@ -145,14 +150,16 @@ class DepthCamera:
         self,
         meshes: Sequence[object],
         intrinsics: Intrinsics | None = None,
-        noise: DepthNoise | None = None,
+        noise: DepthNoise | SensorNoise | None = None,
         depth_min: float = 0.0,
         depth_max: float = math.inf,
+        noise_seed: int = 0,
     ) -> None:
         import open3d as o3d  # heavy import, only when a camera is built
 
         self.intrinsics = intrinsics if intrinsics is not None else Intrinsics.from_hfov()
         self.noise = noise
+        self._noise_rng = np.random.default_rng(noise_seed)
         self.depth_min = float(depth_min)
         self.depth_max = float(depth_max)
         self._scene = o3d.t.geometry.RaycastingScene()
@@ -162,8 +169,8 @@ class DepthCamera:
             if len(faces) == 0:
                 continue
             self._scene.add_triangles(
-                o3d.core.Tensor(np.ascontiguousarray(vertices, dtype=np.float32)),
-                o3d.core.Tensor(np.ascontiguousarray(faces, dtype=np.uint32)),
+                o3d.core.Tensor(np.ascontiguousarray(vertices, dtype=np.float32)),  # type: ignore[call-overload]
+                o3d.core.Tensor(np.ascontiguousarray(faces, dtype=np.uint32)),  # type: ignore[call-overload]
             )
             self.n_meshes += 1
         self._rays_optical = self.intrinsics.pixel_rays()
@@ -176,10 +183,16 @@ class DepthCamera:
         directions = self._rays_optical @ pose[:3, :3].T
         origins = np.broadcast_to(pose[:3, 3], directions.shape)
         rays = np.concatenate([origins, directions], axis=-1).astype(np.float32)
-        hit = self._scene.cast_rays(o3d.core.Tensor(rays))["t_hit"].numpy()
+        result = self._scene.cast_rays(o3d.core.Tensor(rays))  # type: ignore[call-overload]  # open3d stubs
+        hit = result["t_hit"].numpy()
         depth = np.where(np.isfinite(hit), hit, 0.0).astype(np.float32)
         depth[(depth < self.depth_min) | (depth > self.depth_max)] = 0.0
-        if self.noise is not None:
+        if isinstance(self.noise, SensorNoise):
+            normals = result["primitive_normals"].numpy()
+            unit = directions / np.linalg.norm(directions, axis=-1, keepdims=True)
+            cos_incidence = np.abs(np.sum(normals * unit, axis=-1))
+            depth = self.noise.apply_image(depth, self._noise_rng, cos_incidence)
+        elif self.noise is not None:
             depth = self.noise.apply(depth)
         return depth
 

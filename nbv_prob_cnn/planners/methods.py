@@ -24,6 +24,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from nbv_prob_cnn.grid import probability_from_truth, probability_with_constant
+from nbv_prob_cnn.modes import GainMode, ProbabilitySource
 from nbv_prob_cnn.planners.base import OriginFilter, PlanningContext, RankingPlanner, ViewChoice, search_views
 
 #: Origins evaluated by the downsampled method, per dimensionality (SPEC §5).
@@ -35,8 +36,8 @@ class GainMethod:
     """How a gain-based method builds its probability map and picks its origins."""
 
     name: str
-    mode: str  # "prob" or "ig"
-    probability: str | None  # "constant", "cnn", "oracle" or None (ig)
+    mode: GainMode  # "prob" or "ig"
+    probability: ProbabilitySource | None  # "constant", "cnn", "oracle" or None (ig)
     downsampled: bool = False
 
 

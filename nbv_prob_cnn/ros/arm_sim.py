@@ -1,13 +1,13 @@
 """``arm_sim``: a simulated arm carrying the camera (kinematics only, velocity-limited joints).
 
-Publishes at ``rate_hz``:
+Publishes at ``rate_hz`` (names relative to the node namespace, see :mod:`nbv_prob_cnn.ros.names`):
 
-* ``/joint_states`` (``sensor_msgs/JointState``: every joint of the URDF, position and velocity)
-* ``/arm/camera_pose`` (``geometry_msgs/PoseStamped``: the camera_optical pose from forward
+* ``joint_states`` (``sensor_msgs/JointState``: every joint of the URDF, position and velocity)
+* ``arm/camera_pose`` (``geometry_msgs/PoseStamped``: the camera_optical pose from forward
   kinematics, in ``frame_id``)
 
-Moves with the service ``/arm_sim/move_to_joints`` (``nbv_prob_cnn_msgs/MoveToJoints``: answers
-at once with the motion's duration) or the topic ``/arm/joint_trajectory``
+Moves with the service ``arm_sim/move_to_joints`` (``nbv_prob_cnn_msgs/MoveToJoints``: answers
+at once with the motion's duration) or the topic ``arm/joint_trajectory``
 (``trajectory_msgs/JointTrajectory``: its points in order, each segment at least as long as its
 ``time_from_start`` difference). Joints move in straight joint-space segments, each joint at most
 at ``velocity_scale`` × its URDF velocity limit (:mod:`nbv_prob_cnn.arm.motion`). Unknown joint
@@ -19,6 +19,7 @@ Run: ``nbv node arm_sim --ros-args -p velocity_scale:=0.5`` (default: the Panda 
 from __future__ import annotations
 
 import threading
+from dataclasses import dataclass
 
 import numpy as np
 from geometry_msgs.msg import PoseStamped
@@ -35,13 +36,26 @@ from nbv_prob_cnn.arm.robot import (
     robot_config,
 )
 from nbv_prob_cnn.camera import quaternion_from_matrix
-from nbv_prob_cnn.ros.common import declare, run_node
+from nbv_prob_cnn.ros import names
+from nbv_prob_cnn.ros.common import declare_config, param, run_node
 
 NODE_NAME = "arm_sim"
-TOPIC_JOINT_STATES = "/joint_states"
-TOPIC_CAMERA_POSE = "/arm/camera_pose"
-TOPIC_TRAJECTORY = "/arm/joint_trajectory"
-SERVICE_MOVE = "/arm_sim/move_to_joints"
+
+
+@dataclass
+class ArmSimConfig:
+    """Parameters of ``arm_sim`` (all read-only after start-up)."""
+
+    urdf_path: str = param("", "robot URDF (empty = the Panda from pybullet_data)")
+    base_xyz: list = param(list(DEFAULT_BASE_XYZ), "root link position in frame_id (m)")
+    base_rpy: list = param([0.0, 0.0, 0.0], "root link roll, pitch, yaw (rad)")
+    camera_parent: str = param("", "link carrying the camera (empty = panda_hand)")
+    camera_xyz: list = param(list(DEFAULT_HAND_FROM_CAMERA_XYZ), "optical frame on the link (m)")
+    camera_rpy: list = param([0.0, 0.0, 0.0], "optical frame roll, pitch, yaw on the link (rad)")
+    frame_id: str = param("world", "frame of the base pose and the camera pose")
+    rate_hz: float = param(50.0, "publishing rate", min_value=0.1, max_value=1000.0)
+    velocity_scale: float = param(0.5, "fraction of the URDF velocity limits", min_value=0.01, max_value=1.0)
+    initial_positions: list = param([0.0], "initial joint positions in URDF order ([0.0] = reference)")
 
 
 class ArmSim(Node):
@@ -49,19 +63,12 @@ class ArmSim(Node):
 
     def __init__(self) -> None:
         super().__init__(NODE_NAME)
-        urdf = declare(self, "urdf_path", "", "robot URDF (empty = the Panda from pybullet_data)")
-        base_xyz = declare(self, "base_xyz", list(DEFAULT_BASE_XYZ), "root link position in frame_id (m)")
-        base_rpy = declare(self, "base_rpy", [0.0, 0.0, 0.0], "root link roll, pitch, yaw (rad)")
-        parent = declare(self, "camera_parent", "", "link carrying the camera (empty = panda_hand)")
-        cam_xyz = declare(self, "camera_xyz", list(DEFAULT_HAND_FROM_CAMERA_XYZ), "optical frame on the link (m)")
-        cam_rpy = declare(self, "camera_rpy", [0.0, 0.0, 0.0], "optical frame roll, pitch, yaw on the link (rad)")
-        self.frame_id = declare(self, "frame_id", "world", "frame of the base pose and the camera pose")
-        rate = declare(self, "rate_hz", 50.0, "publishing rate", min_value=0.1, max_value=1000.0)
-        scale = declare(
-            self, "velocity_scale", 0.5, "fraction of the URDF velocity limits", min_value=0.01, max_value=1.0
+        self.config = declare_config(self, ArmSimConfig)  # also sets self.<name> for each parameter
+        cfg = self.config
+        config = robot_config(
+            cfg.urdf_path, cfg.base_xyz, cfg.base_rpy, cfg.camera_parent, cfg.camera_xyz, cfg.camera_rpy
         )
-        initial = declare(self, "initial_positions", [0.0], "initial joint positions in URDF order ([0.0] = reference)")
-        config = robot_config(urdf, base_xyz, base_rpy, parent, cam_xyz, cam_rpy)
+        scale, initial, rate = cfg.velocity_scale, cfg.initial_positions, cfg.rate_hz
         self.robot = RobotModel(config)
         limits = np.asarray(self.robot.model.velocityLimit, dtype=np.float64) * float(scale)
         if not np.all(np.isfinite(limits) & (limits > 0)):
@@ -71,10 +78,10 @@ class ArmSim(Node):
             q0 = self._checked(self.robot.check_q(np.asarray(initial, dtype=np.float64), "initial_positions"))
         self._lock = threading.Lock()
         self.motion = JointMotion(q0, limits, now=self._now())
-        self.joint_pub = self.create_publisher(JointState, TOPIC_JOINT_STATES, 10)
-        self.pose_pub = self.create_publisher(PoseStamped, TOPIC_CAMERA_POSE, 10)
-        self.create_subscription(JointTrajectory, TOPIC_TRAJECTORY, self._on_trajectory, 10)
-        self.create_service(MoveToJoints, SERVICE_MOVE, self._on_move)
+        self.joint_pub = self.create_publisher(JointState, names.JOINT_STATES, 10)
+        self.pose_pub = self.create_publisher(PoseStamped, names.ARM_CAMERA_POSE, 10)
+        self.create_subscription(JointTrajectory, names.ARM_TRAJECTORY, self._on_trajectory, 10)
+        self.create_service(MoveToJoints, names.MOVE_TO_JOINTS, self._on_move)
         self.create_timer(1.0 / float(rate), self._publish)
         self.get_logger().info(f"arm_sim ready: joints {self.robot.joint_names}")
 

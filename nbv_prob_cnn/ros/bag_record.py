@@ -15,13 +15,18 @@ Run: ``nbv node bag_record --ros-args -p output:=/tmp/run1``
 from __future__ import annotations
 
 from collections import Counter
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from geometry_msgs.msg import TransformStamped
+import numpy as np
+from geometry_msgs.msg import PoseStamped, TransformStamped
+from nbv_prob_cnn_msgs.msg import VoxelGrid
 from rclpy.node import Node
 from sensor_msgs.msg import CameraInfo, Image
+from visualization_msgs.msg import MarkerArray
 
+from nbv_prob_cnn.grid import OCCUPIED
 from nbv_prob_cnn.perception.bags import (
     MSG_CAMERA_INFO,
     MSG_IMAGE,
@@ -32,9 +37,25 @@ from nbv_prob_cnn.perception.bags import (
     BagError,
     typestore,
 )
-from nbv_prob_cnn.ros.common import declare_subscription_qos, descriptor, run_node
+from nbv_prob_cnn.perception.messages import (
+    MSG_MARKER_ARRAY,
+    MSG_POINT_CLOUD,
+    MSG_POSE_STAMPED,
+    points_to_cloud_msg,
+    stamp_ns,
+)
+from nbv_prob_cnn.ros import names
+from nbv_prob_cnn.ros.common import GRID_QOS, RELIABILITY, declare_config, param, run_node, subscription_qos
+from nbv_prob_cnn.ros.conversions import msg_to_grid
 
 NODE_NAME = "bag_record"
+#: The recorded planning output (``planning:=true``): topic -> (rclpy class, rosbag2 type name).
+PLANNING_TOPICS = {
+    "/nbv/markers": (MarkerArray, MSG_MARKER_ARRAY),
+    "/nbv/next_best_view": (PoseStamped, MSG_POSE_STAMPED),
+}
+#: The occupied cells of each grid, as a PointCloud2 of cell centres.
+TOPIC_GRID_OCCUPIED = "/nbv/grid_occupied"
 #: topic -> (rclpy class, rosbag2 type name)
 TOPICS = {
     TOPIC_IMAGE: (Image, MSG_IMAGE),
@@ -43,15 +64,27 @@ TOPICS = {
 }
 
 
+@dataclass
+class BagRecordConfig:
+    """Parameters of ``bag_record``."""
+
+    output: str = param("", "new rosbag2 directory to create (required; never overwritten)")
+    queue_size: int = param(100, "depth of the subscriptions", min_value=1, max_value=10000)
+    qos_reliability: str = param("reliable", "subscriptions: reliable or best_effort", choices=RELIABILITY)
+    planning: bool = param(
+        False, "also record nbv/markers, nbv/next_best_view and the grid's occupied cells as a PointCloud2 "
+        "(/nbv/grid_occupied), so a run opens in any mcap viewer and in `nbv view`",
+    )  # fmt: skip
+
+
 class BagRecord(Node):
     """Writes every message of the camera topics to a new mcap bag."""
 
     def __init__(self) -> None:
         super().__init__(NODE_NAME)
-        output = self.declare_parameter(
-            "output", "", descriptor("new rosbag2 directory to create (required; never overwritten)")
-        ).value
-        qos = declare_subscription_qos(self, 100, "subscriptions")
+        self.config = declare_config(self, BagRecordConfig)
+        output = self.config.output
+        qos = subscription_qos(self.config.queue_size, self.config.qos_reliability)
         if not output:
             raise ValueError("parameter 'output' is required (path of the new bag directory)")
         self.path = Path(output).expanduser()
@@ -60,10 +93,42 @@ class BagRecord(Node):
         self._connections: dict[str, Any] = {}
         store = typestore()
         for default_topic, (msg_class, msgtype) in TOPICS.items():
-            topic = self.resolve_topic_name(default_topic)  # recorded under its remapped name
+            topic = self.resolve_topic_name(names.relative(default_topic))  # recorded under its resolved name
             self._connections[topic] = self._writer.add_connection(topic, msgtype, typestore=store)
-            self.create_subscription(msg_class, default_topic, self._callback(topic), qos, raw=True)
+            self.create_subscription(msg_class, names.relative(default_topic), self._callback(topic), qos, raw=True)
+        if self.config.planning:
+            for topic, (msg_class, msgtype) in PLANNING_TOPICS.items():
+                name = self.resolve_topic_name(names.relative(topic))
+                self._connections[name] = self._writer.add_connection(name, msgtype, typestore=store)
+                self.create_subscription(msg_class, names.relative(topic), self._callback(name), 10, raw=True)
+            cloud = self.resolve_topic_name(names.relative(TOPIC_GRID_OCCUPIED))
+            self._connections[cloud] = self._writer.add_connection(cloud, MSG_POINT_CLOUD, typestore=store)
+            self.create_subscription(VoxelGrid, names.GRID, self._grid_callback(cloud), GRID_QOS)
         self.get_logger().info(f"recording {sorted(self._connections)} to {self.path}")
+
+    def _grid_callback(self, topic: str):
+        """Writes the occupied cells of each grid as a PointCloud2 of their centres."""
+        connection, store = self._connections[topic], typestore()
+
+        def write(msg: VoxelGrid) -> None:
+            if self._writer is None:
+                return
+            try:
+                state, geometry = msg_to_grid(msg)
+            except ValueError as exc:
+                self.get_logger().warning(f"grid not recorded: {exc}", throttle_duration_sec=5.0)
+                return
+            cells = np.argwhere(state == OCCUPIED)
+            points = geometry.cell_centre(cells) if len(cells) else np.zeros((0, 3))
+            if points.shape[1] == 2:  # a 2D grid: z = 0
+                points = np.column_stack([points, np.zeros(len(points))])
+            cloud = points_to_cloud_msg(points, stamp_ns(msg.header.stamp), msg.header.frame_id or "world")
+            self._writer.write(
+                connection, self.get_clock().now().nanoseconds, store.serialize_cdr(cloud, MSG_POINT_CLOUD)
+            )
+            self.counts[topic] += 1
+
+        return write
 
     def _open_writer(self) -> Any:
         from rosbags.rosbag2 import StoragePlugin, Writer, WriterError

@@ -26,6 +26,7 @@ from __future__ import annotations
 import importlib
 import time
 from collections import Counter
+from dataclasses import dataclass
 from pathlib import Path
 
 from rclpy.duration import Duration
@@ -35,7 +36,8 @@ from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
 from nbv_prob_cnn.perception.bags import BagError, bag_topics, read_raw_messages
-from nbv_prob_cnn.ros.common import descriptor, run_node
+from nbv_prob_cnn.ros import names
+from nbv_prob_cnn.ros.common import declare_config, param, run_node
 
 NODE_NAME = "bag_replay"
 
@@ -55,43 +57,38 @@ def message_class(msgtype: str) -> type:
         raise ValueError(f"message type {msgtype} is not installed ({exc})") from exc
 
 
+@dataclass
+class BagReplayConfig:
+    """Parameters of ``bag_replay``."""
+
+    bag: str = param("", "rosbag2 directory or .mcap file (required)")
+    rate: float = param(1.0, "replay speed factor (2.0 = twice as fast as recorded)", min_value=1e-3, max_value=1e4)
+    loop: bool = param(False, "start again at the end, until interrupted")
+    start_delay_s: float = param(
+        0.0, "wait this long before the first message [s]", min_value=0.0, max_value=3600.0, attribute="start_delay"
+    )
+    exit_when_done: bool = param(True, "exit (status 0) after the last message; false: keep running")
+    topics: str = param("", "comma-separated topics to replay; empty = every topic of the bag")
+    queue_size: int = param(10, "publisher history depth", min_value=1, max_value=10000)
+    wait_for_subscribers: int = param(
+        0, "before starting, wait until every topic has this many subscribers", min_value=0, max_value=1000
+    )
+    wait_timeout_s: float = param(
+        10.0, "longest wait for subscribers [s]", min_value=0.0, max_value=3600.0, attribute="wait_timeout"
+    )
+    ack_timeout_s: float = param(
+        5.0, "at the end, longest wait for reliable subscribers to acknowledge [s]", min_value=0.0, max_value=600.0,
+        attribute="ack_timeout",
+    )  # fmt: skip
+
+
 class BagReplay(Node):
     """Validates a bag, then publishes its messages paced by their log times (see :meth:`replay`)."""
 
     def __init__(self) -> None:
         super().__init__(NODE_NAME)
-        self.bag = self.declare_parameter("bag", "", descriptor("rosbag2 directory or .mcap file (required)")).value
-        self.rate = self.declare_parameter(
-            "rate", 1.0, descriptor("replay speed factor (2.0 = twice as fast as recorded)", float_range=(1e-3, 1e4))
-        ).value
-        self.loop = self.declare_parameter("loop", False, descriptor("start again at the end, until interrupted")).value
-        self.start_delay = self.declare_parameter(
-            "start_delay_s", 0.0, descriptor("wait this long before the first message [s]", float_range=(0.0, 3600.0))
-        ).value
-        self.exit_when_done = self.declare_parameter(
-            "exit_when_done", True, descriptor("exit (status 0) after the last message; false: keep running")
-        ).value
-        topics = self.declare_parameter(
-            "topics", "", descriptor("comma-separated topics to replay; empty = every topic of the bag")
-        ).value
-        queue_size = self.declare_parameter(
-            "queue_size", 10, descriptor("publisher history depth", int_range=(1, 10000))
-        ).value
-        self.wait_for_subscribers = self.declare_parameter(
-            "wait_for_subscribers",
-            0,
-            descriptor("before starting, wait until every topic has this many subscribers", int_range=(0, 1000)),
-        ).value
-        self.wait_timeout = self.declare_parameter(
-            "wait_timeout_s", 10.0, descriptor("longest wait for subscribers [s]", float_range=(0.0, 3600.0))
-        ).value
-        self.ack_timeout = self.declare_parameter(
-            "ack_timeout_s",
-            5.0,
-            descriptor(
-                "at the end, longest wait for reliable subscribers to acknowledge [s]", float_range=(0.0, 600.0)
-            ),
-        ).value
+        self.config = declare_config(self, BagReplayConfig)  # also sets self.<name> per parameter
+        topics, queue_size = self.config.topics, self.config.queue_size
         if not self.bag:
             raise ValueError("parameter 'bag' is required (a rosbag2 directory or .mcap file)")
         self.path = Path(self.bag).expanduser()
@@ -122,7 +119,9 @@ class BagReplay(Node):
             reliability=ReliabilityPolicy.RELIABLE,
             durability=DurabilityPolicy.VOLATILE,
         )
-        self._topic_publishers = {topic: self.create_publisher(classes[topic], topic, qos) for topic in self.topics}
+        self._topic_publishers = {
+            topic: self.create_publisher(classes[topic], names.relative(topic), qos) for topic in self.topics
+        }
         self.published: Counter[str] = Counter()
         self.passes = 0
         self.get_logger().info(

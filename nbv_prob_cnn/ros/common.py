@@ -5,13 +5,17 @@ from __future__ import annotations
 
 import threading
 from collections.abc import Callable
+from dataclasses import MISSING, dataclass, field, fields
+from typing import Any, TypeVar
 
 import rclpy
-from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
+from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor, SetParametersResult
 from rclpy.exceptions import ParameterException
 from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+
+ConfigT = TypeVar("ConfigT")
 
 #: The grid topic keeps its last message for late joiners and restarted nodes.
 GRID_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
@@ -33,71 +37,136 @@ def descriptor(
     return desc
 
 
-def declare(
-    node: Node,
-    name: str,
-    default,
+@dataclass(frozen=True)
+class ParamSpec:
+    """How a config field is declared as a ROS parameter (see :func:`param`)."""
+
+    description: str
+    min_value: float | None = None
+    max_value: float | None = None
+    choices: tuple | None = None
+    dynamic: bool = False
+    check: Callable[[Any], None] | None = None
+    attribute: str | None = None
+
+
+def param(
+    default: Any,
     description: str,
     *,
     min_value: float | None = None,
     max_value: float | None = None,
-    read_only: bool = False,
-):
-    """Declare a parameter with a description (and a numeric range) and return its value."""
-    bounds = (min_value, max_value) if min_value is not None and max_value is not None else None
-    is_int = isinstance(default, int) and not isinstance(default, bool)
-    is_float = isinstance(default, float)
-    desc = descriptor(
-        description,
-        float_range=bounds if is_float else None,
-        int_range=(int(bounds[0]), int(bounds[1])) if (bounds and is_int) else None,
-        read_only=read_only,
-    )
-    return node.declare_parameter(name, default, desc).value
+    choices: tuple | None = None,
+    dynamic: bool = False,
+    check: Callable[[Any], None] | None = None,
+    attribute: str | None = None,
+) -> Any:
+    """A field of a node's config dataclass that is also a ROS parameter of the same name.
+
+    Args:
+        default: the default value (its type is the parameter's type; lists are copied).
+        description: shown by ``ros2 param describe``; ``choices`` are appended.
+        min_value, max_value: numeric range (both or none), enforced by rclpy.
+        choices: the allowed values.
+        dynamic: may change at run time (otherwise read-only after start-up).
+        check: raises ``ValueError`` to refuse a value (at start-up and on every set).
+        attribute: the node attribute that mirrors the value (default: the field's name).
+    """
+    spec = ParamSpec(description, min_value, max_value, choices, dynamic, check, attribute)
+    if isinstance(default, list):
+        return field(default_factory=lambda: list(default), metadata={"param": spec})
+    return field(default=default, metadata={"param": spec})
+
+
+def check_param(name: str, spec: ParamSpec, value: Any) -> None:
+    """Raise ``ValueError`` with a reason when ``value`` is not allowed for parameter ``name``."""
+    if spec.choices is not None and value not in spec.choices:
+        raise ValueError(f"{name}: expected one of {list(spec.choices)}, got {value!r}")
+    if spec.check is not None:
+        spec.check(value)
+
+
+def declare_config(node: Node, config_type: type[ConfigT], *, mirror: bool = True) -> ConfigT:
+    """Declare one parameter per field of the dataclass ``config_type`` (fields made with
+    :func:`param`) and return the config built from their values.
+
+    As ros2/demos ``set_parameters_callback.py``: an on-set callback only validates (choices,
+    ``check``, run-time changes of read-only parameters are refused with a reason) and a post-set
+    callback applies accepted values to the config (and, with ``mirror``, to the node attribute
+    of the same name, or the spec's ``attribute``).
+
+    Raises:
+        ValueError: a start-up value is not allowed (the reason names the parameter).
+        rclpy.exceptions.ParameterException: wrong type or out of range (checked by rclpy).
+    """
+    specs: dict[str, ParamSpec] = {}
+    values: dict[str, Any] = {}
+    for item in fields(config_type):
+        spec: ParamSpec = item.metadata["param"]
+        default = item.default if item.default is not MISSING else item.default_factory()  # type: ignore[misc]
+        is_int = isinstance(default, int) and not isinstance(default, bool)
+        bounds = (spec.min_value, spec.max_value) if spec.min_value is not None else None
+        text = spec.description + (f" (one of {list(spec.choices)})" if spec.choices else "")
+        desc = descriptor(
+            text,
+            float_range=bounds if (bounds and isinstance(default, float)) else None,
+            int_range=(int(bounds[0]), int(bounds[1])) if (bounds and is_int) else None,
+            dynamic_typing=isinstance(default, list),  # [0, 1, 2] for a float list, [] for an empty one
+            read_only=not spec.dynamic,
+        )
+        value = node.declare_parameter(item.name, default, desc).value
+        if isinstance(default, list):
+            value = list(value)
+        check_param(item.name, spec, value)
+        specs[item.name], values[item.name] = spec, value
+    config = config_type(**values)
+
+    def validate(params) -> SetParametersResult:
+        for p in params:
+            spec = specs.get(p.name)
+            if spec is None:
+                continue  # not ours (use_sim_time, ...)
+            if not spec.dynamic:
+                return SetParametersResult(successful=False, reason=f"{p.name} cannot change at run time")
+            try:
+                check_param(p.name, spec, p.value)
+            except ValueError as exc:
+                return SetParametersResult(successful=False, reason=str(exc))
+        return SetParametersResult(successful=True)
+
+    def apply(params) -> None:
+        for p in params:
+            if p.name in specs:
+                setattr(config, p.name, p.value)
+                if mirror:
+                    setattr(node, specs[p.name].attribute or p.name, p.value)
+
+    if mirror:
+        for name, value in values.items():
+            setattr(node, specs[name].attribute or name, value)
+    node.add_on_set_parameters_callback(validate)
+    node.add_post_set_parameters_callback(apply)
+    return config
 
 
 def positive_seconds(value) -> None:
-    """Validator of :func:`allow_updates` for durations."""
+    """A ``check`` of :func:`param` for durations."""
     if not (isinstance(value, float) and value > 0):
         raise ValueError(f"expected a positive number of seconds, got {value!r}")
 
 
-def allow_updates(node: Node, validators: dict[str, Callable[[object], None]]) -> None:
-    """Let the named parameters change at run time: each new value is checked by its
-    validator (which raises ``ValueError`` to refuse it) and then set as the node attribute
-    of the same name; other parameters stay fixed."""
-    from rcl_interfaces.msg import SetParametersResult
-
-    def on_set(params) -> SetParametersResult:
-        for param in params:
-            if param.name not in validators:
-                return SetParametersResult(successful=False, reason=f"{param.name} cannot change at run time")
-            try:
-                validators[param.name](param.value)
-            except ValueError as exc:
-                return SetParametersResult(successful=False, reason=str(exc))
-        for param in params:
-            setattr(node, param.name, param.value)
-        return SetParametersResult(successful=True)
-
-    node.add_on_set_parameters_callback(on_set)
+#: Reliability names of :func:`subscription_qos` (``best_effort`` with depth 5 is SENSOR_DATA).
+RELIABILITY = ("best_effort", "reliable")
 
 
-def declare_subscription_qos(node: Node, default_depth: int, what: str) -> QoSProfile:
-    """Declare ``queue_size`` and ``qos_reliability`` (``reliable``/``best_effort``) for a node's
-    input subscriptions and return the resulting volatile QoS profile.
+def subscription_qos(depth: int, reliability: str) -> QoSProfile:
+    """A volatile keep-last QoS profile for input subscriptions.
 
     Raises:
         ValueError: an unknown reliability name.
     """
-    depth = node.declare_parameter(
-        "queue_size", default_depth, descriptor(f"depth of the {what}", int_range=(1, 10000))
-    ).value
-    reliability = node.declare_parameter(
-        "qos_reliability", "reliable", descriptor(f"{what}: 'reliable' or 'best_effort' (for sensor_data publishers)")
-    ).value
-    if reliability not in ("reliable", "best_effort"):
-        raise ValueError(f"qos_reliability: expected 'reliable' or 'best_effort', got {reliability!r}")
+    if reliability not in RELIABILITY:
+        raise ValueError(f"qos_reliability: expected one of {list(RELIABILITY)}, got {reliability!r}")
     return QoSProfile(
         depth=int(depth),
         reliability=ReliabilityPolicy.RELIABLE if reliability == "reliable" else ReliabilityPolicy.BEST_EFFORT,
@@ -112,16 +181,17 @@ def call_service(node: Node, client, request, timeout_s: float):
     Raises:
         TimeoutError: the service is not available or did not answer in time.
     """
+    name = node.resolve_service_name(client.srv_name)  # the full name, namespace included
     if not client.wait_for_service(timeout_sec=min(timeout_s, 5.0)):
-        raise TimeoutError(f"service {client.srv_name} is not available")
+        raise TimeoutError(f"service {name} is not available")
     done = threading.Event()
     future = client.call_async(request)
     future.add_done_callback(lambda _: done.set())
     if not done.wait(timeout_s):
         client.remove_pending_request(future)
-        raise TimeoutError(f"service {client.srv_name} did not answer within {timeout_s:.1f} s")
+        raise TimeoutError(f"service {name} did not answer within {timeout_s:.1f} s")
     if future.exception() is not None:
-        raise RuntimeError(f"service {client.srv_name} failed: {future.exception()}")
+        raise RuntimeError(f"service {name} failed: {future.exception()}")
     return future.result()
 
 

@@ -8,13 +8,24 @@ response (with the command that trains them); the node keeps serving.
 from __future__ import annotations
 
 import time
+from dataclasses import dataclass
 
 from nbv_prob_cnn_msgs.srv import CompleteGrid
 from rclpy.node import Node
 
 from nbv_prob_cnn.camera import DATASETS
-from nbv_prob_cnn.ros.common import declare, run_node
+from nbv_prob_cnn.ros import names
+from nbv_prob_cnn.ros.common import declare_config, param, run_node
 from nbv_prob_cnn.ros.conversions import msg_to_grid, probability_to_msg
+
+
+@dataclass
+class CompletionConfig:
+    """Parameters of ``completion_server``."""
+
+    dataset: str = param("3dt", "default weights", choices=tuple(sorted(DATASETS)))
+    weights_file: str = param("", "weights file (empty = shipped weights of dataset)")
+    device: str = param("auto", "torch device: auto (CUDA if present), cpu, cuda, cuda:N")
 
 
 class CompletionServer(Node):
@@ -22,11 +33,7 @@ class CompletionServer(Node):
 
     def __init__(self) -> None:
         super().__init__("completion_server")
-        self.dataset = declare(self, "dataset", "3dt", f"default weights: {sorted(DATASETS)}")
-        self.weights_file = declare(self, "weights_file", "", "weights file (empty = shipped weights of dataset)")
-        self.device = declare(self, "device", "auto", "torch device: auto (CUDA if present), cpu, cuda, cuda:N")
-        if self.dataset not in DATASETS:
-            raise ValueError(f"dataset: unknown data set {self.dataset!r}; expected one of {sorted(DATASETS)}")
+        self.config = declare_config(self, CompletionConfig)  # also sets self.<name> for each parameter
         from nbv_prob_cnn.completion.inference import WeightsError, load_model, resolve_device
 
         self._device = resolve_device(None if self.device == "auto" else self.device)
@@ -36,7 +43,7 @@ class CompletionServer(Node):
             self.get_logger().info(f"completion_server ready: {self.dataset} weights on {self._device}")
         except WeightsError as exc:
             self.get_logger().error(str(exc))
-        self.create_service(CompleteGrid, "/nbv/complete", self._complete)
+        self.create_service(CompleteGrid, names.COMPLETE, self._complete)
 
     def _model_for(self, dataset: str):
         path = self.weights_file if (self.weights_file and dataset == self.dataset) else None

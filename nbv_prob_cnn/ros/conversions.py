@@ -11,13 +11,21 @@ import array
 import math
 
 import numpy as np
+from builtin_interfaces.msg import Time
 from geometry_msgs.msg import Pose, PoseStamped
 from nbv_prob_cnn_msgs.msg import ProbabilityGrid, VoxelGrid
 
 from nbv_prob_cnn.geometry import GridGeometry
+from nbv_prob_cnn.perception.messages import stamp_parts
 
 #: Largest grid accepted from the wire (cells); bigger requests are refused with a reason.
 MAX_GRID_CELLS = 2**24  # 256³; a 50 MB grid is refused
+
+
+def time_msg(stamp_ns: int) -> Time:
+    """A ``builtin_interfaces/Time`` of a stamp in nanoseconds (the inverse is ``messages.stamp_ns``)."""
+    sec, nanosec = stamp_parts(stamp_ns)
+    return Time(sec=sec, nanosec=nanosec)
 
 
 def _check_identity_orientation(pose: Pose, what: str) -> None:

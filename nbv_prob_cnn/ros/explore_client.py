@@ -13,14 +13,20 @@ from pathlib import Path
 
 import numpy as np
 import rclpy
+from action_msgs.msg import GoalStatus
 from nbv_prob_cnn_msgs.action import Explore
 from nbv_prob_cnn_msgs.msg import VoxelGrid
 from rclpy.action import ActionClient
 from rclpy.executors import SingleThreadedExecutor
 
 from nbv_prob_cnn.grid import unknown_fraction_all
+from nbv_prob_cnn.ros import names
 from nbv_prob_cnn.ros.common import GRID_QOS
 from nbv_prob_cnn.ros.conversions import msg_to_grid, pose_to_arrays
+
+#: Terminal states of a goal, by ``action_msgs/GoalStatus`` value.
+STATUS_NAMES = {GoalStatus.STATUS_SUCCEEDED: "succeeded", GoalStatus.STATUS_CANCELED: "canceled",
+                GoalStatus.STATUS_ABORTED: "aborted"}  # fmt: skip
 
 
 class ExploreClient:
@@ -28,11 +34,12 @@ class ExploreClient:
 
     def __init__(self) -> None:
         self.node = rclpy.create_node("explore_client")
-        self._action = ActionClient(self.node, Explore, "/nbv/explore")
+        self._action = ActionClient(self.node, Explore, names.EXPLORE)
         self._grid: VoxelGrid | None = None
         self._grid_lock = threading.Lock()
-        self.node.create_subscription(VoxelGrid, "/nbv/grid", self._on_grid, GRID_QOS)
+        self.node.create_subscription(VoxelGrid, names.GRID, self._on_grid, GRID_QOS)
         self.feedback: list[tuple[float, Explore.Feedback]] = []
+        self.status = ""  # of the last exploration: succeeded, canceled or aborted
         self._executor = SingleThreadedExecutor()
         self._executor.add_node(self.node)
 
@@ -70,7 +77,7 @@ class ExploreClient:
         self._executor.spin_until_future_complete(send, timeout_sec=30.0)
         handle = send.result()
         if handle is None or not handle.accepted:
-            raise RuntimeError("the Explore goal was rejected (is another exploration running?)")
+            raise RuntimeError("the Explore goal was rejected (max_views < 1 or a non-finite threshold)")
         self._goal_handle = handle
         result = handle.get_result_async()
         self._executor.spin_until_future_complete(result, timeout_sec=timeout_s)
@@ -80,6 +87,7 @@ class ExploreClient:
         end = time.monotonic() + 1.0
         while time.monotonic() < end:
             self._executor.spin_once(timeout_sec=0.1)
+        self.status = STATUS_NAMES.get(result.result().status, str(result.result().status))
         return result.result().result
 
     def cancel(self) -> None:
@@ -126,7 +134,7 @@ def write_outputs(client: ExploreClient, result: Explore.Result, out_dir: Path, 
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Run one exploration; exit 0 when at least one view was taken, 130 on Ctrl-C."""
+    """Run one exploration; exit 0 when it succeeded with at least one view, 130 on Ctrl-C."""
     parser = argparse.ArgumentParser(description="Send an Explore goal to /nbv/explore and record the run.")
     parser.add_argument("--views", type=int, default=10)
     parser.add_argument("--method", default="")
@@ -159,11 +167,11 @@ def main(argv: list[str] | None = None) -> int:
         written = write_outputs(client, result, Path(args.out), args.title)
         print(
             f"[explore] done: {result.views} views in {time.monotonic() - started:.1f} s, final unknown fraction "
-            f"{result.final_unknown_fraction:.4f}, stopped: {result.reason_stopped}; wrote "
+            f"{result.final_unknown_fraction:.4f}, {client.status}: {result.reason_stopped}; wrote "
             + ", ".join(str(p) for p in written),
             flush=True,
         )
-        return 0 if result.views > 0 else 1
+        return 0 if client.status == "succeeded" and result.views > 0 else 1
     except KeyboardInterrupt:
         print("[explore] interrupted: cancelling the exploration", flush=True)
         client.cancel()

@@ -10,6 +10,7 @@ from __future__ import annotations
 import array
 import threading
 import time
+from dataclasses import dataclass
 
 import numpy as np
 from nbv_prob_cnn_msgs.msg import ViewScore, VoxelGrid
@@ -18,13 +19,14 @@ from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.node import Node
 
 from nbv_prob_cnn.camera import DATASETS
-from nbv_prob_cnn.gain import BACKENDS
 from nbv_prob_cnn.geometry import GridGeometry
+from nbv_prob_cnn.modes import BACKEND_NAMES, Backend
 from nbv_prob_cnn.planners import PlanningContext, ros_method
 from nbv_prob_cnn.planners.methods import cnn_completion, probability_map
 from nbv_prob_cnn.planners.requests import gain_method, origin_filter, planning_context, rank_for_request, view_pose
 from nbv_prob_cnn.pose_scoring import INVALID_POSE, score_poses
-from nbv_prob_cnn.ros.common import GRID_QOS, allow_updates, call_service, declare, positive_seconds, run_node
+from nbv_prob_cnn.ros import names
+from nbv_prob_cnn.ros.common import GRID_QOS, call_service, declare_config, param, positive_seconds, run_node
 from nbv_prob_cnn.ros.conversions import (
     arrays_to_pose_stamped,
     grid_to_msg,
@@ -35,42 +37,42 @@ from nbv_prob_cnn.ros.conversions import (
 MAX_POSES = 100_000
 
 
+def _check_method(name: str) -> None:
+    ros_method(name, name)
+
+
+@dataclass
+class GainServerConfig:
+    """Parameters of ``gain_server`` (``method`` and ``completion_timeout_s`` may change at run time)."""
+
+    dataset: str = param("3dt", "sensor/ray defaults and CNN weights", choices=tuple(sorted(DATASETS)))
+    method: str = param("prob_ig", "method when a request names none", dynamic=True, check=_check_method)
+    backend: Backend = param("auto", "ray-casting backend", choices=BACKEND_NAMES)
+    n_rays: int = param(0, "ray sub-cells per side (0 = data set default)", min_value=0, max_value=64)
+    completion: str = param(
+        "service", "CNN maps from the completion service or in this process", choices=("service", "in_process"),
+        attribute="completion_mode",
+    )  # fmt: skip
+    completion_timeout_s: float = param(
+        60.0, "wait for nbv/complete", min_value=0.1, max_value=600.0, dynamic=True, check=positive_seconds
+    )
+    frame_id: str = param("world", "frame of the grid when the grid message has none")
+
+
 class GainServer(Node):
     """Serves view gains on the latest grid (or on the grid sent with the request)."""
 
     def __init__(self) -> None:
         super().__init__("gain_server")
-        self.dataset = declare(self, "dataset", "3dt", f"sensor/ray defaults and CNN weights: {sorted(DATASETS)}")
-        self.method = declare(self, "method", "prob_ig", "method when a request names none")
-        self.backend = declare(self, "backend", "auto", f"ray-casting backend: {BACKENDS}")
-        self.n_rays = declare(
-            self, "n_rays", 0, "ray sub-cells per side (0 = data set default)", min_value=0, max_value=64
-        )
-        self.completion_mode = declare(self, "completion", "service", "CNN maps from 'service' or 'in_process'")
-        self.completion_timeout_s = declare(
-            self, "completion_timeout_s", 60.0, "wait for /nbv/complete", min_value=0.1, max_value=600.0
-        )
-        self.frame_id = declare(self, "frame_id", "world", "frame of the grid when the grid message has none")
-        if self.dataset not in DATASETS or self.backend not in BACKENDS:
-            raise ValueError(f"bad parameters: dataset={self.dataset!r}, backend={self.backend!r}")
-        if self.completion_mode not in ("service", "in_process"):
-            raise ValueError(f"completion: expected 'service' or 'in_process', got {self.completion_mode!r}")
-        ros_method(self.method, self.method)  # validates the default
-        allow_updates(
-            self,
-            {
-                "method": lambda value: ros_method(value, value),
-                "completion_timeout_s": positive_seconds,
-            },
-        )
+        self.config = declare_config(self, GainServerConfig)  # also sets self.<name> for each parameter
         self._rng = np.random.default_rng()
         self._lock = threading.Lock()
         self._grid: VoxelGrid | None = None
         group = ReentrantCallbackGroup()
-        self.create_subscription(VoxelGrid, "/nbv/grid", self._on_grid, GRID_QOS, callback_group=group)
-        self._complete_client = self.create_client(CompleteGrid, "/nbv/complete", callback_group=group)
-        self.create_service(EvaluateViews, "/nbv/evaluate_views", self._evaluate_views, callback_group=group)
-        self.create_service(RankViews, "/nbv/rank_views", self._rank_views, callback_group=group)
+        self.create_subscription(VoxelGrid, names.GRID, self._on_grid, GRID_QOS, callback_group=group)
+        self._complete_client = self.create_client(CompleteGrid, names.COMPLETE, callback_group=group)
+        self.create_service(EvaluateViews, names.EVALUATE_VIEWS, self._evaluate_views, callback_group=group)
+        self.create_service(RankViews, names.RANK_VIEWS, self._rank_views, callback_group=group)
         self.get_logger().info(f"gain_server ready: dataset {self.dataset}, method {self.method}")
 
     def _on_grid(self, msg: VoxelGrid) -> None:

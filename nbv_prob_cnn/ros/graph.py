@@ -6,14 +6,16 @@ localhost-only discovery, its own ``ROS_DOMAIN_ID`` and the Fast DDS shared-memo
 
 from __future__ import annotations
 
+import contextlib
 import os
 import re
 import signal
 import subprocess
 import sys
 import time
-from collections.abc import Callable, Iterable
+from collections.abc import Callable
 from pathlib import Path
+from typing import IO
 
 PROFILE = Path(__file__).with_name("fastdds_shm_profile.xml")
 
@@ -36,9 +38,14 @@ def free_domain_id() -> int:
     return 1 + os.getpid() % 100
 
 
-def node_command(node: str, parameters: dict | None = None, remappings: dict | None = None) -> list[str]:
-    """Command line that runs one of our nodes (``nbv_prob_cnn.ros.<node>``) with parameters."""
+def node_command(
+    node: str, parameters: dict | None = None, remappings: dict | None = None, namespace: str = ""
+) -> list[str]:
+    """Command line that runs one of our nodes (``nbv_prob_cnn.ros.<node>``) with parameters,
+    remappings and, optionally, a namespace (``/robot1``: every name of the node moves under it)."""
     cmd = [sys.executable, "-m", f"nbv_prob_cnn.ros.{node}", "--ros-args"]
+    if namespace:
+        cmd += ["-r", f"__ns:={namespace}"]
     for name, value in (parameters or {}).items():
         if isinstance(value, bool):
             value = "true" if value else "false"
@@ -64,17 +71,23 @@ class NodeGraph:
         self.processes: dict[str, subprocess.Popen] = {}
 
     def start(self, name: str, command: list[str]) -> subprocess.Popen:
+        out: IO[str] | int = subprocess.DEVNULL
         if self.log_dir:
             self.log_dir.mkdir(parents=True, exist_ok=True)
             out = open(self.log_dir / f"{name}.log", "w")  # noqa: SIM115 - closed with the process
-        else:
-            out = subprocess.DEVNULL
         proc = subprocess.Popen(command, env=self.env, stdout=out, stderr=subprocess.STDOUT, start_new_session=True)
         self.processes[name] = proc
         return proc
 
-    def start_node(self, name: str, node: str, parameters: dict | None = None, remappings: dict | None = None):
-        return self.start(name, node_command(node, parameters, remappings))
+    def start_node(
+        self,
+        name: str,
+        node: str,
+        parameters: dict | None = None,
+        remappings: dict | None = None,
+        namespace: str = "",
+    ):
+        return self.start(name, node_command(node, parameters, remappings, namespace))
 
     def alive(self) -> dict[str, bool]:
         return {name: proc.poll() is None for name, proc in self.processes.items()}
@@ -86,10 +99,8 @@ class NodeGraph:
             if not running:
                 break
             for proc in running:
-                try:
+                with contextlib.suppress(ProcessLookupError):
                     os.killpg(proc.pid, sig)
-                except ProcessLookupError:
-                    pass
             deadline = time.monotonic() + grace_s
             while time.monotonic() < deadline and any(p.poll() is None for p in running):
                 time.sleep(0.05)
@@ -173,10 +184,8 @@ def run_graph(
         signal.signal(signal.SIGINT, signal.SIG_IGN)  # a second Ctrl-C must not cut the clean-up short
         if client is not None and client.poll() is None:
             client.send_signal(signal.SIGINT)
-            try:
+            with contextlib.suppress(subprocess.TimeoutExpired):
                 client.wait(timeout=15)
-            except subprocess.TimeoutExpired:
-                pass
         code = 130
     finally:
         codes = graph.stop()
@@ -185,10 +194,8 @@ def run_graph(
             client.wait()
         leaked = leaked_segments(shm_before, domain)
         for name in leaked:  # files of our stopped processes that nothing uses any more
-            try:
+            with contextlib.suppress(OSError):
                 os.unlink(f"/dev/shm/{name}")
-            except OSError:
-                pass
         print(f"[{label}] stopped {len(codes)} processes; removed {len(leaked)} stale shared-memory files", flush=True)
     return code
 
@@ -203,7 +210,7 @@ def wait_for(predicate, timeout_s: float, interval_s: float = 0.1) -> bool:
     return bool(predicate())
 
 
-__all__: Iterable[str] = [
+__all__ = [
     "NodeGraph",
     "leaked_segments",
     "node_command",

@@ -12,19 +12,27 @@ was integrated since the last grid. ``header.stamp`` is the stamp of the newest 
 so a client that moved the camera and got frame stamp ``T`` waits for a grid stamped ``>= T``
 (an all-unknown grid stamped 0 follows a reset).
 
-Frames that cannot be used are dropped with a throttled log and the node keeps running: an
-unsupported encoding (error), a frame whose pose or camera_info did not arrive within
-``pose_timeout_s`` (warning: missing, or no pose within the tolerance), a pose in another frame
-than ``frame_id`` (warning). When integration falls behind, ``drop_when_behind`` (default)
-keeps only the newest waiting frame and counts the dropped ones; with ``drop_when_behind:=false``
+No frame is dropped silently: every frame that cannot be used is counted under its reason
+(:class:`~nbv_prob_cnn.perception.messages.DropReason`: ``bad_message``, ``bad_encoding`` (not
+REP-118), ``size_mismatch`` (image data vs. its sizes, or image vs. camera_info),
+``non_finite_pose`` (NaN/inf or zero quaternion), ``pose_frame`` (pose not in ``frame_id``),
+``no_pose`` / ``no_camera_info`` (nothing within the tolerance before ``pose_timeout_s``),
+``too_many_pending``, ``behind``, ``reset``, ``integration_error``), logged (at most every 5 s
+per reason) and reported on ``/diagnostics`` (``diagnostic_msgs/DiagnosticArray`` every
+``diagnostics_period_s``: WARN when frames were dropped in the last period, one key per reason)
+and by ``/integrator/diagnostics`` (``std_srvs/Trigger``: ``message`` is a JSON object with the
+counts and the last drop's text per reason; ``success`` is false once anything was dropped).
+The node keeps running. When integration falls behind, ``drop_when_behind`` (default)
+keeps only the newest waiting frame; with ``drop_when_behind:=false``
 every paired frame is integrated in stamp order (deterministic: a bag replayed this way gives the
-same grid as ``nbv integrate`` on the bag, provided the subscriptions lose nothing either: reliable
-QoS keeps only the newest ``queue_size`` messages per topic that the node has not taken yet, so a
-replay much faster than real time needs ``queue_size`` at least the burst, e.g. the bag's frame count).
+same grid as ``nbv integrate`` on the bag, provided the subscriptions lose nothing either: use
+``qos_reliability:=reliable`` (the default is SENSOR_DATA: best effort, ``queue_size`` 5), and
+reliable QoS keeps only the newest ``queue_size`` messages per topic that the node has not taken
+yet, so a replay much faster than real time needs ``queue_size`` at least the burst).
 
-Messages are taken as serialized CDR (raw subscriptions) and decoded with the rosbags helpers of
-:mod:`nbv_prob_cnn.perception.bags`, the same code that reads bags offline (and ~50x faster than
-rclpy's conversion of a 640x480 image).
+Messages are taken as serialized CDR (raw subscriptions) and decoded and paired by
+:mod:`nbv_prob_cnn.perception.messages` (no rclpy), the same code that reads bags offline
+(and ~50x faster than rclpy's conversion of a 640x480 image).
 
 Services: ``/integrator/reset`` (``std_srvs/Trigger``, every cell unknown again, waiting frames
 discarded) and ``/integrator/save`` (``nbv_prob_cnn_msgs/SaveGrid``: ``.npz`` with keys ``grid``,
@@ -37,6 +45,7 @@ Run: ``nbv node integrator --ros-args -p publish_rate_hz:=2.0``
 from __future__ import annotations
 
 import bisect
+import json
 import threading
 import time
 from collections import deque
@@ -45,7 +54,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from builtin_interfaces.msg import Time
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import TransformStamped
 from nbv_prob_cnn_msgs.msg import VoxelGrid
 from nbv_prob_cnn_msgs.srv import SaveGrid
@@ -56,17 +65,19 @@ from std_srvs.srv import Trigger
 
 from nbv_prob_cnn.geometry import GridGeometry
 from nbv_prob_cnn.grid import EMPTY, OCCUPIED, UNKNOWN
-from nbv_prob_cnn.perception.bags import (
+from nbv_prob_cnn.perception.messages import (
+    ENCODINGS,
+    MAX_PENDING,
     MSG_CAMERA_INFO,
     MSG_IMAGE,
     MSG_TRANSFORM,
-    TOPIC_CAMERA_INFO,
-    TOPIC_IMAGE,
-    TOPIC_POSE,
-    camera_info_to_intrinsics,
-    image_msg_to_depth,
+    DropCounts,
+    DropReason,
+    FrameRejectedError,
+    PairedFrame,
+    StampSync,
+    decode_frame,
     stamp_of,
-    transform_msg_to_pose,
     typestore,
 )
 from nbv_prob_cnn.perception.tsdf import (
@@ -77,125 +88,75 @@ from nbv_prob_cnn.perception.tsdf import (
     DEFAULT_VOXEL_M,
     TsdfIntegrator,
 )
-from nbv_prob_cnn.ros.common import GRID_QOS, declare_subscription_qos, descriptor, run_node
-from nbv_prob_cnn.ros.conversions import grid_to_msg
+from nbv_prob_cnn.ros import names
+from nbv_prob_cnn.ros.common import GRID_QOS, RELIABILITY, declare_config, param, run_node, subscription_qos
+from nbv_prob_cnn.ros.conversions import grid_to_msg, time_msg
 
 NODE_NAME = "integrator"
-TOPIC_GRID = "/nbv/grid"
-SERVICE_RESET = "/integrator/reset"
-SERVICE_SAVE = "/integrator/save"
-ENCODINGS = ("32FC1", "16UC1")
+TOPIC_GRID = names.GRID
+SERVICE_RESET = names.INTEGRATOR_RESET
+SERVICE_SAVE = names.INTEGRATOR_SAVE
+SERVICE_DIAGNOSTICS = names.INTEGRATOR_DIAGNOSTICS
+#: The standard diagnostics topic (absolute, as diagnostic_aggregator expects it).
+TOPIC_DIAGNOSTICS = "/diagnostics"
 #: Most frames waiting for integration with ``drop_when_behind:=false`` (older ones are dropped beyond it).
 MAX_BACKLOG = 1000
-#: Images waiting for their pose/camera_info at most (older ones are dropped beyond it).
-MAX_PENDING = 64
-#: Poses and camera_infos kept for pairing.
-HISTORY = 256
+#: Re-exported for callers that took them from here.
+__all__ = ["ENCODINGS", "Integrator", "PairedFrame", "StampSync", "main"]
 
 
-def stamp_to_time(stamp_ns: int) -> Time:
-    return Time(sec=int(stamp_ns // 1_000_000_000), nanosec=int(stamp_ns % 1_000_000_000))
+def _check_origin(value) -> None:
+    if len(value) != 3 or not all(isinstance(v, int | float) and np.isfinite(v) for v in value):
+        raise ValueError(f"origin: expected 3 finite numbers [m], got {value!r}")
+
+
+def _check_shape(value) -> None:
+    if len(value) != 3 or min(value) < 1:
+        raise ValueError(f"shape: expected 3 positive sizes, got {list(value)}")
 
 
 @dataclass
-class PairedFrame:
-    """Image, camera_info and pose messages (rosbags objects) of one stamp."""
+class IntegratorConfig:
+    """Parameters of ``integrator`` (all fixed after start-up)."""
 
-    stamp_ns: int
-    image: Any
-    info: Any
-    pose: Any
-    generation: int = 0
-
-
-class StampSync:
-    """Pairs each image with the camera_info and the pose nearest to its stamp within a tolerance.
-
-    Not thread-safe (the node calls it under its lock). Poses and camera_infos are kept (the
-    newest :data:`HISTORY`) and may serve several images; an image waits until both partners
-    are there, or is dropped by :meth:`expire`.
-    """
-
-    def __init__(self, tolerance_ns: int) -> None:
-        self.tolerance_ns = int(tolerance_ns)
-        self.images: dict[int, tuple[Any, float]] = {}  # stamp -> (message, arrival time.monotonic())
-        self.infos: list[tuple[int, Any]] = []  # sorted by stamp
-        self.poses: list[tuple[int, Any]] = []
-
-    def clear(self) -> None:
-        self.images.clear()
-        self.infos.clear()
-        self.poses.clear()
-
-    @staticmethod
-    def _insert(history: list[tuple[int, Any]], stamp: int, msg: Any) -> None:
-        i = bisect.bisect_left(history, stamp, key=lambda item: item[0])
-        if i < len(history) and history[i][0] == stamp:
-            history[i] = (stamp, msg)  # a repeated stamp replaces the older message
-        else:
-            history.insert(i, (stamp, msg))
-        del history[:-HISTORY]
-
-    def nearest(self, history: list[tuple[int, Any]], stamp: int) -> tuple[int, Any] | None:
-        """The entry of ``history`` nearest to ``stamp`` within the tolerance (ties: the older)."""
-        i = bisect.bisect_left(history, stamp, key=lambda item: item[0])
-        best = None
-        for j in (i - 1, i):
-            if 0 <= j < len(history) and abs(history[j][0] - stamp) <= self.tolerance_ns:
-                if best is None or abs(history[j][0] - stamp) < abs(best[0] - stamp):
-                    best = history[j]
-        return best
-
-    def add_image(self, stamp: int, msg: Any, now: float) -> tuple[list[PairedFrame], list[int]]:
-        """Returns the frames completed and the stamps of images dropped for lack of room."""
-        self.images[stamp] = (msg, now)
-        overflow = []
-        while len(self.images) > MAX_PENDING:
-            oldest = min(self.images)
-            del self.images[oldest]
-            overflow.append(oldest)
-        return self._complete(), overflow
-
-    def add_info(self, stamp: int, msg: Any) -> list[PairedFrame]:
-        self._insert(self.infos, stamp, msg)
-        return self._complete()
-
-    def add_pose(self, stamp: int, msg: Any) -> list[PairedFrame]:
-        self._insert(self.poses, stamp, msg)
-        return self._complete()
-
-    def _complete(self) -> list[PairedFrame]:
-        done = []
-        for stamp in sorted(self.images):
-            info = self.nearest(self.infos, stamp)
-            pose = self.nearest(self.poses, stamp)
-            if info is not None and pose is not None:
-                image, _ = self.images.pop(stamp)
-                done.append(PairedFrame(stamp, image, info[1], pose[1]))
-        return done
-
-    def expire(self, now: float, timeout_s: float) -> list[tuple[int, str]]:
-        """Drop images that waited longer than ``timeout_s``; returns ``(stamp, reason)`` pairs."""
-        dropped = []
-        for stamp in sorted(self.images):
-            _, arrived = self.images[stamp]
-            if now - arrived <= timeout_s:
-                continue
-            del self.images[stamp]
-            reasons = []
-            for name, history in (("pose", self.poses), ("camera_info", self.infos)):
-                if self.nearest(history, stamp) is not None:
-                    continue
-                if not history:
-                    reasons.append(f"no {name} received yet")
-                else:
-                    closest = min(history, key=lambda item: abs(item[0] - stamp))
-                    offset = (closest[0] - stamp) * 1e-9
-                    reasons.append(
-                        f"no {name} within ±{self.tolerance_ns * 1e-9:g} s (nearest is {offset:+.3f} s away)"
-                    )
-            dropped.append((stamp, "; ".join(reasons) or "partners expired"))
-        return dropped
+    frame_id: str = param("world", "fixed frame of the grid; poses must be given in it")
+    origin: list = param([float(v) for v in DEFAULT_ORIGIN_M], "world coordinates [m] of the corner of cell (0, 0, 0)",
+                         check=_check_origin)  # fmt: skip
+    shape: list = param([int(v) for v in DEFAULT_SHAPE], "grid size [cells] nx, ny, nz", check=_check_shape)
+    voxel_size: float = param(DEFAULT_VOXEL_M, "cell edge [m]", min_value=1e-4, max_value=10.0)
+    trunc_voxels: float = param(DEFAULT_TRUNC_VOXELS, "TSDF truncation [voxels]", min_value=0.5, max_value=100.0)
+    empty_margin_voxels: float = param(
+        DEFAULT_EMPTY_MARGIN_VOXELS, "cells farther than this in front of a surface are empty [voxels]",
+        min_value=0.0, max_value=100.0,
+    )  # fmt: skip
+    depth_max_m: float = param(
+        3.0, "returns beyond this depth are ignored [m]", min_value=0.01, max_value=100.0, attribute="depth_max"
+    )
+    refine_pose_icp: bool = param(False, "refine each pose by frame-to-model odometry (slow)")
+    device: str = param("CPU:0", "open3d device, e.g. CPU:0 or CUDA:0")
+    sync_tolerance_s: float = param(
+        0.01, "largest stamp difference of an image and its pose / camera_info [s]", min_value=0.0, max_value=10.0
+    )
+    pose_timeout_s: float = param(
+        1.0, "an image whose pose / camera_info is missing this long is dropped [s]", min_value=0.0, max_value=60.0,
+        attribute="pose_timeout",
+    )  # fmt: skip
+    publish_rate_hz: float = param(
+        2.0, "most grids per second; 0 = a grid after every integrated frame", min_value=0.0, max_value=100.0,
+        attribute="publish_rate",
+    )  # fmt: skip
+    drop_when_behind: bool = param(
+        True, "when integration falls behind, only the newest waiting frame is kept (false: all, in order)"
+    )
+    diagnostics_period_s: float = param(
+        1.0, "period of the drop counts on /diagnostics [s]", min_value=0.05, max_value=3600.0,
+        attribute="diagnostics_period",
+    )  # fmt: skip
+    queue_size: int = param(5, "depth of the camera subscriptions", min_value=1, max_value=10000)
+    qos_reliability: str = param(
+        "best_effort", "camera subscriptions: best_effort (SENSOR_DATA, as drivers publish) or reliable "
+        "(lossless bag replays)", choices=RELIABILITY,
+    )  # fmt: skip
 
 
 class Integrator(Node):
@@ -203,76 +164,18 @@ class Integrator(Node):
 
     def __init__(self) -> None:
         super().__init__(NODE_NAME)
-        self.frame_id = self.declare_parameter(
-            "frame_id", "world", descriptor("fixed frame of the grid; poses must be given in it")
-        ).value
-        origin = self.declare_parameter(
-            "origin",
-            [float(v) for v in DEFAULT_ORIGIN_M],
-            descriptor("world coordinates [m] of the corner of cell (0, 0, 0)", dynamic_typing=True),
-        ).value
-        shape = self.declare_parameter(
-            "shape", [int(v) for v in DEFAULT_SHAPE], descriptor("grid size [cells] nx, ny, nz")
-        ).value
-        voxel = self.declare_parameter(
-            "voxel_size", DEFAULT_VOXEL_M, descriptor("cell edge [m]", float_range=(1e-4, 10.0))
-        ).value
-        trunc = self.declare_parameter(
-            "trunc_voxels", DEFAULT_TRUNC_VOXELS, descriptor("TSDF truncation [voxels]", float_range=(0.5, 100.0))
-        ).value
-        margin = self.declare_parameter(
-            "empty_margin_voxels",
-            DEFAULT_EMPTY_MARGIN_VOXELS,
-            descriptor("cells farther than this in front of a surface are empty [voxels]", float_range=(0.0, 100.0)),
-        ).value
-        self.depth_max = self.declare_parameter(
-            "depth_max_m", 3.0, descriptor("returns beyond this depth are ignored [m]", float_range=(0.01, 100.0))
-        ).value
-        refine = self.declare_parameter(
-            "refine_pose_icp", False, descriptor("refine each pose by frame-to-model odometry (slow)")
-        ).value
-        device = self.declare_parameter("device", "CPU:0", descriptor("open3d device, e.g. CPU:0 or CUDA:0")).value
-        tolerance = self.declare_parameter(
-            "sync_tolerance_s",
-            0.01,
-            descriptor("largest stamp difference of an image and its pose / camera_info [s]", float_range=(0.0, 10.0)),
-        ).value
-        self.pose_timeout = self.declare_parameter(
-            "pose_timeout_s",
-            1.0,
-            descriptor(
-                "an image whose pose / camera_info is missing this long is dropped [s]", float_range=(0.0, 60.0)
-            ),
-        ).value
-        self.publish_rate = self.declare_parameter(
-            "publish_rate_hz",
-            2.0,
-            descriptor("most grids per second; 0 = a grid after every integrated frame", float_range=(0.0, 100.0)),
-        ).value
-        self.drop_when_behind = self.declare_parameter(
-            "drop_when_behind",
-            True,
-            descriptor("when integration falls behind, only the newest waiting frame is kept (false: all, in order)"),
-        ).value
-        camera_qos = declare_subscription_qos(self, 10, "camera subscriptions")
-
-        if (
-            not isinstance(origin, list | tuple)
-            or len(origin) != 3
-            or not all(isinstance(v, int | float) for v in origin)
-        ):
-            raise ValueError(f"origin: expected 3 numbers [m], got {origin!r}")
-        if len(shape) != 3 or min(shape) < 1:
-            raise ValueError(f"shape: expected 3 positive sizes, got {list(shape)}")
+        self.config = cfg = declare_config(self, IntegratorConfig)  # also sets self.<name> per parameter
+        camera_qos = subscription_qos(cfg.queue_size, cfg.qos_reliability)
+        origin, shape, voxel, tolerance = cfg.origin, cfg.shape, cfg.voxel_size, cfg.sync_tolerance_s
         self.geometry = GridGeometry(tuple(float(v) for v in origin), float(voxel), tuple(int(v) for v in shape))
         self._tsdf = TsdfIntegrator(
             origin_m=np.array(self.geometry.origin),
             shape_cells=self.geometry.shape,
             voxel_size_m=voxel,
-            trunc_voxels=trunc,
-            empty_margin_voxels=margin,
-            device=device,
-            refine_pose_icp=refine,
+            trunc_voxels=cfg.trunc_voxels,
+            empty_margin_voxels=cfg.empty_margin_voxels,
+            device=cfg.device,
+            refine_pose_icp=cfg.refine_pose_icp,
         )
 
         # state shared by the executor threads and the worker: _cv guards the pairing and the queue,
@@ -286,22 +189,29 @@ class Integrator(Node):
         self._dirty = False
         self._newest_stamp_ns = 0
         self._next_publish = 0.0
-        self.counts = dict.fromkeys(("images", "integrated", "dropped_behind", "unpaired", "rejected", "grids"), 0)
+        self.counts = dict.fromkeys(("images", "integrated", "grids"), 0)
+        self.drops = DropCounts()  # every frame not integrated is counted here under its reason
+        self._drops_reported = 0
+        self._last_drop_log: dict[DropReason, float] = {}
+        self._last_drop_text: dict[str, str] = {}  # reason -> why its last frame was dropped
         self._store = typestore()
 
         self._grid_pub = self.create_publisher(VoxelGrid, TOPIC_GRID, GRID_QOS)
         inputs = MutuallyExclusiveCallbackGroup()
         services = MutuallyExclusiveCallbackGroup()
-        self.create_subscription(Image, TOPIC_IMAGE, self._on_image, camera_qos, callback_group=inputs, raw=True)
+        self.create_subscription(Image, names.DEPTH_IMAGE, self._on_image, camera_qos, callback_group=inputs, raw=True)
         self.create_subscription(
-            CameraInfo, TOPIC_CAMERA_INFO, self._on_info, camera_qos, callback_group=inputs, raw=True
+            CameraInfo, names.CAMERA_INFO, self._on_info, camera_qos, callback_group=inputs, raw=True
         )
         self.create_subscription(
-            TransformStamped, TOPIC_POSE, self._on_pose, camera_qos, callback_group=inputs, raw=True
+            TransformStamped, names.CAMERA_POSE, self._on_pose, camera_qos, callback_group=inputs, raw=True
         )
         self.create_timer(0.1, self._on_expire_timer, callback_group=inputs)
         self.create_service(Trigger, SERVICE_RESET, self._on_reset, callback_group=services)
         self.create_service(SaveGrid, SERVICE_SAVE, self._on_save, callback_group=services)
+        self.create_service(Trigger, SERVICE_DIAGNOSTICS, self._on_diagnostics, callback_group=services)
+        self._diagnostics_pub = self.create_publisher(DiagnosticArray, TOPIC_DIAGNOSTICS, 10)
+        self.create_timer(self.diagnostics_period, self._publish_diagnostics, callback_group=services)
         self._worker = threading.Thread(target=self._work, name="tsdf_worker", daemon=True)
         self._worker.start()
         self.get_logger().info(
@@ -310,53 +220,66 @@ class Integrator(Node):
         )
 
     # -------------------------------------------------------------- callbacks
+    def _drop(self, reason: DropReason, text: str, n: int = 1, error: bool = False) -> None:
+        """Count ``n`` dropped frames under ``reason`` and log why (at most every 5 s per reason)."""
+        self.drops.add(reason, n)
+        self._last_drop_text[reason.value] = text
+        now = time.monotonic()
+        if now - self._last_drop_log.get(reason, -np.inf) < 5.0:
+            return
+        self._last_drop_log[reason] = now
+        text = f"{text} ({self.drops.counts[reason.value]} dropped for {reason.value} so far)"
+        if error:
+            self.get_logger().error(text)
+        else:
+            self.get_logger().warning(text)
+
     def _decode(self, raw: bytes, msgtype: str, topic: str) -> Any | None:
         try:
             return self._store.deserialize_cdr(raw, msgtype)
         except Exception as exc:  # malformed CDR from a foreign publisher
-            self.get_logger().error(f"{topic}: cannot decode a {msgtype} ({exc}); dropped", throttle_duration_sec=5.0)
+            self._drop(DropReason.BAD_MESSAGE, f"{topic}: cannot decode a {msgtype} ({exc}); dropped", error=True)
             return None
 
     def _on_image(self, raw: bytes) -> None:
-        msg = self._decode(raw, MSG_IMAGE, TOPIC_IMAGE)
+        msg = self._decode(raw, MSG_IMAGE, names.DEPTH_IMAGE)
         if msg is None:
             return
         stamp = stamp_of(msg)
         self.counts["images"] += 1
         if msg.encoding not in ENCODINGS:
-            self.counts["rejected"] += 1
-            self.get_logger().error(
+            self._drop(
+                DropReason.BAD_ENCODING,
                 f"image stamped {stamp * 1e-9:.3f}: unsupported encoding {msg.encoding!r} "
-                f"(expected one of {', '.join(ENCODINGS)}); dropped",
-                throttle_duration_sec=5.0,
+                f"(expected one of {', '.join(ENCODINGS)}, REP-118); dropped",
+                error=True,
             )
             return
         with self._cv:
             frames, overflow = self._sync.add_image(stamp, msg, time.monotonic())
             self._enqueue(frames)
         if overflow:
-            self.counts["unpaired"] += len(overflow)
-            self.get_logger().warning(
+            self._drop(
+                DropReason.TOO_MANY_PENDING,
                 f"{len(overflow)} image(s) dropped: more than {MAX_PENDING} waiting for their pose",
-                throttle_duration_sec=5.0,
+                n=len(overflow),
             )
 
     def _on_info(self, raw: bytes) -> None:
-        msg = self._decode(raw, MSG_CAMERA_INFO, TOPIC_CAMERA_INFO)
+        msg = self._decode(raw, MSG_CAMERA_INFO, names.CAMERA_INFO)
         if msg is not None:
             with self._cv:
                 self._enqueue(self._sync.add_info(stamp_of(msg), msg))
 
     def _on_pose(self, raw: bytes) -> None:
-        msg = self._decode(raw, MSG_TRANSFORM, TOPIC_POSE)
+        msg = self._decode(raw, MSG_TRANSFORM, names.CAMERA_POSE)
         if msg is None:
             return
         if msg.header.frame_id != self.frame_id:
-            self.counts["rejected"] += 1
-            self.get_logger().warning(
+            self._drop(
+                DropReason.POSE_FRAME,
                 f"pose in frame {msg.header.frame_id!r}, expected the grid frame {self.frame_id!r} (no tf here); "
                 "ignored",
-                throttle_duration_sec=5.0,
             )
             return
         with self._cv:
@@ -365,14 +288,45 @@ class Integrator(Node):
     def _on_expire_timer(self) -> None:
         with self._cv:
             dropped = self._sync.expire(time.monotonic(), self.pose_timeout)
-        if dropped:
-            self.counts["unpaired"] += len(dropped)
-            stamp, reason = dropped[-1]
-            self.get_logger().warning(
-                f"image stamped {stamp * 1e-9:.3f} dropped: {reason} after {self.pose_timeout:g} s "
-                f"({self.counts['unpaired']} unpaired image(s) dropped so far)",
-                throttle_duration_sec=5.0,
-            )
+        for stamp, reason, text in dropped:
+            self._drop(reason, f"image stamped {stamp * 1e-9:.3f} dropped: {text} after {self.pose_timeout:g} s")
+
+    def diagnostics(self) -> dict[str, Any]:
+        """Frame counts, drops per reason and the last drop's text per reason (what ``/diagnostics``
+        and the service report)."""
+        return {
+            **self.counts,
+            "dropped": self.drops.as_dict(),
+            "dropped_total": self.drops.total(),
+            "last_drop": dict(self._last_drop_text),
+        }
+
+    def _publish_diagnostics(self) -> None:
+        if not self.context.ok():
+            return
+        report = self.diagnostics()
+        new_drops = report["dropped_total"] - self._drops_reported
+        self._drops_reported = report["dropped_total"]
+        status = DiagnosticStatus(
+            level=DiagnosticStatus.WARN if new_drops else DiagnosticStatus.OK,
+            name=f"{self.get_fully_qualified_name()}: depth frames",
+            message=f"{new_drops} frame(s) dropped in the last period" if new_drops else "integrating",
+            hardware_id=self.frame_id,
+        )
+        values = {k: v for k, v in report.items() if k not in ("dropped", "last_drop")}
+        values.update({f"dropped_{k}": v for k, v in report["dropped"].items()})
+        values.update({f"last_drop_{k}": v for k, v in report["last_drop"].items()})
+        status.values = [KeyValue(key=k, value=str(v)) for k, v in values.items()]
+        array = DiagnosticArray(status=[status])
+        array.header.stamp = self.get_clock().now().to_msg()
+        self._diagnostics_pub.publish(array)
+
+    def _on_diagnostics(self, request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
+        """``message`` is the JSON of :meth:`diagnostics`; ``success`` is false when frames were dropped."""
+        report = self.diagnostics()
+        response.success = report["dropped_total"] == 0
+        response.message = json.dumps(report, sort_keys=True)
+        return response
 
     def _enqueue(self, frames: list[PairedFrame]) -> None:
         """Queue paired frames for the worker (caller holds ``_cv``)."""
@@ -393,11 +347,7 @@ class Integrator(Node):
                     dropped += 1
         self._cv.notify_all()
         if dropped:
-            self.counts["dropped_behind"] += dropped
-            self.get_logger().warning(
-                f"integration is behind: {self.counts['dropped_behind']} frame(s) dropped so far (newest wins)",
-                throttle_duration_sec=5.0,
-            )
+            self._drop(DropReason.BEHIND, f"integration is behind: {dropped} frame(s) dropped (newest wins)", n=dropped)
 
     def _on_reset(self, request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
         with self._tsdf_lock:
@@ -411,6 +361,8 @@ class Integrator(Node):
             self._newest_stamp_ns = 0
             self._dirty = True
             self._next_publish = 0.0
+        if discarded:
+            self._drop(DropReason.RESET, f"reset: {discarded} waiting frame(s) discarded", n=discarded)
         response.success = True
         response.message = f"grid reset to unknown ({discarded} waiting frame(s) discarded)"
         self.get_logger().info(response.message)
@@ -468,19 +420,20 @@ class Integrator(Node):
 
     def _integrate(self, frame: PairedFrame) -> None:
         try:
-            depth = image_msg_to_depth(frame.image)
-            intrinsics = camera_info_to_intrinsics(frame.info)
-            pose = transform_msg_to_pose(frame.pose)
+            depth, intrinsics, pose = decode_frame(frame)
             with self._tsdf_lock:
                 if frame.generation != self._generation:
-                    return  # queued before a reset
+                    self.drops.add(DropReason.RESET)  # queued before a reset
+                    return
                 self._tsdf.integrate(depth, intrinsics, pose, depth_max=self.depth_max)
                 self._newest_stamp_ns = max(self._newest_stamp_ns, frame.stamp_ns)
                 self._dirty = True
+        except FrameRejectedError as exc:
+            self._drop(exc.reason, f"frame stamped {frame.stamp_ns * 1e-9:.3f} rejected: {exc}", error=True)
+            return
         except ValueError as exc:
-            self.counts["rejected"] += 1
-            self.get_logger().error(
-                f"frame stamped {frame.stamp_ns * 1e-9:.3f} rejected: {exc}", throttle_duration_sec=5.0
+            self._drop(
+                DropReason.INTEGRATION_ERROR, f"frame stamped {frame.stamp_ns * 1e-9:.3f} rejected: {exc}", error=True
             )
             return
         self.counts["integrated"] += 1
@@ -493,7 +446,7 @@ class Integrator(Node):
             stamp_ns = self._newest_stamp_ns
             self._dirty = False
             self._next_publish = time.monotonic() + (1.0 / self.publish_rate if self.publish_rate > 0 else 0.0)
-        self._grid_pub.publish(grid_to_msg(grid, self.geometry, self.frame_id, stamp_to_time(stamp_ns)))
+        self._grid_pub.publish(grid_to_msg(grid, self.geometry, self.frame_id, time_msg(stamp_ns)))
         self.counts["grids"] += 1
 
     def destroy_node(self) -> None:
@@ -504,7 +457,8 @@ class Integrator(Node):
         super().destroy_node()
 
     def summary(self) -> str:
-        return ", ".join(f"{name} {value}" for name, value in self.counts.items())
+        dropped = ", ".join(f"{k} {v}" for k, v in self.drops.as_dict().items() if v) or "none"
+        return ", ".join(f"{name} {value}" for name, value in self.counts.items()) + f"; dropped: {dropped}"
 
 
 def main(args: list[str] | None = None) -> int:

@@ -12,6 +12,7 @@ import numpy as np
 from nbv_prob_cnn.benchmark import half_explored
 from nbv_prob_cnn.camera import dataset_defaults
 from nbv_prob_cnn.planners import GAIN_METHODS, GainPlanner, PlanningContext
+from nbv_prob_cnn.ros import names
 from nbv_prob_cnn.ros.graph import NodeGraph, ros_environment, wait_for
 
 
@@ -48,9 +49,9 @@ def ros_latency_benchmark(dataset: str = "3du", method: str = "cnn_prob", seed: 
         graph.start_node("nbv_planner", "nbv_planner", {"dataset": dataset, "method": method})
         rclpy.init()
         node = rclpy.create_node("latency_benchmark")
-        publisher = node.create_publisher(VoxelGrid, "/nbv/grid", GRID_QOS)
+        publisher = node.create_publisher(VoxelGrid, names.GRID, GRID_QOS)
         publisher.publish(grid_to_msg(state, geometry))
-        client = node.create_client(PlanNextBestView, "/nbv/plan")
+        client = node.create_client(PlanNextBestView, names.PLAN)
 
         def round_trip() -> tuple[float, bool]:
             start = time.perf_counter()
@@ -74,7 +75,9 @@ def ros_latency_benchmark(dataset: str = "3du", method: str = "cnn_prob", seed: 
         [
             "| grid | method | in-process planning (s) | /nbv/plan round trip (s) | transport overhead |",
             "|---|---|---|---|---|",
-            f"| {dataset.upper()} {'×'.join(map(str, world.shape))} | {method} | {t_local:.3f} | {t_remote:.3f} | "
-            f"{100 * (t_remote - t_local) / t_local:+.0f} % |",
+            (
+                f"| {dataset.upper()} {'×'.join(map(str, world.shape))} | {method} | {t_local:.3f} | {t_remote:.3f} | "
+                f"{100 * (t_remote - t_local) / t_local:+.0f} % |"
+            ),
         ]
     )

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import threading
 import time
+from dataclasses import dataclass
 
 import numpy as np
 from geometry_msgs.msg import PoseStamped, TransformStamped
@@ -24,11 +25,13 @@ from rclpy.node import Node
 from visualization_msgs.msg import MarkerArray
 
 from nbv_prob_cnn.camera import DATASETS
-from nbv_prob_cnn.gain import BACKENDS
 from nbv_prob_cnn.grid import unknown_fraction_all
+from nbv_prob_cnn.modes import BACKEND_NAMES, MOVE_MODES, Backend, MoveMode
+from nbv_prob_cnn.perception.messages import stamp_ns
 from nbv_prob_cnn.planners import make_planner, ros_method
 from nbv_prob_cnn.planners.requests import choice_from_pose, origin_filter, planning_context, view_pose
-from nbv_prob_cnn.ros.common import GRID_QOS, allow_updates, call_service, declare, positive_seconds, run_node
+from nbv_prob_cnn.ros import names
+from nbv_prob_cnn.ros.common import GRID_QOS, call_service, declare_config, param, positive_seconds, run_node
 from nbv_prob_cnn.ros.conversions import (
     arrays_to_pose_stamped,
     msg_to_grid,
@@ -38,9 +41,32 @@ from nbv_prob_cnn.ros.conversions import (
 )
 from nbv_prob_cnn.ros.markers import planning_markers
 
+#: Planning's message when every candidate view has zero gain (a normal end of an exploration).
+NO_POSITIVE_GAIN = "no view with positive gain"
 
-def _stamp_ns(stamp) -> int:
-    return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
+
+def _check_method(name: str) -> None:
+    ros_method(name, name)
+
+
+@dataclass
+class PlannerConfig:
+    """Parameters of ``nbv_planner`` (``method`` and ``service_timeout_s`` may change at run time)."""
+
+    dataset: str = param("3dt", "sensor/ray defaults and CNN weights", choices=tuple(sorted(DATASETS)))
+    method: str = param("cnn_prob", "method when a request names none", dynamic=True, check=_check_method)
+    in_process: bool = param(False, "complete and ray-cast here instead of via the servers")
+    backend: Backend = param("auto", "ray-casting backend (in-process mode)", choices=BACKEND_NAMES)
+    n_rays: int = param(0, "ray sub-cells per side (0 = default)", min_value=0, max_value=64)
+    frame_id: str = param("world", "frame of grids that carry none")
+    service_timeout_s: float = param(
+        60.0, "completion/ranking wait", min_value=0.1, max_value=600.0, dynamic=True, check=positive_seconds
+    )
+    move_mode: MoveMode = param("service", "'service' (sim_camera/move_to) or 'topic' (goal pose)", choices=MOVE_MODES)
+    move_timeout_s: float = param(30.0, "wait for the camera to arrive", min_value=0.1, max_value=600.0)
+    grid_timeout_s: float = param(30.0, "wait for the grid with the new frame", min_value=0.1, max_value=600.0)
+    arrival_tolerance_m: float = param(0.01, "topic mode: position tolerance", min_value=0.0, max_value=1.0)
+    markers_top_k: int = param(20, "candidate views shown as markers", min_value=1, max_value=1000)
 
 
 class NbvPlanner(Node):
@@ -48,59 +74,29 @@ class NbvPlanner(Node):
 
     def __init__(self) -> None:
         super().__init__("nbv_planner")
-        self.dataset = declare(self, "dataset", "3dt", f"sensor/ray defaults and CNN weights: {sorted(DATASETS)}")
-        self.method = declare(self, "method", "cnn_prob", "method when a request names none")
-        self.in_process = declare(self, "in_process", False, "complete and ray-cast here instead of via the servers")
-        self.backend = declare(self, "backend", "auto", f"ray-casting backend (in-process mode): {BACKENDS}")
-        self.n_rays = declare(self, "n_rays", 0, "ray sub-cells per side (0 = default)", min_value=0, max_value=64)
-        self.frame_id = declare(self, "frame_id", "world", "frame of grids that carry none")
-        self.service_timeout_s = declare(
-            self, "service_timeout_s", 60.0, "completion/ranking wait", min_value=0.1, max_value=600.0
-        )
-        self.move_mode = declare(self, "move_mode", "service", "'service' (/sim_camera/move_to) or 'topic' (goal pose)")
-        self.move_timeout_s = declare(
-            self, "move_timeout_s", 30.0, "wait for the camera to arrive", min_value=0.1, max_value=600.0
-        )
-        self.grid_timeout_s = declare(
-            self, "grid_timeout_s", 30.0, "wait for the grid with the new frame", min_value=0.1, max_value=600.0
-        )
-        self.arrival_tolerance_m = declare(
-            self, "arrival_tolerance_m", 0.01, "topic mode: position tolerance", min_value=0.0, max_value=1.0
-        )
-        self.markers_top_k = declare(
-            self, "markers_top_k", 20, "candidate views shown as markers", min_value=1, max_value=1000
-        )
-        if self.dataset not in DATASETS or self.backend not in BACKENDS or self.move_mode not in ("service", "topic"):
-            raise ValueError(
-                f"bad parameters: dataset={self.dataset!r} backend={self.backend!r} move_mode={self.move_mode!r}"
-            )
-        ros_method(self.method, self.method)  # validates the default
-        allow_updates(
-            self,
-            {
-                "method": lambda value: ros_method(value, value),
-                "service_timeout_s": positive_seconds,
-            },
-        )
+        self.config = declare_config(self, PlannerConfig)  # also sets self.<name> for each parameter
         self._rng = np.random.default_rng()
         self._grid_lock = threading.Condition()
         self._grid: VoxelGrid | None = None
         self._camera_lock = threading.Condition()
         self._camera_pose: TransformStamped | None = None
-        self._explore_lock = threading.Lock()
+        self._explore_lock = threading.Lock()  # guards the two fields below
+        self._active_goal = None  # the running exploration's goal handle
+        self._refused_goals: set[bytes] = set()  # accepted while another ran: aborted on execution
         group = ReentrantCallbackGroup()
-        self.create_subscription(VoxelGrid, "/nbv/grid", self._on_grid, GRID_QOS, callback_group=group)
-        self.create_subscription(TransformStamped, "/camera/pose", self._on_camera_pose, 10, callback_group=group)
-        self._nbv_pub = self.create_publisher(PoseStamped, "/nbv/next_best_view", 10)
-        self._marker_pub = self.create_publisher(MarkerArray, "/nbv/markers", 10)
-        self._goal_pub = self.create_publisher(PoseStamped, "/camera/goal_pose", 10)
-        self._complete_client = self.create_client(CompleteGrid, "/nbv/complete", callback_group=group)
-        self._rank_client = self.create_client(RankViews, "/nbv/rank_views", callback_group=group)
-        self._move_client = self.create_client(MoveCamera, "/sim_camera/move_to", callback_group=group)
-        self.create_service(PlanNextBestView, "/nbv/plan", self._plan_service, callback_group=group)
+        self.create_subscription(VoxelGrid, names.GRID, self._on_grid, GRID_QOS, callback_group=group)
+        self.create_subscription(TransformStamped, names.CAMERA_POSE, self._on_camera_pose, 10, callback_group=group)
+        self._nbv_pub = self.create_publisher(PoseStamped, names.NEXT_BEST_VIEW, 10)
+        self._marker_pub = self.create_publisher(MarkerArray, names.MARKERS, 10)
+        self._goal_pub = self.create_publisher(PoseStamped, names.GOAL_POSE, 10)
+        self._complete_client = self.create_client(CompleteGrid, names.COMPLETE, callback_group=group)
+        self._rank_client = self.create_client(RankViews, names.RANK_VIEWS, callback_group=group)
+        self._move_client = self.create_client(MoveCamera, names.MOVE_TO, callback_group=group)
+        self.create_service(PlanNextBestView, names.PLAN, self._plan_service, callback_group=group)
         self._action = ActionServer(
-            self, Explore, "/nbv/explore", execute_callback=self._explore,
-            goal_callback=self._accept_goal, cancel_callback=lambda _: CancelResponse.ACCEPT, callback_group=group,
+            self, Explore, names.EXPLORE, execute_callback=self._explore,
+            goal_callback=self._check_goal, handle_accepted_callback=self._claim_goal,
+            cancel_callback=lambda _: CancelResponse.ACCEPT, callback_group=group,
         )  # fmt: skip
         mode = "in-process" if self.in_process else "via /nbv/complete and /nbv/rank_views"
         self.get_logger().info(f"nbv_planner ready: dataset {self.dataset}, method {self.method}, {mode}")
@@ -125,7 +121,7 @@ class NbvPlanner(Node):
     def _wait_for_grid(self, min_stamp_ns: int, timeout_s: float) -> VoxelGrid:
         with self._grid_lock:
             ok = self._grid_lock.wait_for(
-                lambda: self._grid is not None and _stamp_ns(self._grid.header.stamp) >= min_stamp_ns, timeout_s
+                lambda: self._grid is not None and stamp_ns(self._grid.header.stamp) >= min_stamp_ns, timeout_s
             )
             if not ok:
                 raise TimeoutError(f"no grid including the frame at {min_stamp_ns} ns within {timeout_s:.0f} s")
@@ -154,7 +150,7 @@ class NbvPlanner(Node):
                 t = ranked[0].times
                 response.time_cnn_s, response.time_raycast_s, response.time_views_s = t["cnn"], t["raycast"], t["views"]
             if not views:
-                raise ValueError("no view with positive gain")
+                raise ValueError(NO_POSITIVE_GAIN)
             ranked_msgs = [
                 ViewScore(pose=arrays_to_pose_stamped(p, q, frame, grid.header.stamp), gain=float(g))
                 for p, q, g in views
@@ -216,14 +212,24 @@ class NbvPlanner(Node):
         return response
 
     # -- exploration --------------------------------------------------------------------------
-    def _accept_goal(self, goal: Explore.Goal) -> GoalResponse:
+    def _check_goal(self, goal: Explore.Goal) -> GoalResponse:
+        """Refuse goals that cannot run (as ros2/examples ``server_single_goal.py``, the
+        one-at-a-time decision is taken later, under a lock, in :meth:`_claim_goal`)."""
         if goal.max_views < 1 or not np.isfinite(goal.stop_unknown_fraction) or not np.isfinite(goal.stop_gain):
             self.get_logger().warning("explore: rejected a goal with max_views < 1 or non-finite thresholds")
             return GoalResponse.REJECT
-        if self._explore_lock.locked():
-            self.get_logger().warning("explore: rejected, another exploration is running")
-            return GoalResponse.REJECT
         return GoalResponse.ACCEPT
+
+    def _claim_goal(self, goal_handle) -> None:
+        """Accepted goals arrive here: the first one while none runs takes the exploration slot;
+        one that arrives while another runs is executed only to be aborted with a reason."""
+        with self._explore_lock:
+            busy = self._active_goal is not None and self._active_goal.is_active
+            if busy:
+                self._refused_goals.add(bytes(goal_handle.goal_id.uuid))
+            else:
+                self._active_goal = goal_handle
+        goal_handle.execute()
 
     def _move_camera(self, target: PoseStamped) -> int:
         """Move the camera; returns the stamp (ns) of the first frame taken at the target."""
@@ -231,14 +237,14 @@ class NbvPlanner(Node):
             reply = call_service(self, self._move_client, MoveCamera.Request(target=target), self.move_timeout_s)
             if not reply.success:
                 raise ValueError(f"camera move failed: {reply.message}")
-            return _stamp_ns(reply.frame_stamp)
+            return stamp_ns(reply.frame_stamp)
         goal_position, _ = pose_to_arrays(target.pose)
         self._goal_pub.publish(target)
         sent = self.get_clock().now().nanoseconds
 
         def arrived() -> bool:
             pose = self._camera_pose
-            if pose is None or _stamp_ns(pose.header.stamp) < sent:
+            if pose is None or stamp_ns(pose.header.stamp) < sent:
                 return False
             t = pose.transform.translation
             return float(np.linalg.norm(np.array([t.x, t.y, t.z]) - goal_position)) <= self.arrival_tolerance_m
@@ -246,51 +252,66 @@ class NbvPlanner(Node):
         with self._camera_lock:
             if not self._camera_lock.wait_for(arrived, self.move_timeout_s):
                 raise TimeoutError(f"camera did not report arrival within {self.move_timeout_s:.0f} s")
-            return _stamp_ns(self._camera_pose.header.stamp)
+            return stamp_ns(self._camera_pose.header.stamp)
 
     def _explore(self, goal_handle) -> Explore.Result:
+        """Run one exploration; the goal ends SUCCEEDED when a stop condition is met, CANCELED
+        when the client cancels, ABORTED on any error (with the error as ``reason_stopped``)."""
         goal: Explore.Goal = goal_handle.request
         result = Explore.Result()
         with self._explore_lock:
-            reason = f"reached {goal.max_views} views"
-            fraction = 1.0
-            try:
-                fraction = unknown_fraction_all(msg_to_grid(self._wait_for_grid(0, self.grid_timeout_s))[0])
-                for index in range(goal.max_views):
-                    if goal_handle.is_cancel_requested:
-                        goal_handle.canceled()
-                        reason = "canceled"
-                        break
-                    if goal.stop_unknown_fraction > 0 and fraction <= goal.stop_unknown_fraction:
-                        reason = f"unknown fraction {fraction:.4f} <= {goal.stop_unknown_fraction}"
-                        break
-                    planned = self.plan(PlanNextBestView.Request(method=goal.method))
-                    if not planned.success:
-                        reason = f"planning stopped: {planned.message}"
-                        break
-                    if planned.best_gain <= goal.stop_gain:
-                        reason = f"best gain {planned.best_gain:.4f} <= {goal.stop_gain}"
-                        break
-                    frame_ns = self._move_camera(planned.best_pose)
-                    grid = self._wait_for_grid(frame_ns, self.grid_timeout_s)
-                    fraction = unknown_fraction_all(msg_to_grid(grid)[0])
-                    result.poses.append(planned.best_pose)
-                    feedback = Explore.Feedback(
-                        view_index=index, pose=planned.best_pose, gain=planned.best_gain, unknown_fraction=fraction
-                    )
-                    goal_handle.publish_feedback(feedback)
-                    self.get_logger().info(
-                        f"view {index}: gain {planned.best_gain:.4f}, unknown fraction {fraction:.4f}"
-                    )
-            except (ValueError, TimeoutError, RuntimeError) as exc:
-                reason = f"error: {exc}"
-                self.get_logger().error(f"explore: {exc}")
-            result.views = len(result.poses)
-            result.final_unknown_fraction = float(fraction)
-            result.reason_stopped = reason
-            if reason != "canceled":
-                goal_handle.succeed()
+            refused = bytes(goal_handle.goal_id.uuid) in self._refused_goals
+            self._refused_goals.discard(bytes(goal_handle.goal_id.uuid))
+        if refused:
+            result.reason_stopped = "refused: another exploration is running"
+            self.get_logger().warning(f"explore: {result.reason_stopped}")
+            goal_handle.abort()
             return result
+        outcome, result.reason_stopped, fraction = self._run_exploration(goal_handle, goal, result)
+        result.views = len(result.poses)
+        result.final_unknown_fraction = float(fraction)
+        with self._explore_lock:
+            if outcome == "canceled":
+                goal_handle.canceled()
+            elif outcome == "aborted":
+                goal_handle.abort()
+            else:
+                goal_handle.succeed()
+            self._active_goal = None
+        return result
+
+    def _run_exploration(self, goal_handle, goal: Explore.Goal, result: Explore.Result) -> tuple[str, str, float]:
+        """The exploration loop; returns (outcome: succeeded/canceled/aborted, reason, unknown fraction)."""
+        fraction = 1.0
+        try:
+            fraction = unknown_fraction_all(msg_to_grid(self._wait_for_grid(0, self.grid_timeout_s))[0])
+            for index in range(goal.max_views):
+                if goal_handle.is_cancel_requested:
+                    return "canceled", f"canceled after {index} views", fraction
+                if goal.stop_unknown_fraction > 0 and fraction <= goal.stop_unknown_fraction:
+                    return "succeeded", f"unknown fraction {fraction:.4f} <= {goal.stop_unknown_fraction}", fraction
+                planned = self.plan(PlanNextBestView.Request(method=goal.method))
+                if not planned.success:
+                    if planned.message == NO_POSITIVE_GAIN:
+                        return "succeeded", NO_POSITIVE_GAIN, fraction
+                    return "aborted", f"error: planning failed: {planned.message}", fraction
+                if planned.best_gain <= goal.stop_gain:
+                    return "succeeded", f"best gain {planned.best_gain:.4f} <= {goal.stop_gain}", fraction
+                frame_ns = self._move_camera(planned.best_pose)
+                grid = self._wait_for_grid(frame_ns, self.grid_timeout_s)
+                fraction = unknown_fraction_all(msg_to_grid(grid)[0])
+                result.poses.append(planned.best_pose)
+                feedback = Explore.Feedback(
+                    view_index=index, pose=planned.best_pose, gain=planned.best_gain, unknown_fraction=fraction
+                )
+                goal_handle.publish_feedback(feedback)
+                self.get_logger().info(f"view {index}: gain {planned.best_gain:.4f}, unknown fraction {fraction:.4f}")
+        except (ValueError, TimeoutError, RuntimeError) as exc:
+            self.get_logger().error(f"explore: {exc}")
+            return "aborted", f"error: {exc}", fraction
+        if goal_handle.is_cancel_requested:
+            return "canceled", f"canceled after {goal.max_views} views", fraction
+        return "succeeded", f"reached {goal.max_views} views", fraction
 
 
 def main(args: list[str] | None = None) -> int:

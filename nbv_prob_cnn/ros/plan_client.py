@@ -17,6 +17,7 @@ from nbv_prob_cnn_msgs.msg import VoxelGrid
 from nbv_prob_cnn_msgs.srv import PlanNextBestView
 
 from nbv_prob_cnn.grid import unknown_fraction_all
+from nbv_prob_cnn.ros import names
 from nbv_prob_cnn.ros.common import GRID_QOS
 from nbv_prob_cnn.ros.conversions import msg_to_grid, pose_to_arrays
 
@@ -32,8 +33,8 @@ def main(argv: list[str] | None = None) -> int:
     rclpy.init()
     node = rclpy.create_node("plan_client")
     grids: list[tuple[float, VoxelGrid]] = []
-    node.create_subscription(VoxelGrid, "/nbv/grid", lambda m: grids.append((time.monotonic(), m)), GRID_QOS)
-    client = node.create_client(PlanNextBestView, "/nbv/plan")
+    node.create_subscription(VoxelGrid, names.GRID, lambda m: grids.append((time.monotonic(), m)), GRID_QOS)
+    client = node.create_client(PlanNextBestView, names.PLAN)
     try:
         deadline = time.monotonic() + args.timeout
         print("[plan] waiting for the grid to settle...", flush=True)

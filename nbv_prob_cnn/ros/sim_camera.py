@@ -22,10 +22,10 @@ from __future__ import annotations
 
 import math
 import threading
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-from builtin_interfaces.msg import Time
 from geometry_msgs.msg import PoseStamped, TransformStamped
 from nbv_prob_cnn_msgs.srv import MoveCamera
 from rclpy.node import Node
@@ -33,26 +33,24 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 from sensor_msgs.msg import CameraInfo, Image
 
 from nbv_prob_cnn.camera import look_rotation, matrix_from_quaternion, quaternion_from_matrix
-from nbv_prob_cnn.perception.bags import (
+from nbv_prob_cnn.perception.depth_camera import DepthCamera, DepthNoise, Intrinsics, room_mesh
+from nbv_prob_cnn.perception.messages import (
+    ENCODINGS,
     MSG_CAMERA_INFO,
     MSG_IMAGE,
     MSG_TRANSFORM,
-    TOPIC_CAMERA_INFO,
-    TOPIC_IMAGE,
-    TOPIC_POSE,
     depth_to_image_msg,
     intrinsics_to_camera_info,
     pose_to_transform_msg,
     typestore,
 )
-from nbv_prob_cnn.perception.depth_camera import DepthCamera, DepthNoise, Intrinsics, room_mesh
-from nbv_prob_cnn.ros.common import descriptor, run_node
-from nbv_prob_cnn.ros.conversions import pose_to_arrays
+from nbv_prob_cnn.ros import names
+from nbv_prob_cnn.ros.common import declare_config, param, run_node
+from nbv_prob_cnn.ros.conversions import pose_to_arrays, time_msg
 
 NODE_NAME = "sim_camera"
-TOPIC_GOAL_POSE = "/camera/goal_pose"
-SERVICE_MOVE_TO = "/sim_camera/move_to"
-ENCODINGS = ("32FC1", "16UC1")
+TOPIC_GOAL_POSE = names.GOAL_POSE
+SERVICE_MOVE_TO = names.MOVE_TO
 
 
 def look_at_pose(position, target) -> list[float]:
@@ -90,10 +88,6 @@ def pose_matrix(values) -> np.ndarray:
     return pose
 
 
-def stamp_to_time(stamp_ns: int) -> Time:
-    return Time(sec=int(stamp_ns // 1_000_000_000), nanosec=int(stamp_ns % 1_000_000_000))
-
-
 def load_meshes(dataset: str, seed: int, mesh_file: str, room_margin_m: float = 0.0) -> tuple[list, str]:
     """The scene meshes (world metres) and a description of where they came from; generated
     worlds get walls ``room_margin_m`` outside their grid when that is positive."""
@@ -127,72 +121,58 @@ def load_meshes(dataset: str, seed: int, mesh_file: str, room_margin_m: float = 
     )
 
 
+@dataclass
+class SimCameraConfig:
+    """Parameters of ``sim_camera`` (all fixed after start-up)."""
+
+    dataset: str = param("3dt", "generated world to look at (ignored with mesh_file)", choices=("3dt", "3du"))
+    seed: int = param(1000, "world seed", min_value=0, max_value=2**31 - 1)
+    mesh_file: str = param("", "mesh file (world metres, any format trimesh reads); overrides dataset/seed")
+    width: int = param(640, "image width [px]", min_value=1, max_value=8192)
+    height: int = param(480, "image height [px]", min_value=1, max_value=8192)
+    hfov_deg: float = param(60.0, "horizontal field of view [deg]", min_value=1.0, max_value=179.0)
+    frame_id: str = param("world", "fixed frame of the scene and of the published pose")
+    camera_frame: str = param("camera_optical", "optical frame of the images (REP-103)")
+    rate_hz: float = param(5.0, "frame rate [Hz]; 0 = publish only when moved", min_value=0.0, max_value=100.0)
+    encoding: str = param("32FC1", "image encoding (REP-118): float metres or uint16 millimetres", choices=ENCODINGS)
+    initial_pose: list = param(
+        [], "initial camera_optical pose [x, y, z, qx, qy, qz, qw] in frame_id; empty = looking at the "
+        "scene centre from above its front (-y) side",
+    )  # fmt: skip
+    depth_min_m: float = param(0.0, "returns nearer than this are 'no return' [m]", min_value=0.0, max_value=100.0)
+    depth_max_m: float = param(10.0, "returns farther than this are 'no return' [m]", min_value=0.0, max_value=655.0)
+    noise_sigma_per_m: float = param(
+        0.0, "depth noise standard deviation per metre of depth (0 = exact)", min_value=0.0, max_value=1.0
+    )
+    noise_dropout: float = param(0.0, "probability of a pixel dropout (no return)", min_value=0.0, max_value=1.0)
+    room_margin_m: float = param(
+        0.3, "walls this far outside a generated world's grid, so every pixel has a return (0 = none)",
+        min_value=0.0, max_value=100.0,
+    )  # fmt: skip
+    noise_seed: int = param(0, "seed of the noise generator", min_value=0, max_value=2**31 - 1)
+
+
 class SimCamera(Node):
     """Renders depth frames of a static scene from a movable camera pose."""
 
     def __init__(self) -> None:
         super().__init__(NODE_NAME)
-        dataset = self.declare_parameter(
-            "dataset", "3dt", descriptor("generated world to look at: '3dt' or '3du' (ignored with mesh_file)")
-        ).value
-        seed = self.declare_parameter("seed", 1000, descriptor("world seed", int_range=(0, 2**31 - 1))).value
-        mesh_file = self.declare_parameter(
-            "mesh_file", "", descriptor("mesh file (world metres, any format trimesh reads); overrides dataset/seed")
-        ).value
-        width = self.declare_parameter("width", 640, descriptor("image width [px]", int_range=(1, 8192))).value
-        height = self.declare_parameter("height", 480, descriptor("image height [px]", int_range=(1, 8192))).value
-        hfov = self.declare_parameter(
-            "hfov_deg", 60.0, descriptor("horizontal field of view [deg]", float_range=(1.0, 179.0))
-        ).value
-        self.frame_id = self.declare_parameter(
-            "frame_id", "world", descriptor("fixed frame of the scene and of the published pose")
-        ).value
-        self.camera_frame = self.declare_parameter(
-            "camera_frame", "camera_optical", descriptor("optical frame of the images (REP-103)")
-        ).value
-        rate = self.declare_parameter(
-            "rate_hz", 5.0, descriptor("frame rate [Hz]; 0 = publish only when moved", float_range=(0.0, 100.0))
-        ).value
-        self.encoding = self.declare_parameter(
-            "encoding", "32FC1", descriptor("image encoding: '32FC1' (float metres) or '16UC1' (millimetres)")
-        ).value
-        initial = self.declare_parameter(
-            "initial_pose",
-            [],
-            descriptor(
-                "initial camera_optical pose [x, y, z, qx, qy, qz, qw] in frame_id; empty = looking at the "
-                "scene centre from above its front (-y) side",
-                dynamic_typing=True,
-            ),
-        ).value
-        depth_min = self.declare_parameter(
-            "depth_min_m", 0.0, descriptor("returns nearer than this are 'no return' [m]", float_range=(0.0, 100.0))
-        ).value
-        depth_max = self.declare_parameter(
-            "depth_max_m", 10.0, descriptor("returns farther than this are 'no return' [m]", float_range=(0.0, 655.0))
-        ).value
-        sigma = self.declare_parameter(
-            "noise_sigma_per_m",
-            0.0,
-            descriptor("depth noise standard deviation per metre of depth (0 = exact)", float_range=(0.0, 1.0)),
-        ).value
-        dropout = self.declare_parameter(
-            "noise_dropout", 0.0, descriptor("probability of a pixel dropout (no return)", float_range=(0.0, 1.0))
-        ).value
-        room_margin = self.declare_parameter(
-            "room_margin_m",
-            0.3,
-            descriptor(
-                "walls this far outside a generated world's grid, so every pixel has a return (0 = none)",
-                float_range=(0.0, 100.0),
-            ),
-        ).value
-        noise_seed = self.declare_parameter(
-            "noise_seed", 0, descriptor("seed of the noise generator", int_range=(0, 2**31 - 1))
-        ).value
+        self.config = cfg = declare_config(self, SimCameraConfig)  # also sets self.<name> per parameter
+        dataset, seed, mesh_file, width, height = cfg.dataset, cfg.seed, cfg.mesh_file, cfg.width, cfg.height
+        hfov, rate, initial, depth_min, depth_max = (
+            cfg.hfov_deg,
+            cfg.rate_hz,
+            cfg.initial_pose,
+            cfg.depth_min_m,
+            cfg.depth_max_m,
+        )
+        sigma, dropout, room_margin, noise_seed = (
+            cfg.noise_sigma_per_m,
+            cfg.noise_dropout,
+            cfg.room_margin_m,
+            cfg.noise_seed,
+        )
 
-        if self.encoding not in ENCODINGS:
-            raise ValueError(f"encoding: expected one of {ENCODINGS}, got {self.encoding!r}")
         if not self.frame_id or not self.camera_frame:
             raise ValueError("frame_id and camera_frame must not be empty")
         if not depth_max > depth_min:
@@ -218,9 +198,9 @@ class SimCamera(Node):
             reliability=ReliabilityPolicy.RELIABLE,
             durability=DurabilityPolicy.VOLATILE,
         )
-        self._image_pub = self.create_publisher(Image, TOPIC_IMAGE, qos)
-        self._info_pub = self.create_publisher(CameraInfo, TOPIC_CAMERA_INFO, qos)
-        self._pose_pub = self.create_publisher(TransformStamped, TOPIC_POSE, qos)
+        self._image_pub = self.create_publisher(Image, names.DEPTH_IMAGE, qos)
+        self._info_pub = self.create_publisher(CameraInfo, names.CAMERA_INFO, qos)
+        self._pose_pub = self.create_publisher(TransformStamped, names.CAMERA_POSE, qos)
         self.create_service(MoveCamera, SERVICE_MOVE_TO, self._on_move_to)
         self.create_subscription(PoseStamped, TOPIC_GOAL_POSE, self._on_goal_pose, 10)
         self._timer = self.create_timer(1.0 / rate, self._on_timer) if rate > 0 else None
@@ -277,7 +257,7 @@ class SimCamera(Node):
         response.success = True
         p = request.target.pose.position
         response.message = f"moved to ({p.x:.3f}, {p.y:.3f}, {p.z:.3f}); frame published"
-        response.frame_stamp = stamp_to_time(stamp_ns)
+        response.frame_stamp = time_msg(stamp_ns)
         return response
 
     def _on_goal_pose(self, msg: PoseStamped) -> None:

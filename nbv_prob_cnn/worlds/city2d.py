@@ -26,7 +26,7 @@ import numpy as np
 
 from nbv_prob_cnn.datasets import DATASET_SPECS
 
-MAP_SIZE: int = DATASET_SPECS["2d"].map_shape[0]
+MAP_SIZE: int = (DATASET_SPECS["2d"].map_shape or (0,))[0]
 CELL_M: float = DATASET_SPECS["2d"].resolution_m
 
 

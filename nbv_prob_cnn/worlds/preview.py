@@ -16,10 +16,7 @@ def _height_projection(grid: np.ndarray, axis: int) -> np.ndarray:
     where nothing is occupied."""
     nz = grid.shape[2]
     heights = np.where(grid > 0, np.arange(nz, dtype=np.float64)[None, None, :], -1.0)
-    if axis == 2:
-        img = heights.max(axis=2)
-    else:
-        img = heights.max(axis=axis)  # rows: the remaining horizontal axis, columns: z
+    img = heights.max(axis=axis)  # side views: rows are the remaining horizontal axis, columns z
     return np.where(img >= 0, img, np.nan)
 
 

@@ -18,7 +18,7 @@ from nbv_prob_cnn.datasets import DATASET_SPECS
 from nbv_prob_cnn.worlds import ycb
 from nbv_prob_cnn.worlds.world import PlacedMesh, World
 
-SHAPE: tuple[int, int, int] = DATASET_SPECS["3du"].shape
+SHAPE: tuple[int, ...] = DATASET_SPECS["3du"].shape
 RESOLUTION: float = DATASET_SPECS["3du"].resolution_m
 N_OBJECTS: tuple[int, int] = (20, 30)  # inclusive
 SCALE_RANGE: tuple[float, float] = (1.0, 2.0)

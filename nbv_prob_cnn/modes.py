@@ -1,0 +1,20 @@
+"""The string-valued modes of the library as ``Literal`` types (they accept the same strings as
+before, so call sites that pass plain strings keep working; mypy checks them)."""
+
+from __future__ import annotations
+
+from typing import Literal, get_args
+
+#: Gain formulation: probabilistic (equations (2)-(6)) or classic information gain.
+GainMode = Literal["prob", "ig"]
+#: Where a probabilistic method's occupancy probabilities come from.
+ProbabilitySource = Literal["constant", "cnn", "oracle"]
+#: Ray-casting backend.
+Backend = Literal["auto", "opencl", "numpy"]
+#: How ``nbv_planner`` moves the camera: the sim_camera/move_to service or a goal-pose topic.
+MoveMode = Literal["service", "topic"]
+
+GAIN_MODES: tuple[GainMode, ...] = get_args(GainMode)
+PROBABILITY_SOURCES: tuple[ProbabilitySource, ...] = get_args(ProbabilitySource)
+BACKEND_NAMES: tuple[Backend, ...] = get_args(Backend)
+MOVE_MODES: tuple[MoveMode, ...] = get_args(MoveMode)

@@ -1,0 +1,163 @@
+"""The Explore action of ``nbv_planner`` (one process) against a stand-in camera in the test
+process: goal states match what happened (succeeded, canceled, aborted), one exploration at a
+time, bad goals are refused, and the server keeps serving after each case."""
+
+from __future__ import annotations
+
+import os
+import threading
+import time
+
+import numpy as np
+import pytest
+
+rclpy = pytest.importorskip("rclpy")
+pytest.importorskip("nbv_prob_cnn_msgs")
+
+from action_msgs.msg import GoalStatus  # noqa: E402
+from nbv_prob_cnn_msgs.action import Explore  # noqa: E402
+from nbv_prob_cnn_msgs.msg import VoxelGrid  # noqa: E402
+from nbv_prob_cnn_msgs.srv import MoveCamera  # noqa: E402
+from rclpy.action import ActionClient  # noqa: E402
+from rclpy.callback_groups import ReentrantCallbackGroup  # noqa: E402
+from rclpy.executors import MultiThreadedExecutor  # noqa: E402
+
+from nbv_prob_cnn.geometry import GridGeometry  # noqa: E402
+from nbv_prob_cnn.ros.common import GRID_QOS  # noqa: E402
+from nbv_prob_cnn.ros.conversions import grid_to_msg  # noqa: E402
+from nbv_prob_cnn.ros.graph import NodeGraph, ros_environment  # noqa: E402
+
+pytestmark = pytest.mark.slow  # multi-process ROS graphs
+
+GEOMETRY = GridGeometry((0.0, 0.0, 0.0), 0.02, (24, 24, 24))
+_counter = iter(range(1000))
+
+
+def small_grid() -> np.ndarray:
+    state = np.full(GEOMETRY.shape, -1, dtype=np.int8)
+    state[6:18, 6:18, 6:18] = 0  # known empty room in unknown space: every view there has gain
+    return state
+
+
+class FakeCamera:
+    """``/sim_camera/move_to`` that takes ``delay_s``, then publishes the (unchanged) grid
+    stamped with the new frame's time; ``fail`` makes the move fail."""
+
+    def __init__(self, node, delay_s: float = 0.3) -> None:
+        self.node, self.delay_s, self.fail, self.moves = node, delay_s, False, 0
+        self.publisher = node.create_publisher(VoxelGrid, "/nbv/grid", GRID_QOS)
+        self.state = small_grid()
+        self.publish()
+        node.create_service(MoveCamera, "/sim_camera/move_to", self.move, callback_group=ReentrantCallbackGroup())
+
+    def publish(self):
+        msg = grid_to_msg(self.state, GEOMETRY)
+        msg.header.stamp = self.node.get_clock().now().to_msg()
+        self.publisher.publish(msg)
+        return msg.header.stamp
+
+    def move(self, request, response):
+        time.sleep(self.delay_s)
+        if self.fail:
+            response.success, response.message = False, "arm in collision"
+            return response
+        self.moves += 1
+        response.frame_stamp = self.publish()
+        response.success = True
+        return response
+
+
+@pytest.fixture
+def explore_graph(tmp_path):
+    domain = 101 + (os.getpid() + next(_counter)) % 9  # 101..109: no other test module uses these
+    env = ros_environment(domain)
+    saved = {k: os.environ.get(k) for k in env}
+    os.environ.update(env)
+    context = rclpy.Context()
+    rclpy.init(context=context)
+    node = rclpy.create_node("explore_test", context=context)
+    camera = FakeCamera(node)
+    executor = MultiThreadedExecutor(num_threads=4, context=context)
+    executor.add_node(node)
+    spinner = threading.Thread(target=executor.spin, daemon=True)
+    spinner.start()
+    graph = NodeGraph(env, log_dir=tmp_path / "logs")
+    graph.start_node(
+        "nbv_planner",
+        "nbv_planner",
+        {"dataset": "3du", "method": "prob_ig", "in_process": True, "backend": "numpy", "markers_top_k": 1},
+    )
+    client = ActionClient(node, Explore, "/nbv/explore")
+    assert client.wait_for_server(timeout_sec=60.0), "the Explore server did not come up"
+    yield client, camera, graph
+    graph.stop()
+    executor.shutdown()
+    node.destroy_node()
+    rclpy.shutdown(context=context)
+    spinner.join(timeout=5)
+    for key, value in saved.items():
+        if value is None:
+            os.environ.pop(key, None)
+        else:
+            os.environ[key] = value
+
+
+def wait(future, timeout_s: float = 60.0):
+    deadline = time.monotonic() + timeout_s
+    while not future.done() and time.monotonic() < deadline:
+        time.sleep(0.02)
+    assert future.done(), "no answer in time"
+    return future.result()
+
+
+def send(client, goal: Explore.Goal, feedback: list | None = None):
+    callback = feedback.append if feedback is not None else None
+    return wait(client.send_goal_async(goal, feedback_callback=callback))
+
+
+def test_explore_goal_states_match_what_happened(explore_graph):
+    client, camera, graph = explore_graph
+
+    # a normal run ends SUCCEEDED when it reaches its view budget
+    feedback: list = []
+    handle = send(client, Explore.Goal(max_views=2), feedback)
+    assert handle.accepted
+    done = wait(handle.get_result_async())
+    assert done.status == GoalStatus.STATUS_SUCCEEDED, done.result.reason_stopped
+    assert done.result.views == 2 and "reached 2 views" in done.result.reason_stopped
+    assert camera.moves == 2
+
+    # 0 views and non-finite thresholds are refused; a negative count cannot even be sent: the
+    # client's serialisation of the uint32 field fails before anything reaches the server
+    assert not send(client, Explore.Goal(max_views=0)).accepted
+    assert not send(client, Explore.Goal(max_views=3, stop_gain=float("nan"))).accepted
+    with pytest.raises((SystemError, OverflowError, ValueError)):
+        client.send_goal_async(Explore.Goal(max_views=-1))
+
+    # two goals at once: the second is aborted with a reason, the first one is not disturbed;
+    # canceling the first mid-run ends it CANCELED after the views it took
+    first = send(client, Explore.Goal(max_views=1000), feedback := [])
+    second = send(client, Explore.Goal(max_views=2))
+    second_done = wait(second.get_result_async())
+    assert second_done.status == GoalStatus.STATUS_ABORTED
+    assert "another exploration is running" in second_done.result.reason_stopped
+    deadline = time.monotonic() + 60
+    while len(feedback) < 2 and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert len(feedback) >= 2, "the first exploration stopped making progress"
+    wait(first.cancel_goal_async())
+    first_done = wait(first.get_result_async())
+    assert first_done.status == GoalStatus.STATUS_CANCELED
+    assert "canceled" in first_done.result.reason_stopped and 2 <= first_done.result.views < 1000
+
+    # an error (the camera cannot move) ends ABORTED with the reason, never SUCCEEDED
+    camera.fail = True
+    failed = wait(send(client, Explore.Goal(max_views=3)).get_result_async())
+    assert failed.status == GoalStatus.STATUS_ABORTED
+    assert "arm in collision" in failed.result.reason_stopped and failed.result.views == 0
+
+    # the same server still explores after every case
+    camera.fail = False
+    again = wait(send(client, Explore.Goal(max_views=1)).get_result_async())
+    assert again.status == GoalStatus.STATUS_SUCCEEDED and again.result.views == 1
+    assert graph.alive() == {"nbv_planner": True}
