@@ -72,12 +72,17 @@ def first_view(world: World, context: PlanningContext) -> ViewChoice:
 
 
 def explore(
-    world: World, planner: Planner, context: PlanningContext, views: int, progress: bool = True
+    world: World,
+    planner: Planner,
+    context: PlanningContext,
+    views: int,
+    progress: bool = True,
+    first: ViewChoice | None = None,
 ) -> ExplorationResult:
     """Run one exploration of ``world`` with ``planner`` for at most ``views`` views.
 
-    The first view is random (SPEC §9); the run stops early when the planner finds no view
-    with positive gain.
+    The first view is ``first`` if given, else random (SPEC §9); the run stops early when the
+    planner finds no view (no positive gain, or, for a constrained planner, none it can take).
     """
     if views < 1:
         raise ValueError(f"views: expected at least 1 view, got {views}")
@@ -86,7 +91,7 @@ def explore(
     records: list[IterationRecord] = []
     stop_reason = f"reached {views} views"
     bar = tqdm(total=views, desc=f"{world.dataset} {planner.name}", unit="view", disable=not progress)
-    choice: ViewChoice | None = first_view(world, context)
+    choice: ViewChoice | None = first if first is not None else first_view(world, context)
     elapsed = 0.0
     for iteration in range(views):
         if iteration > 0:
@@ -94,7 +99,7 @@ def explore(
             choice = planner.plan(state, context)
             elapsed = time.perf_counter() - start
             if choice is None:
-                stop_reason = f"no view with positive gain after {iteration} views"
+                stop_reason = f"no view with positive gain (or none feasible) after {iteration} views"
                 break
         orientation = context.orientations[choice.view_index]
         observe(state, world.ground_truth, choice.cell, orientation, context.active_sensor)
