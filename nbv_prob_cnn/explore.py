@@ -82,12 +82,14 @@ def explore(
     progress: bool = True,
     noise: SensorNoise | None = None,
     room_margin_m: float | None = None,
+    first: ViewChoice | None = None,
 ) -> ExplorationResult:
     """Run one exploration of ``world`` with ``planner`` for at most ``views`` views.
 
-    The first view is random (SPEC §9); the run stops early when the planner finds no view
-    with positive gain. ``noise``: a depth-sensor model for the simulated views (exact if None);
-    ``room_margin_m``: with ``noise``, walls this far outside the grid (see :func:`observe`).
+    The first view is ``first`` if given, else random (SPEC §9); the run stops early when the
+    planner finds no view (no positive gain, or, for a constrained planner, none it can take).
+    ``noise``: a depth-sensor model for the simulated views (exact if None); ``room_margin_m``:
+    with ``noise``, walls this far outside the grid (see :func:`observe`).
     """
     if views < 1:
         raise ValueError(f"views: expected at least 1 view, got {views}")
@@ -96,7 +98,7 @@ def explore(
     records: list[IterationRecord] = []
     stop_reason = f"reached {views} views"
     bar = tqdm(total=views, desc=f"{world.dataset} {planner.name}", unit="view", disable=not progress)
-    choice: ViewChoice | None = first_view(world, context)
+    choice: ViewChoice | None = first if first is not None else first_view(world, context)
     elapsed = 0.0
     for iteration in range(views):
         if iteration > 0:
@@ -104,7 +106,7 @@ def explore(
             choice = planner.plan(state, context)
             elapsed = time.perf_counter() - start
             if choice is None:
-                stop_reason = f"no view with positive gain after {iteration} views"
+                stop_reason = f"no view with positive gain (or none feasible) after {iteration} views"
                 break
         orientation = context.orientations[choice.view_index]
         observe(state, world.ground_truth, choice.cell, orientation, context.active_sensor,
