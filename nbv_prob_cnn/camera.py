@@ -44,9 +44,9 @@ def quaternion_from_matrix(rot: np.ndarray) -> np.ndarray:
     else:
         s = 2.0 * math.sqrt(1.0 + m[2, 2] - m[0, 0] - m[1, 1])
         q = [(m[0, 2] + m[2, 0]) / s, (m[1, 2] + m[2, 1]) / s, 0.25 * s, (m[1, 0] - m[0, 1]) / s]
-    q = np.array(q)
-    q /= np.linalg.norm(q)
-    return q if q[3] >= 0 else -q
+    quat = np.array(q)
+    quat /= np.linalg.norm(quat)
+    return quat if quat[3] >= 0 else -quat
 
 
 def matrix_from_quaternion(quat: np.ndarray) -> np.ndarray:
@@ -126,7 +126,7 @@ def optical_axis(orientation: np.ndarray | float, dims: int) -> np.ndarray:
     if dims == 2:
         yaw = float(orientation)
         return np.array([math.cos(yaw), math.sin(yaw)])
-    return matrix_from_quaternion(orientation)[:, 2]
+    return matrix_from_quaternion(np.asarray(orientation))[:, 2]
 
 
 def in_frustum(

@@ -11,14 +11,15 @@ import os
 import warnings
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 
 @dataclass(frozen=True)
 class ClRuntime:
-    cl: object
-    device: object
-    context: object
-    queue: object
+    cl: Any  # the pyopencl module
+    device: Any  # pyopencl.Device
+    context: Any  # pyopencl.Context
+    queue: Any  # pyopencl.CommandQueue
 
     @property
     def has_fp64(self) -> bool:

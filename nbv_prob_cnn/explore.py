@@ -98,16 +98,17 @@ def explore(
     records: list[IterationRecord] = []
     stop_reason = f"reached {views} views"
     bar = tqdm(total=views, desc=f"{world.dataset} {planner.name}", unit="view", disable=not progress)
-    choice: ViewChoice | None = first if first is not None else first_view(world, context)
+    choice: ViewChoice = first if first is not None else first_view(world, context)
     elapsed = 0.0
     for iteration in range(views):
         if iteration > 0:
             start = time.perf_counter()
-            choice = planner.plan(state, context)
+            planned = planner.plan(state, context)
             elapsed = time.perf_counter() - start
-            if choice is None:
+            if planned is None:
                 stop_reason = f"no view with positive gain (or none feasible) after {iteration} views"
                 break
+            choice = planned
         orientation = context.orientations[choice.view_index]
         observe(state, world.ground_truth, choice.cell, orientation, context.active_sensor,
                 noise=noise, rng=context.rng, resolution_m=world.resolution, room_margin_m=room_margin_m)  # fmt: skip
@@ -135,7 +136,7 @@ def explore(
 def write_csv(records: list[IterationRecord], path: str | Path | TextIO) -> None:
     """Write the per-iteration log with the columns of :data:`CSV_COLUMNS` (to a file path or an
     open text stream)."""
-    if hasattr(path, "write"):
+    if not isinstance(path, (str, Path)):  # an open text stream
         _write_rows(records, path)
         return
     with open(path, "w", newline="") as handle:

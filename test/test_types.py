@@ -11,23 +11,8 @@ import pytest
 
 REPO = Path(__file__).resolve().parents[1]
 #: The core (every module outside ``ros/`` and ``gain/``, plus rclpy-free ``ros`` helpers) is
-#: type-checked, except these modules with known errors that other branches are changing now.
-NOT_YET = {
-    "nbv_prob_cnn/camera.py",
-    "nbv_prob_cnn/cl_device.py",
-    "nbv_prob_cnn/commands/bench.py",  # gain.get_ray_caster() is untyped (gain/ is issue 11's)
-    "nbv_prob_cnn/completion/inference.py",
-    "nbv_prob_cnn/completion/model.py",
-    "nbv_prob_cnn/completion/train.py",
-    "nbv_prob_cnn/explore.py",
-    "nbv_prob_cnn/planners/__init__.py",
-    "nbv_prob_cnn/worlds/tabletop3d.py",
-    "nbv_prob_cnn/worlds/ycb.py",
-    # issue 9 (arm): numpy/pinocchio annotations still to tighten
-    "nbv_prob_cnn/arm/ik.py",
-    "nbv_prob_cnn/arm/kinematics.py",
-    "nbv_prob_cnn/arm/robot.py",
-}
+#: type-checked; modules listed here are exempt (none now).
+NOT_YET: set[str] = set()
 
 
 def typed_modules() -> list[str]:

@@ -80,6 +80,7 @@ def solve_batch(
         if active.size == 0:
             break
         poses, jac = chain.camera_poses(q[active], jacobian=True)
+        assert jac is not None  # asked for
         goal = targets[active]
         error = np.concatenate([goal[:, :3, 3] - poses[:, :3, 3], rotation_error(goal[:, :3, :3], poses[:, :3, :3])], 1)
         done = (np.linalg.norm(error[:, :3], axis=1) < settings.position_tol) & (

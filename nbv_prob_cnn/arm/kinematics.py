@@ -93,8 +93,8 @@ def _joint_axis(joint, name: str) -> np.ndarray:
         if name in (f"JointModelR{suffix}", f"JointModelP{suffix}"):
             return np.array(axis)
     if "Unaligned" in name:
-        axis = np.asarray(joint.extract().axis if hasattr(joint, "extract") else joint.axis, dtype=np.float64)
-        return axis / np.linalg.norm(axis)
+        unaligned = np.asarray(joint.extract().axis if hasattr(joint, "extract") else joint.axis, dtype=np.float64)
+        return unaligned / np.linalg.norm(unaligned)
     raise ValueError(f"robot: joint type {name} is not supported on the camera chain (revolute/prismatic only)")
 
 

@@ -91,6 +91,12 @@ class CompletionNet(nn.Module):
         first_channels: width of the first conv block (8 in 2D, 16 in 3D by default).
     """
 
+    #: Set by :func:`~nbv_prob_cnn.completion.inference.load_model`: the data set, the model
+    #: name (``cnn_prob`` or a City-CNN) and the model card of the loaded weights.
+    dataset: str
+    model_name: str
+    card: dict
+
     def __init__(
         self,
         dims: int,
@@ -161,7 +167,7 @@ class CompletionNet(nn.Module):
         # an MSE loss, the first Adam steps otherwise push the sparse-occupancy 3D grids into a
         # saturated all-empty output whose gradients vanish (seen on 3DU: training stalled at
         # the MSE of predicting 0 everywhere).
-        if head == "completion":
+        if head == "completion" and self.final.bias is not None:
             nn.init.constant_(self.final.bias, PRIOR_LOGIT)
 
     @property

@@ -308,7 +308,8 @@ def train(
     paths = side_paths(out)
     out.parent.mkdir(parents=True, exist_ok=True)
     batch_size = batch_size or DEFAULT_BATCH[dataset]
-    test_crop = DEFAULT_TEST_CROP[dataset] if test_crop == "default" else test_crop
+    explicit_crop = None if test_crop is None else int(test_crop) if test_crop != "default" else None
+    crop_edge = DEFAULT_TEST_CROP[dataset] if test_crop == "default" else explicit_crop
     train_seeds = list(spec.train_seeds if train_seeds is None else train_seeds)[:n_train_envs]
     val_seeds = list(spec.validation_seeds if validation_seeds is None else validation_seeds)[:n_val_envs]
     test_seeds = list(spec.test_seeds if test_seeds is None else test_seeds)[:n_test_envs]
@@ -328,7 +329,7 @@ def train(
         "validation_seeds": val_seeds,
         "test_seeds": test_seeds,
         "crop": crop,
-        "test_crop": test_crop,
+        "test_crop": crop_edge,
         "batch_size": batch_size,
         "seed": seed,
         "data_version": DATA_VERSION,
@@ -339,7 +340,7 @@ def train(
         train_samples = load_samples(dataset, train_seeds, workers, bar.update)
         val_samples = load_samples(dataset, val_seeds, workers, bar.update)
         test_samples = load_samples(dataset, test_seeds, workers, bar.update)
-    val_examples = fixed_examples(task, val_samples, test_crop)
+    val_examples = fixed_examples(task, val_samples, crop_edge)
     rots = rotations(dataset)
 
     torch.manual_seed(seed)
@@ -414,10 +415,10 @@ def train(
     from nbv_prob_cnn.completion.inference import load_model
 
     kept = load_model(out, dataset, dev, model_name=method)
-    test_mse = evaluate(kept, fixed_examples(task, test_samples, test_crop), dev, batch_size)
+    test_mse = evaluate(kept, fixed_examples(task, test_samples, crop_edge), dev, batch_size)
     best = {**best, "test_mse": test_mse}
     if task.is_completion:
-        table = calibration_of(kept, task, test_samples, test_crop, dev, batch_size)
+        table = calibration_of(kept, task, test_samples, crop_edge, dev, batch_size)
         save_reliability_plot(table, paths["calibration"], f"{dataset}: calibration on the test split")
         best["ece"] = table.ece
     card = _card(*card_args, history, best, elapsed)

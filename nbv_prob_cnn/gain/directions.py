@@ -28,8 +28,8 @@ def ray_directions(dims: int, n_rays: int) -> np.ndarray:
         for idx in itertools.product(range(n_rays), repeat=dims)
         if any(i in (0, n_rays - 1) for i in idx)
     ]
-    dirs = np.array(dirs, dtype=np.float64)
-    return dirs / np.linalg.norm(dirs, axis=1, keepdims=True)
+    unit = np.array(dirs, dtype=np.float64)
+    return unit / np.linalg.norm(unit, axis=1, keepdims=True)
 
 
 def check_directions(directions: np.ndarray, dims: int) -> np.ndarray:

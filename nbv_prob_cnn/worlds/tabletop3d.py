@@ -26,7 +26,7 @@ from nbv_prob_cnn.datasets import DATASET_SPECS
 from nbv_prob_cnn.worlds import ycb
 from nbv_prob_cnn.worlds.world import PlacedMesh, World
 
-SHAPE: tuple[int, int, int] = DATASET_SPECS["3dt"].shape
+SHAPE: tuple[int, ...] = DATASET_SPECS["3dt"].shape
 RESOLUTION: float = DATASET_SPECS["3dt"].resolution_m
 N_OBJECTS: tuple[int, int] = (6, 10)  # inclusive
 TABLE_TOP_CELLS: tuple[int, int] = (5, 7)  # inclusive: z index of the first cell above the table
@@ -155,9 +155,11 @@ def table_surface_mesh(world: World) -> trimesh.Trimesh:
     heights[truth[:, :, top - 1] == 0] = top - 1
     heights[truth[:, :, top] == 1] = top + 1  # raised noise (or an object resting there)
     origin = np.asarray(world.origin, dtype=np.float64)
-    nx, ny = heights.shape
+    grid_shape: tuple[int, ...] = np.shape(heights)
+    nx, ny = grid_shape[0], grid_shape[1]
     ii, jj = np.meshgrid(np.arange(nx), np.arange(ny), indexing="ij")
-    vertices, faces = [], []
+    vertices: list[np.ndarray] = []
+    faces: list[np.ndarray] = []
 
     def add_quads(corners: np.ndarray) -> None:  # corners: (n, 4, 3) in cells, counter-clockwise
         base = sum(len(v) for v in vertices)
@@ -204,4 +206,5 @@ def table_surface_mesh(world: World) -> trimesh.Trimesh:
     surface = trimesh.Trimesh(np.concatenate(vertices) * res + origin, np.concatenate(faces), process=False)
     slab = trimesh.creation.box(extents=(nx * res, ny * res, (heights.min() - bottom) * res))
     slab.apply_translation(origin + [nx * res / 2, ny * res / 2, (bottom + heights.min()) * res / 2])
-    return trimesh.util.concatenate([surface, slab])
+    merged: trimesh.Trimesh = trimesh.util.concatenate([surface, slab])  # type: ignore[assignment]
+    return merged

@@ -83,8 +83,8 @@ def _raycasting_scene(name: str):
     mesh = load_mesh(name)
     scene = o3d.t.geometry.RaycastingScene()
     scene.add_triangles(
-        o3d.core.Tensor(np.ascontiguousarray(mesh.vertices, dtype=np.float32)),
-        o3d.core.Tensor(np.ascontiguousarray(mesh.faces, dtype=np.uint32)),
+        o3d.core.Tensor(np.ascontiguousarray(mesh.vertices, dtype=np.float32)),  # type: ignore[call-overload]
+        o3d.core.Tensor(np.ascontiguousarray(mesh.faces, dtype=np.uint32)),  # type: ignore[call-overload]
     )
     return scene
 
@@ -153,7 +153,9 @@ def voxelize(
     local = _transform_points(np.linalg.inv(transform), centres)
     import open3d as o3d
 
-    occ = _raycasting_scene(name).compute_occupancy(o3d.core.Tensor(local.astype(np.float32)), nsamples=INSIDE_RAYS)
+    occ = _raycasting_scene(name).compute_occupancy(
+        o3d.core.Tensor(local.astype(np.float32)), nsamples=INSIDE_RAYS  # type: ignore[call-overload]
+    )
     mask |= occ.numpy().reshape(box).astype(bool)
     return lo, mask
 
