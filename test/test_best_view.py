@@ -38,7 +38,8 @@ CASES = [((40, 36), 16, 24), ((41, 37), 4, 30), ((19, 17, 15), 4, 12), ((16, 15,
 @pytest.mark.parametrize("shape,n_rays,r_max", CASES)
 @pytest.mark.parametrize("mode", ["prob", "ig"])
 @pytest.mark.parametrize("seed", [0, 1])
-def test_best_view_equals_exhaustive_and_numpy(shape, n_rays, r_max, mode, seed):
+@pytest.mark.parametrize("block_size", [2, 4])
+def test_best_view_equals_exhaustive_and_numpy(shape, n_rays, r_max, mode, seed, block_size):
     """Same (origin, view) as the exhaustive argmax (OpenCL and the numpy reference), gain
     within 1e-4 of the reference."""
     rng = np.random.default_rng(seed)
@@ -48,7 +49,13 @@ def test_best_view_equals_exhaustive_and_numpy(shape, n_rays, r_max, mode, seed)
     origins = np.argwhere(state == E)
     exhaustive = origin_view_gains(state, p, d, r_max, member, origins, "opencl", mode=mode, min_range=2)
     reference = origin_view_gains(state, p, d, r_max, member, origins, "numpy", mode=mode, min_range=2)
-    index, view, gain = best_origin_view(state, p, d, r_max, member, origins, "opencl", mode=mode, min_range=2)
+    code = encode_grid(state, p)
+    total = float(distance_weights(r_max, len(shape)).sum())
+    index, view, gain, _ = get_ray_caster().best_view(
+        code, origins, sample_offsets(d, r_max), member, total, mode, 0.0, 2.0, first_batch=16, block_size=block_size
+    )
+    assert (index, view, gain) == best_origin_view(state, p, d, r_max, member, origins, "opencl", mode=mode,
+                                                   min_range=2) or block_size != 2  # fmt: skip
     assert reference.max() > 0.05
     flat = int(np.argmax(exhaustive))
     assert (index, view) == divmod(flat, exhaustive.shape[1]) == divmod(int(np.argmax(reference)), reference.shape[1])
@@ -58,7 +65,8 @@ def test_best_view_equals_exhaustive_and_numpy(shape, n_rays, r_max, mode, seed)
 
 @pytest.mark.parametrize("shape,n_rays,r_max", CASES)
 @pytest.mark.parametrize("mode", ["prob", "ig"])
-def test_block_bounds_bound_every_origin(shape, n_rays, r_max, mode):
+@pytest.mark.parametrize("size", [2, 3, 4])
+def test_block_bounds_bound_every_origin(shape, n_rays, r_max, mode, size):
     """Each block's per-view bound is at least the exact gain of every origin of the block."""
     state, prob = _explored_world(np.random.default_rng(2), shape)
     d, member = _setup(shape, n_rays)
@@ -67,11 +75,17 @@ def test_block_bounds_bound_every_origin(shape, n_rays, r_max, mode):
     exact = origin_view_gains(state, p, d, r_max, member, origins, "numpy", mode=mode, min_range=2)
     code = encode_grid(state, p)
     total = float(distance_weights(r_max, len(shape)).sum())
-    block_of, bounds = get_ray_caster().block_bounds(code, origins, sample_offsets(d, r_max), member, total, mode)
+    block_of, bounds = get_ray_caster().block_bounds(
+        code, origins, sample_offsets(d, r_max), member, total, mode, size
+    )
     assert block_of.shape == (origins.shape[0],) and bounds.shape[1] == member.shape[1]
     assert bounds.shape[0] < origins.shape[0]  # blocks gather several origins
     assert np.all(bounds[block_of] >= exact - 1e-5)
-    assert (bounds[block_of] - exact).min() < 0.5  # tight somewhere, not a trivial bound
+    assert (bounds[block_of] - exact).min() < 0.5 * exact.max()  # tight somewhere, not a trivial bound
+    # every block is a corner's window: origins of one block lie within size - 1 cells per axis
+    for block in np.unique(block_of)[:50]:
+        members = origins[block_of == block]
+        assert np.all(members.max(axis=0) - members.min(axis=0) <= size - 1)
 
 
 def test_best_view_prunes_origins():

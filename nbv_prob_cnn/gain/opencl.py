@@ -32,6 +32,8 @@ VIEW_GAIN_LOCAL_SIZE = 16
 VIEW_GAIN_ORIGINS_PER_LAUNCH = 1 << 17
 #: Origins in the first exactly evaluated batch of ``best_view`` (then doubling).
 BEST_VIEW_FIRST_BATCH = 2048
+#: Origins per axis of a block of ``best_view`` (one bound per block).
+BOUND_BLOCK = 2
 #: Relative (and absolute) margin added to the block bounds of ``best_view``.
 BOUND_MARGIN = 1e-4
 
@@ -94,45 +96,50 @@ def group_first_samples(padded: np.ndarray, origin_index: np.ndarray, group: int
     return np.ascontiguousarray(distance.reshape(-1, group).min(axis=1), dtype=np.int32)
 
 
-def block_corners(cells: np.ndarray, dims: int) -> np.ndarray:
-    """Per padded cell coordinate ``(N, 3)``, the corner ``c`` of its block ``c - {0, 1}^dims``
-    (blocks of 2 cells per marched axis: padded coordinates ``{1, 2}``, ``{3, 4}``, ...)."""
+def block_corners(cells: np.ndarray, dims: int, size: int) -> np.ndarray:
+    """Per padded cell coordinate ``(N, 3)``, the corner ``c`` of its block ``c - {0 .. size-1}``
+    per marched axis (padded coordinates ``1 .. size``, ``size + 1 .. 2 size``, ...)."""
     corners = np.array(cells, dtype=np.int64, copy=True)
-    corners[:, :dims] = (corners[:, :dims] + 1) // 2 * 2
+    corners[:, :dims] = (corners[:, :dims] + size - 1) // size * size
     return corners
 
 
-def bound_grid(padded: np.ndarray, dims: int, probabilistic: bool) -> np.ndarray:
-    """The grid whose marched gain from a block corner ``c`` bounds, ray by ray, the gain of
-    every cell of the block ``c - {0, 1}^dims`` (see :meth:`OpenCLRayCaster.best_view`).
+def _window(values: np.ndarray, dims: int, size: int, reduce, fill) -> np.ndarray:
+    """``reduce`` over the window ``c - {0 .. size-1}`` per marched axis (``fill`` outside)."""
+    out = values
+    for axis in range(dims):
+        pad = [(0, 0)] * 3
+        pad[axis] = (size - 1, 0)
+        wide = np.pad(out, pad, constant_values=fill)
+        n = out.shape[axis]
+        out = functools.reduce(reduce, (np.take(wide, np.arange(k, k + n), axis=axis) for k in range(size)))
+    return out
 
-    Cell ``c`` summarises the window ``c - {0, 1}^dims`` of ``padded`` (cells outside count as
+
+def bound_grid(padded: np.ndarray, dims: int, probabilistic: bool, size: int) -> np.ndarray:
+    """The grid whose marched gain from a block corner ``c`` bounds, ray by ray, the gain of
+    every cell of the block ``c - {0 .. size-1}^dims`` (see :meth:`OpenCLRayCaster.best_view`).
+
+    ``padded`` grown by ``size`` occupied cells on each side of every marched axis (the corner's
+    ray stops only once all the block's rays have stopped, up to ``size - 1`` cells after the
+    padding); cell ``c`` summarises the window ``c - {0 .. size-1}^dims`` (cells outside count as
     occupied): ``-1`` if the whole window is occupied (every ray of the block has stopped);
     else, if the window holds an unknown cell, the smallest occupancy probability in it (empty
     0, occupied 1; 0 when not ``probabilistic``): the block's samples there count at most the
     full weight and let through at most ``1 - min p``; else (empty and occupied cells only) the
-    empty code of the smallest distance in the window. Returned flat, followed by two x-slabs of
-    occupied guard cells: a corner's ray may step one cell past the padding before it stops.
+    empty code of the smallest distance in the window (samples closer than it are empty for the
+    whole block).
     """
-    lo = ((1, 0), (1, 0), (1, 0) if dims == 3 else (0, 0))
-    wide = np.pad(padded, lo, constant_values=np.float32(-1.0))
-    nx, ny, nz = padded.shape
-    all_occupied = np.ones(padded.shape, dtype=bool)
-    any_unknown = np.zeros(padded.shape, dtype=bool)
-    least_p = np.ones(padded.shape, dtype=np.float32)
-    nearest_empty = np.full(padded.shape, -np.inf, dtype=np.float32)
-    for shift in np.ndindex(*(2, 2, 2 if dims == 3 else 1)):
-        sx, sy, sz = 1 - shift[0], 1 - shift[1], (1 - shift[2]) if dims == 3 else 0
-        v = wide[sx : sx + nx, sy : sy + ny, sz : sz + nz]
-        all_occupied &= v == -1.0
-        unknown = v >= 0.0
-        any_unknown |= unknown
-        p = np.where(unknown, v if probabilistic else np.float32(0.0), np.where(v == -1.0, 1.0, 0.0))
-        np.minimum(least_p, p, out=least_p)
-        np.maximum(nearest_empty, np.where(v <= -2.0, v, -np.inf), out=nearest_empty)
+    pad = ((size, size), (size, size), (size, size) if dims == 3 else (0, 0))
+    grid = np.pad(padded, pad, constant_values=np.float32(-1.0))
+    unknown = grid >= 0.0
+    all_occupied = _window(grid == -1.0, dims, size, np.logical_and, True)
+    any_unknown = _window(unknown, dims, size, np.logical_or, False)
+    p = np.where(unknown, grid if probabilistic else np.float32(0.0), np.where(grid == -1.0, 1.0, 0.0))
+    least_p = _window(p.astype(np.float32), dims, size, np.minimum, np.float32(1.0))
+    nearest_empty = _window(np.where(grid <= -2.0, grid, -np.inf).astype(np.float32), dims, size, np.maximum, -np.inf)
     out = np.where(all_occupied, np.float32(-1.0), np.where(any_unknown, least_p, nearest_empty))
-    guard = np.full(2 * ny * nz, -1.0, dtype=np.float32)
-    return np.ascontiguousarray(np.concatenate([out.astype(np.float32).ravel(), guard]))
+    return np.ascontiguousarray(out, dtype=np.float32)
 
 
 class OpenCLRayCaster:
@@ -254,24 +261,29 @@ class OpenCLRayCaster:
         self.queue.finish()
         return out
 
-    def block_bounds(self, code, origins, offsets, membership, total_weight, mode) -> tuple[np.ndarray, np.ndarray]:
+    def block_bounds(
+        self, code, origins, offsets, membership, total_weight, mode, size=None
+    ) -> tuple[np.ndarray, np.ndarray]:
         """Per origin its block, per block and view an upper bound of ``G_W`` of the block's
         origins: ``(block_of (N,), bounds (B, V))`` (see :meth:`best_view`)."""
-        _, padded, _, offset_buf = self._common(code, origins, offsets)
-        return self._block_bounds(padded, origins, offset_buf, offsets.shape, membership, total_weight, mode)
+        size = BOUND_BLOCK if size is None else size
+        return self._block_bounds(march_grid(code), origins, offsets, membership, total_weight, mode, size)
 
-    def _block_bounds(self, padded, origins, offset_buf, offsets_shape, membership, total_weight, mode):
+    def _block_bounds(self, padded, origins, offsets, membership, total_weight, mode, size=BOUND_BLOCK):
         dims = origins.shape[1]
+        bound = bound_grid(padded, dims, probabilistic=mode == "prob", size=size)
         shift = np.array([1, 1, 1 if dims == 3 else 0][:dims])
         cells = np.zeros((origins.shape[0], 3), dtype=np.int64)
         cells[:, :dims] = origins + shift
-        corner_index = linear_indices(block_corners(cells, dims), padded.shape, shift=0)
+        grown = np.array([size, size, size if dims == 3 else 0])
+        corner_index = linear_indices(block_corners(cells, dims, size) + grown, bound.shape, shift=0)
         corners, block_of = np.unique(corner_index, return_inverse=True)
-        bound = bound_grid(padded, dims, probabilistic=mode == "prob")
+        offset_index = linear_indices(offsets.reshape(-1, offsets.shape[2]), bound.shape, shift=0)
+        offset_buf = self._constant(offset_index.reshape(offsets.shape[:2]))
         mf = self._cl.mem_flags
         bound_buf = self._cl.Buffer(self.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=bound)
         view_bound = self._views(
-            bound_buf, bound, corners, offset_buf, offsets_shape, membership, dims - 1, total_weight, "prob", 0.0, 0.0,
+            bound_buf, bound, corners, offset_buf, offsets.shape, membership, dims - 1, total_weight, "prob", 0.0, 0.0,
         )  # fmt: skip
         return block_of.ravel(), view_bound
 
@@ -286,11 +298,12 @@ class OpenCLRayCaster:
         eps: float,
         min_range: float,
         first_batch: int = BEST_VIEW_FIRST_BATCH,
+        block_size: int = BOUND_BLOCK,
     ) -> tuple[int, int, float, int]:
         """The first ``(origin, view)`` of largest ``G_W`` in origin-major order, exactly as the
         exhaustive ``run_views(...)`` argmax, without computing every origin's gains.
 
-        Coarse to fine: the origins are grouped in blocks of 2 cells per axis; ``view_gain`` on
+        Coarse to fine: the origins are grouped in blocks of ``block_size`` cells per axis; ``view_gain`` on
         :func:`bound_grid` from each block's corner gives, per view, an upper bound of the gain
         of every origin in the block (each sample of the corner's ray covers the samples of the
         block's rays at the same ``t``: it counts the full weight where any of them is unknown,
@@ -305,8 +318,8 @@ class OpenCLRayCaster:
         """
         n, dims = origins.shape[0], code.ndim
         code_buf, padded, origin_index, offset_buf = self._common(code, origins, offsets)
-        block_of, view_bound = self._block_bounds(padded, origins, offset_buf, offsets.shape, membership,
-                                                  total_weight, mode)  # fmt: skip
+        block_of, view_bound = self._block_bounds(padded, origins, offsets, membership, total_weight, mode,
+                                                  block_size)  # fmt: skip
         block_bound = view_bound.max(axis=1)
         # float32 sums in a different order: a margin far above their rounding error
         block_bound = block_bound * np.float32(1.0 + BOUND_MARGIN) + np.float32(BOUND_MARGIN)
