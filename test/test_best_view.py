@@ -130,3 +130,20 @@ def test_best_view_no_origins_and_bad_membership():
     assert best_origin_view(state, prob, d, 5, member, np.zeros((0, 2), dtype=np.int64), "opencl")[0] == -1
     with pytest.raises(ValueError, match="membership"):
         best_origin_view(state, prob, d, 5, member[:-1], None, "opencl")
+
+
+def test_best_view_sparse_origins_evaluated_exhaustively():
+    """Scattered origins (one per block): no bounds, every origin evaluated, same argmax."""
+    shape, r_max = (19, 17, 15), 10
+    state, prob = _explored_world(np.random.default_rng(4), shape)
+    d, member = _setup(shape, 4)
+    origins = np.argwhere(state == E)[::9]
+    code = encode_grid(state, prob)
+    total = float(distance_weights(r_max, 3).sum())
+    index, view, gain, evaluated = get_ray_caster().best_view(
+        code, origins, sample_offsets(d, r_max), member, total, "prob", 0.0, 0.0
+    )
+    reference = origin_view_gains(state, prob, d, r_max, member, origins, "numpy")
+    assert evaluated == origins.shape[0]
+    assert (index, view) == divmod(int(np.argmax(reference)), reference.shape[1])
+    assert abs(gain - reference.max()) <= 1e-4

@@ -34,6 +34,8 @@ VIEW_GAIN_ORIGINS_PER_LAUNCH = 1 << 17
 BEST_VIEW_FIRST_BATCH = 2048
 #: Origins per axis of a block of ``best_view`` (one bound per block).
 BOUND_BLOCK = 2
+#: Fewer origins per block on average: ``best_view`` evaluates all origins exactly.
+MIN_ORIGINS_PER_BLOCK = 2.0
 #: Relative (and absolute) margin added to the block bounds of ``best_view``.
 BOUND_MARGIN = 1e-4
 
@@ -269,15 +271,21 @@ class OpenCLRayCaster:
         size = BOUND_BLOCK if size is None else size
         return self._block_bounds(march_grid(code), origins, offsets, membership, total_weight, mode, size)
 
-    def _block_bounds(self, padded, origins, offsets, membership, total_weight, mode, size=BOUND_BLOCK):
+    def _block_bounds(self, padded, origins, offsets, membership, total_weight, mode, size=BOUND_BLOCK,
+                      min_per_block=0.0):  # fmt: skip
+        """``(block_of, bounds)``; bounds None when blocks hold fewer than ``min_per_block``
+        origins on average (bounds would cost about as much as exact gains)."""
         dims = origins.shape[1]
-        bound = bound_grid(padded, dims, probabilistic=mode == "prob", size=size)
         shift = np.array([1, 1, 1 if dims == 3 else 0][:dims])
         cells = np.zeros((origins.shape[0], 3), dtype=np.int64)
         cells[:, :dims] = origins + shift
         grown = np.array([size, size, size if dims == 3 else 0])
-        corner_index = linear_indices(block_corners(cells, dims, size) + grown, bound.shape, shift=0)
+        bound_shape = tuple(int(n) for n in np.array(padded.shape) + 2 * grown)
+        corner_index = linear_indices(block_corners(cells, dims, size) + grown, bound_shape, shift=0)
         corners, block_of = np.unique(corner_index, return_inverse=True)
+        if corners.size * min_per_block > origins.shape[0]:
+            return block_of.ravel(), None
+        bound = bound_grid(padded, dims, probabilistic=mode == "prob", size=size)
         offset_index = linear_indices(offsets.reshape(-1, offsets.shape[2]), bound.shape, shift=0)
         offset_buf = self._constant(offset_index.reshape(offsets.shape[:2]))
         mf = self._cl.mem_flags
@@ -319,7 +327,9 @@ class OpenCLRayCaster:
         n, dims = origins.shape[0], code.ndim
         code_buf, padded, origin_index, offset_buf = self._common(code, origins, offsets)
         block_of, view_bound = self._block_bounds(padded, origins, offsets, membership, total_weight, mode,
-                                                  block_size)  # fmt: skip
+                                                  block_size, MIN_ORIGINS_PER_BLOCK)  # fmt: skip
+        if view_bound is None:  # sparse origins: evaluate them all at once
+            block_of, view_bound, first_batch = np.zeros(n, dtype=np.int64), np.ones((1, 1), np.float32), n
         block_bound = view_bound.max(axis=1)
         # float32 sums in a different order: a margin far above their rounding error
         block_bound = block_bound * np.float32(1.0 + BOUND_MARGIN) + np.float32(BOUND_MARGIN)
