@@ -166,6 +166,7 @@ def best_origin_view(
     mode: str = "prob",
     eps: float = 0.0,
     min_range: float = 0.0,
+    block_size: int | None = None,
 ) -> tuple[int, int, float]:
     """The argmax of :func:`origin_view_gains` (the first of equal maxima, origin-major):
     ``(origin position in origins, view, gain)``; position -1 when there are no origins.
@@ -173,7 +174,8 @@ def best_origin_view(
     On OpenCL a coarse-to-fine search that is exact for the argmax (bounds per 2-cell block of
     origins prune the origins that cannot reach the best gain; see
     :meth:`~nbv_prob_cnn.gain.opencl.OpenCLRayCaster.best_view`); the numpy reference evaluates
-    every origin.
+    every origin. ``block_size``: origins per axis of a bounded block (default
+    :data:`~nbv_prob_cnn.gain.opencl.BOUND_BLOCK`; origins on a stride ``s`` want ``2 s``).
     """
     state, prob, directions, origins, backend = _check_gain_inputs(
         state, prob, directions, r_max, origins, backend, mode, eps
@@ -190,7 +192,13 @@ def best_origin_view(
     code = encode_grid(state, prob if mode == "prob" else None)
     offsets = sample_offsets(directions, r_max)
     total = float(distance_weights(r_max, state.ndim).sum())
-    origin, view, gain, _ = get_ray_caster().best_view(code, origins, offsets, member, total, mode, eps, min_range)
+    from nbv_prob_cnn.gain.opencl import BOUND_BLOCK
+
+    if block_size is not None and (not isinstance(block_size, (int, np.integer)) or block_size < 1):
+        raise ValueError(f"block_size: expected a positive integer, got {block_size!r}")
+    origin, view, gain, _ = get_ray_caster().best_view(
+        code, origins, offsets, member, total, mode, eps, min_range, block_size=block_size or BOUND_BLOCK
+    )
     return origin, view, gain
 
 

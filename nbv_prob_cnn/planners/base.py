@@ -150,9 +150,10 @@ def search_views(
     sensor = context.active_sensor
     if top_k == 1 and prune and _uses_opencl(context.backend) and origins.shape[0] > 0:
         t0 = time.perf_counter()
+        block = 2 * (context.origin_stride or context.defaults.origin_stride)  # about 2^dims origins per block
         index, view, gain = best_origin_view(
             state, prob, context.directions, sensor.r_max, context.membership, origins, "opencl",
-            mode=mode, eps=context.eps, min_range=sensor.min_range,
+            mode=mode, eps=context.eps, min_range=sensor.min_range, block_size=block,
         )  # fmt: skip
         times = {"cnn": 0.0, "raycast": time.perf_counter() - t0, "views": 0.0}
         return [ViewChoice(origins[index].copy(), int(view), float(gain), times)] if gain > 0.0 else []
