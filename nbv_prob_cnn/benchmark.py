@@ -3,7 +3,11 @@ the default worlds, measured side by side in one run for
 
 * ``iteration``: the planner's whole iteration (probability map, CNN inference included for
   ``cnn_prob``, origins, view search);
-* ``fused``: its view search alone (``view_gain`` kernel, rays summed into views on the device);
+* ``pruned``: its view search alone, the exact coarse-to-fine argmax
+  (:func:`~nbv_prob_cnn.gain.best_origin_view`: block bounds, then exact gains only where a
+  bound reaches the best gain found);
+* ``fused``: the exhaustive view search (``view_gain`` kernel on every origin, rays summed into
+  views on the device);
 * ``two_step``: the previous path, kept here only as a baseline (``baseline_ray_gain``: per-ray
   gains to memory, then an (origins × rays) @ (rays × views) product);
 * ``naive``: one work-item per (origin, ray) marching a float position, stopping at the first
@@ -24,6 +28,7 @@ import time
 import tracemalloc
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -31,13 +36,13 @@ from nbv_prob_cnn.gain.directions import distance_weights, sample_offsets
 from nbv_prob_cnn.grid import probability_with_constant, unknown_fraction
 from nbv_prob_cnn.observe import observe
 from nbv_prob_cnn.planners import PlanningContext, make_planner
-from nbv_prob_cnn.planners.base import search_best_view
+from nbv_prob_cnn.planners.base import search_best_view, search_views
 from nbv_prob_cnn.worlds.world import World
 
 BASELINE_SOURCE = Path(__file__).with_name("benchmark_baselines.cl")
 #: Origins × rays per baseline launch (the previous planners' block size).
 BASELINE_RAYS_PER_CALL = 8_000_000
-VARIANTS = ("iteration", "fused", "two_step", "naive", "numpy")
+VARIANTS = ("iteration", "pruned", "fused", "two_step", "naive", "numpy")
 
 
 @dataclass(frozen=True)
@@ -82,6 +87,7 @@ class BenchResult:
     numpy_origins: int
     timings: dict[str, Timing] = field(default_factory=dict)
     same_best_view: bool = True
+    same_pruned_view: bool = True  # the coarse-to-fine search chose the exhaustive search's view
     cnn_s: float = 0.0  # CNN inference alone (cnn_prob cases; included in the iteration)
 
     def samples_per_s(self, variant: str) -> float:
@@ -226,18 +232,32 @@ def run_case(case: BenchCase, world: World, repeats: int = 3, numpy_origins: int
     n_views = context.membership.shape[1]
     fused_bytes = fused_device_bytes(state, origins.shape[0], context)
     result.timings["iteration"] = _measure(lambda: planner.plan(state, context), repeats, fused_bytes)
-    result.timings["fused"] = _measure(lambda: search_best_view(state, prob, origins, context), repeats, fused_bytes)
+    # the coarse-to-fine search also holds the bound grid (padded grid + 2 guard slabs) and per-block bounds
+    grid = int(np.prod([s + 2 for s in state.shape]))
+    pruned_bytes = fused_bytes + 4 * (2 * grid + origins.shape[0] * (n_views + 1))
+    found: dict[str, Any] = {}
+    result.timings["pruned"] = _measure(
+        lambda: found.setdefault("pruned", search_best_view(state, prob, origins, context)), repeats, pruned_bytes
+    )
+    result.timings["fused"] = _measure(
+        lambda: found.setdefault("fused", search_views(state, prob, origins, context, prune=False)), repeats,
+        fused_bytes,
+    )  # fmt: skip
+    pruned, exhaustive = found["pruned"], found["fused"]
+    result.same_pruned_view = bool(pruned and exhaustive) and (
+        np.array_equal(pruned.cell, exhaustive[0].cell) and pruned.view_index == exhaustive[0].view_index
+    )
     for kernel in ("two_step", "naive"):
-        found: dict[str, tuple] = {}
+        baseline_found: dict[str, tuple] = {}
 
-        def baseline(kernel=kernel, found=found):
+        def baseline(kernel=kernel, found=baseline_found):
             found["best"] = baseline_view_search(state, prob, origins, context, kernel)
 
         timing = _measure(baseline, repeats)
-        timing.peak_bytes += found["best"][2]  # the baseline's OpenCL buffers
+        timing.peak_bytes += baseline_found["best"][2]  # the baseline's OpenCL buffers
         result.timings[kernel] = timing
         if kernel == "two_step":
-            gain, index = found["best"][:2]
+            gain, index = baseline_found["best"][:2]
             best_cell = origins[index // n_views]
             result.same_best_view = (
                 choice is not None and np.array_equal(best_cell, choice.cell) and index % n_views == choice.view_index
@@ -260,23 +280,24 @@ def _defaults(dataset: str):
 def format_table(results: list[BenchResult]) -> str:
     """Markdown table: seconds per iteration, effective samples/s and peak memory per variant."""
     lines = [
-        ("| case | unknown | origins | rays | iteration (s) | CNN (s) | fused search (s) | two-step (s) | naive (s) | "
-        "numpy (s, extrap.) | fused / two-step / naive CPU-s | "
-        "fused vs two-step | fused vs naive | fused samples/s | naive samples/s | peak MB iteration / two-step "
-        "/ naive | same best view |"),
-        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
+        ("| case | unknown | origins | rays | iteration (s) | CNN (s) | pruned search (s) | fused search (s) | "
+        "two-step (s) | naive (s) | numpy (s, extrap.) | pruned / fused / two-step / naive CPU-s | "
+        "pruned vs fused | fused vs two-step | fused vs naive | fused samples/s | naive samples/s | "
+        "peak MB iteration / fused / two-step / naive | same best view |"),
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in results:
         t = r.timings
-        mb = " / ".join(f"{t[v].peak_bytes / 2**20:.0f}" for v in ("iteration", "two_step", "naive"))
+        mb = " / ".join(f"{t[v].peak_bytes / 2**20:.0f}" for v in ("iteration", "fused", "two_step", "naive"))
+        cpu = " / ".join(f"{t[v].cpu_seconds:.2f}" for v in ("pruned", "fused", "two_step", "naive"))
         lines.append(
             f"| {r.case.label} | {r.unknown_fraction:.2f} | {r.origins} | {r.rays} | {t['iteration'].seconds:.3f} | "
-            f"{r.cnn_s:.3f} | {t['fused'].seconds:.3f} | "
-            f"{t['two_step'].seconds:.3f} | {t['naive'].seconds:.3f} | {t['numpy'].seconds:.1f} | "
-            f"{t['fused'].cpu_seconds:.2f} / {t['two_step'].cpu_seconds:.2f} / {t['naive'].cpu_seconds:.2f} | "
+            f"{r.cnn_s:.3f} | {t['pruned'].seconds:.3f} | {t['fused'].seconds:.3f} | "
+            f"{t['two_step'].seconds:.3f} | {t['naive'].seconds:.3f} | {t['numpy'].seconds:.1f} | {cpu} | "
+            f"{t['fused'].seconds / t['pruned'].seconds:.1f}× | "
             f"{t['two_step'].seconds / t['fused'].seconds:.1f}× | {t['naive'].seconds / t['fused'].seconds:.1f}× | "
             f"{r.samples_per_s('fused'):.2e} | {r.samples_per_s('naive'):.2e} | {mb} | "
-            f"{'yes' if r.same_best_view else 'NO'} |"
+            f"{'yes' if r.same_best_view and r.same_pruned_view else 'NO'} |"
         )
     return "\n".join(lines)
 

@@ -94,7 +94,8 @@ def run_planning(args: argparse.Namespace) -> None:
         print(f"{case.label}: {seconds} (numpy extrapolated from {result.numpy_origins} origins)", flush=True)
     print()
     print(
-        "iteration = the planner's full iteration (CNN included for cnn_prob); fused = its view search alone; "
+        "iteration = the planner's full iteration (CNN included for cnn_prob); pruned = its view search alone "
+        "(exact coarse-to-fine argmax); fused = the exhaustive fused view search; "
         "two-step = the previous kernel + "
         "(origins × rays) @ (rays × views); naive = float marching to the first occupied cell + the same "
         "product. Effective samples/s = origins × rays × (R_max + 1) / time. Peak memory = tracemalloc peak "

@@ -25,7 +25,7 @@ BACKENDS = BACKEND_NAMES
 
 __all__ = [
     "BACKENDS", "ray_directions", "ray_gains", "origin_view_gains", "view_gains", "view_membership",
-    "empty_origins",
+    "empty_origins", "best_origin_view",
 ]  # fmt: skip
 
 
@@ -140,9 +140,7 @@ def origin_view_gains(
     state, prob, directions, origins, backend = _check_gain_inputs(
         state, prob, directions, r_max, origins, backend, mode, eps
     )
-    member = np.asarray(membership)
-    if member.ndim != 2 or member.shape[0] != directions.shape[0] or not np.all((member == 0) | (member == 1)):
-        raise ValueError(f"membership: expected a ({directions.shape[0]}, V) 0/1 matrix, got shape {member.shape}")
+    member = _check_membership(membership, directions)
     if backend == "numpy":
         if mode == "ig":
             gains = ig_gains_reference(state, directions, r_max, origins, min_range)
@@ -156,6 +154,61 @@ def origin_view_gains(
     offsets = sample_offsets(directions, r_max)
     total = float(distance_weights(r_max, state.ndim).sum())
     return get_ray_caster().run_views(code, origins, offsets, member, total, mode, eps, min_range)
+
+
+def best_origin_view(
+    state: np.ndarray,
+    prob: np.ndarray | None,
+    directions: np.ndarray,
+    r_max: int,
+    membership: np.ndarray,
+    origins: np.ndarray | None = None,
+    backend: str = "auto",
+    *,
+    mode: str = "prob",
+    eps: float = 0.0,
+    min_range: float = 0.0,
+    block_size: int | None = None,
+) -> tuple[int, int, float]:
+    """The argmax of :func:`origin_view_gains` (the first of equal maxima, origin-major):
+    ``(origin position in origins, view, gain)``; position -1 when there are no origins.
+
+    On OpenCL a coarse-to-fine search that is exact for the argmax (bounds per 2-cell block of
+    origins prune the origins that cannot reach the best gain; see
+    :meth:`~nbv_prob_cnn.gain.opencl.OpenCLRayCaster.best_view`); the numpy reference evaluates
+    every origin. ``block_size``: origins per axis of a bounded block (default
+    :data:`~nbv_prob_cnn.gain.opencl.BOUND_BLOCK`; origins on a stride ``s`` want ``2 s``).
+    """
+    state, prob, directions, origins, backend = _check_gain_inputs(
+        state, prob, directions, r_max, origins, backend, mode, eps
+    )
+    member = _check_membership(membership, directions)
+    if origins.shape[0] == 0:
+        return -1, 0, 0.0
+    if backend == "numpy":
+        gains = origin_view_gains(state, prob, directions, r_max, member, origins, "numpy", mode=mode,
+                                  min_range=min_range)  # fmt: skip
+        flat = int(np.argmax(gains))
+        return flat // gains.shape[1], flat % gains.shape[1], float(gains.flat[flat])
+    from nbv_prob_cnn.gain.opencl import encode_grid, get_ray_caster
+    code = encode_grid(state, prob if mode == "prob" else None)
+    offsets = sample_offsets(directions, r_max)
+    total = float(distance_weights(r_max, state.ndim).sum())
+    from nbv_prob_cnn.gain.opencl import BOUND_BLOCK
+
+    if block_size is not None and (not isinstance(block_size, (int, np.integer)) or block_size < 1):
+        raise ValueError(f"block_size: expected a positive integer, got {block_size!r}")
+    origin, view, gain, _ = get_ray_caster().best_view(
+        code, origins, offsets, member, total, mode, eps, min_range, block_size=block_size or BOUND_BLOCK
+    )
+    return origin, view, gain
+
+
+def _check_membership(membership: np.ndarray, directions: np.ndarray) -> np.ndarray:
+    member = np.asarray(membership)
+    if member.ndim != 2 or member.shape[0] != directions.shape[0] or not np.all((member == 0) | (member == 1)):
+        raise ValueError(f"membership: expected a ({directions.shape[0]}, V) 0/1 matrix, got shape {member.shape}")
+    return member
 
 
 def _check_gain_inputs(state, prob, directions, r_max, origins, backend, mode, eps):

@@ -30,6 +30,14 @@ MAX_SKIP = 1 << 20
 VIEW_GAIN_LOCAL_SIZE = 16
 #: Origins per ``view_gain`` launch (bounds the device output buffer).
 VIEW_GAIN_ORIGINS_PER_LAUNCH = 1 << 17
+#: Origins in the first exactly evaluated batch of ``best_view`` (then doubling).
+BEST_VIEW_FIRST_BATCH = 2048
+#: Origins per axis of a block of ``best_view`` (one bound per block).
+BOUND_BLOCK = 2
+#: Fewer origins per block on average: ``best_view`` evaluates all origins exactly.
+MIN_ORIGINS_PER_BLOCK = 2.0
+#: Relative (and absolute) margin added to the block bounds of ``best_view``.
+BOUND_MARGIN = 1e-4
 
 
 def encode_grid(state: np.ndarray, prob: np.ndarray | None) -> np.ndarray:
@@ -88,6 +96,52 @@ def group_first_samples(padded: np.ndarray, origin_index: np.ndarray, group: int
     padding = -distance.size % group
     distance = np.concatenate([distance, np.zeros(padding, dtype=np.int32)]) if padding else distance
     return np.ascontiguousarray(distance.reshape(-1, group).min(axis=1), dtype=np.int32)
+
+
+def block_corners(cells: np.ndarray, dims: int, size: int) -> np.ndarray:
+    """Per padded cell coordinate ``(N, 3)``, the corner ``c`` of its block ``c - {0 .. size-1}``
+    per marched axis (padded coordinates ``1 .. size``, ``size + 1 .. 2 size``, ...)."""
+    corners = np.array(cells, dtype=np.int64, copy=True)
+    corners[:, :dims] = (corners[:, :dims] + size - 1) // size * size
+    return corners
+
+
+def _window(values: np.ndarray, dims: int, size: int, reduce, fill) -> np.ndarray:
+    """``reduce`` over the window ``c - {0 .. size-1}`` per marched axis (``fill`` outside)."""
+    out = values
+    for axis in range(dims):
+        pad = [(0, 0)] * 3
+        pad[axis] = (size - 1, 0)
+        wide = np.pad(out, pad, constant_values=fill)
+        n = out.shape[axis]
+        out = functools.reduce(reduce, (np.take(wide, np.arange(k, k + n), axis=axis) for k in range(size)))
+    return out
+
+
+def bound_grid(padded: np.ndarray, dims: int, probabilistic: bool, size: int) -> np.ndarray:
+    """The grid whose marched gain from a block corner ``c`` bounds, ray by ray, the gain of
+    every cell of the block ``c - {0 .. size-1}^dims`` (see :meth:`OpenCLRayCaster.best_view`).
+
+    ``padded`` grown by ``size`` occupied cells on each side of every marched axis (the corner's
+    ray stops only once all the block's rays have stopped, up to ``size - 1`` cells after the
+    padding); cell ``c`` summarises the window ``c - {0 .. size-1}^dims`` (cells outside count as
+    occupied): ``-1`` if the whole window is occupied (every ray of the block has stopped);
+    else, if the window holds an unknown cell, the smallest occupancy probability in it (empty
+    0, occupied 1; 0 when not ``probabilistic``): the block's samples there count at most the
+    full weight and let through at most ``1 - min p``; else (empty and occupied cells only) the
+    empty code of the smallest distance in the window (samples closer than it are empty for the
+    whole block).
+    """
+    pad = ((size, size), (size, size), (size, size) if dims == 3 else (0, 0))
+    grid = np.pad(padded, pad, constant_values=np.float32(-1.0))
+    unknown = grid >= 0.0
+    all_occupied = _window(grid == -1.0, dims, size, np.logical_and, True)
+    any_unknown = _window(unknown, dims, size, np.logical_or, False)
+    p = np.where(unknown, grid if probabilistic else np.float32(0.0), np.where(grid == -1.0, 1.0, 0.0))
+    least_p = _window(p.astype(np.float32), dims, size, np.minimum, np.float32(1.0))
+    nearest_empty = _window(np.where(grid <= -2.0, grid, -np.inf).astype(np.float32), dims, size, np.maximum, -np.inf)
+    out = np.where(all_occupied, np.float32(-1.0), np.where(any_unknown, least_p, nearest_empty))
+    return np.ascontiguousarray(out, dtype=np.float32)
 
 
 class OpenCLRayCaster:
@@ -167,15 +221,23 @@ class OpenCLRayCaster:
     ) -> np.ndarray:
         """View gains ``(N, V)`` float32: the ray gains of each origin summed over the rays of
         each view (``membership`` is the ``(R, V)`` 0/1 ray-in-view matrix)."""
+        code_buf, padded, origin_index, offset_buf = self._common(code, origins, offsets)
+        return self._views(
+            code_buf, padded, origin_index, offset_buf, offsets.shape, membership, code.ndim - 1, total_weight,
+            mode, eps, min_range, local_size,
+        )  # fmt: skip
+
+    def _views(self, code_buf, padded, origin_index, offset_buf, offsets_shape, membership, nu, total_weight,
+               mode, eps, min_range, local_size=VIEW_GAIN_LOCAL_SIZE) -> np.ndarray:  # fmt: skip
+        """``view_gain`` on a device grid ``code_buf`` (host copy ``padded``) at linear origins."""
         cl, mf = self._cl, self._cl.mem_flags
-        n, r, v = origins.shape[0], offsets.shape[0], membership.shape[1]
+        n, (r, n_samples), v = origin_index.shape[0], offsets_shape[:2], membership.shape[1]
         out = np.empty((n, v), dtype=np.float32)
         if n == 0:
             return out
         start, rays = view_table(membership)
         # local references keep every buffer alive until the queue has finished with it
         start_buf, rays_buf = self._constant(start), self._constant(rays)
-        code_buf, padded, origin_index, offset_buf = self._common(code, origins, offsets)
         local_size = int(min(local_size, self.device.max_work_group_size))
         local_size = max(1, min(local_size, self.device.local_mem_size // (4 * r)))
         first_sample = group_first_samples(padded, origin_index, local_size)
@@ -186,12 +248,12 @@ class OpenCLRayCaster:
         kernel = self._view_kernel
         for begin in range(0, n, block):
             count = min(block, n - begin)
-            cl.enqueue_copy(self.queue, origin_buf, origin_index[begin : begin + count])
+            cl.enqueue_copy(self.queue, origin_buf, np.ascontiguousarray(origin_index[begin : begin + count]))
             group = begin // local_size
             cl.enqueue_copy(self.queue, first_buf, first_sample[group : group + -(-count // local_size)])
             kernel.set_args(
-                code_buf, origin_buf, np.int32(count), offset_buf, np.int32(r), np.int32(offsets.shape[1]),
-                np.int32(code.ndim - 1), np.float32(1.0 / total_weight), np.float32(eps), np.int32(MODES[mode]),
+                code_buf, origin_buf, np.int32(count), offset_buf, np.int32(r), np.int32(n_samples),
+                np.int32(nu), np.float32(1.0 / total_weight), np.float32(eps), np.int32(MODES[mode]),
                 np.float32(min_range), start_buf, rays_buf, np.int32(v), first_buf,
                 cl.LocalMemory(4 * r * local_size), out_buf,
             )  # fmt: skip
@@ -201,6 +263,98 @@ class OpenCLRayCaster:
         self.queue.finish()
         return out
 
+    def block_bounds(
+        self, code, origins, offsets, membership, total_weight, mode, size=None
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Per origin its block, per block and view an upper bound of ``G_W`` of the block's
+        origins: ``(block_of (N,), bounds (B, V))`` (see :meth:`best_view`)."""
+        size = BOUND_BLOCK if size is None else size
+        return self._block_bounds(march_grid(code), origins, offsets, membership, total_weight, mode, size)
+
+    def _block_bounds(self, padded, origins, offsets, membership, total_weight, mode, size=BOUND_BLOCK,
+                      min_per_block=0.0):  # fmt: skip
+        """``(block_of, bounds)``; bounds None when blocks hold fewer than ``min_per_block``
+        origins on average (bounds would cost about as much as exact gains)."""
+        dims = origins.shape[1]
+        shift = np.array([1, 1, 1 if dims == 3 else 0][:dims])
+        cells = np.zeros((origins.shape[0], 3), dtype=np.int64)
+        cells[:, :dims] = origins + shift
+        grown = np.array([size, size, size if dims == 3 else 0])
+        bound_shape = tuple(int(n) for n in np.array(padded.shape) + 2 * grown)
+        corner_index = linear_indices(block_corners(cells, dims, size) + grown, bound_shape, shift=0)
+        corners, block_of = np.unique(corner_index, return_inverse=True)
+        if corners.size * min_per_block > origins.shape[0]:
+            return block_of.ravel(), None
+        bound = bound_grid(padded, dims, probabilistic=mode == "prob", size=size)
+        offset_index = linear_indices(offsets.reshape(-1, offsets.shape[2]), bound.shape, shift=0)
+        offset_buf = self._constant(offset_index.reshape(offsets.shape[:2]))
+        mf = self._cl.mem_flags
+        bound_buf = self._cl.Buffer(self.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=bound)
+        view_bound = self._views(
+            bound_buf, bound, corners, offset_buf, offsets.shape, membership, dims - 1, total_weight, "prob", 0.0, 0.0,
+        )  # fmt: skip
+        return block_of.ravel(), view_bound
+
+    def best_view(
+        self,
+        code: np.ndarray,
+        origins: np.ndarray,
+        offsets: np.ndarray,
+        membership: np.ndarray,
+        total_weight: float,
+        mode: str,
+        eps: float,
+        min_range: float,
+        first_batch: int = BEST_VIEW_FIRST_BATCH,
+        block_size: int = BOUND_BLOCK,
+    ) -> tuple[int, int, float, int]:
+        """The first ``(origin, view)`` of largest ``G_W`` in origin-major order, exactly as the
+        exhaustive ``run_views(...)`` argmax, without computing every origin's gains.
+
+        Coarse to fine: the origins are grouped in blocks of ``block_size`` cells per axis; ``view_gain`` on
+        :func:`bound_grid` from each block's corner gives, per view, an upper bound of the gain
+        of every origin in the block (each sample of the corner's ray covers the samples of the
+        block's rays at the same ``t``: it counts the full weight where any of them is unknown,
+        is at least as visible (``1 - min p`` per step) and stops only where all of them have
+        stopped; ``Pr <= 1`` and ``t >= min_range`` only lower the true gain, also for ``ig``).
+        Origins are then evaluated exactly in order of decreasing block bound, in growing
+        batches, until the next bound is below the best exact gain (with a float32 rounding
+        margin): no pruned origin can beat or tie it.
+
+        Returns:
+            ``(origin position, view, gain, origins evaluated exactly)``.
+        """
+        n, dims = origins.shape[0], code.ndim
+        code_buf, padded, origin_index, offset_buf = self._common(code, origins, offsets)
+        block_of, view_bound = self._block_bounds(padded, origins, offsets, membership, total_weight, mode,
+                                                  block_size, MIN_ORIGINS_PER_BLOCK)  # fmt: skip
+        if view_bound is None:  # sparse origins: evaluate them all at once
+            block_of, view_bound, first_batch = np.zeros(n, dtype=np.int64), np.ones((1, 1), np.float32), n
+        block_bound = view_bound.max(axis=1)
+        # float32 sums in a different order: a margin far above their rounding error
+        block_bound = block_bound * np.float32(1.0 + BOUND_MARGIN) + np.float32(BOUND_MARGIN)
+        rank = np.empty(block_bound.size, dtype=np.int64)
+        rank[np.argsort(-block_bound, kind="stable")] = np.arange(block_bound.size)
+        order = np.argsort(rank[block_of], kind="stable")
+        origin_bound = block_bound[block_of][order]
+        best = (-1.0, n, 0)  # gain, origin, view
+        done, batch = 0, max(1, first_batch)
+        while done < n and origin_bound[done] >= best[0]:
+            stop = min(n, done + batch)
+            stop = done + int(np.count_nonzero(origin_bound[done:stop] >= best[0]))
+            chosen = order[done:stop]
+            gains = self._views(
+                code_buf, padded, origin_index[chosen], offset_buf, offsets.shape, membership, dims - 1,
+                total_weight, mode, eps, min_range,
+            )  # fmt: skip
+            top = float(gains.max())
+            rows, cols = np.nonzero(gains == gains.max())
+            first = np.lexsort((cols, chosen[rows]))[0]
+            candidate = (top, int(chosen[rows[first]]), int(cols[first]))
+            if top > best[0] or (top == best[0] and candidate[1:] < best[1:]):
+                best = candidate
+            done, batch = stop, batch * 2
+        return best[1], best[2], best[0], done
 
 @functools.lru_cache(maxsize=1)
 def get_ray_caster() -> OpenCLRayCaster:

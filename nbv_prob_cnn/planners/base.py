@@ -10,7 +10,7 @@ from typing import Protocol
 import numpy as np
 
 from nbv_prob_cnn.camera import DatasetDefaults, Sensor, dataset_defaults, orientations, yaw_quaternion
-from nbv_prob_cnn.gain import empty_origins, origin_view_gains, ray_directions, view_membership
+from nbv_prob_cnn.gain import best_origin_view, empty_origins, origin_view_gains, ray_directions, view_membership
 
 #: Upper bound on origins × views per gain call (bounds the (origins, views) gains in memory).
 MAX_VIEWS_PER_CALL = 64_000_000
@@ -137,14 +137,26 @@ def search_views(
     context: PlanningContext,
     mode: str = "prob",
     top_k: int = 1,
+    prune: bool = True,
 ) -> list[ViewChoice]:
     """The ``top_k`` (origin, orientation) pairs with the largest ``G_W``, best first (SPEC §5).
 
     View gains are computed in blocks of origins (bounded memory) by
     :func:`~nbv_prob_cnn.gain.origin_view_gains`. Ties go to the first origin, then the first view.
-    Views with zero gain are never returned.
+    Views with zero gain are never returned. With ``top_k == 1`` on OpenCL (and ``prune``) the
+    exact coarse-to-fine search :func:`~nbv_prob_cnn.gain.best_origin_view` finds the same view
+    without evaluating origins that provably cannot reach it.
     """
     sensor = context.active_sensor
+    if top_k == 1 and prune and _uses_opencl(context.backend) and origins.shape[0] > 0:
+        t0 = time.perf_counter()
+        block = 2 * (context.origin_stride or context.defaults.origin_stride)  # about 2^dims origins per block
+        index, view, gain = best_origin_view(
+            state, prob, context.directions, sensor.r_max, context.membership, origins, "opencl",
+            mode=mode, eps=context.eps, min_range=sensor.min_range, block_size=block,
+        )  # fmt: skip
+        times = {"cnn": 0.0, "raycast": time.perf_counter() - t0, "views": 0.0}
+        return [ViewChoice(origins[index].copy(), int(view), float(gain), times)] if gain > 0.0 else []
     n_views = context.membership.shape[1]
     block = max(1, MAX_VIEWS_PER_CALL // n_views)
     kept_gain = np.zeros(0, dtype=np.float32)
@@ -177,6 +189,14 @@ def search_views(
         for g, i in zip(kept_gain, kept_index, strict=True)
         if g > 0.0
     ]
+
+
+def _uses_opencl(backend: str) -> bool:
+    if backend == "auto":
+        from nbv_prob_cnn.cl_device import opencl_available
+
+        return opencl_available()
+    return backend == "opencl"
 
 
 def search_best_view(

@@ -1,0 +1,149 @@
+"""Coarse-to-fine best-view search (``best_origin_view``): exact for the argmax."""
+
+import numpy as np
+import pytest
+
+from nbv_prob_cnn.camera import orientations
+from nbv_prob_cnn.gain import best_origin_view, origin_view_gains, ray_directions, view_membership
+from nbv_prob_cnn.gain.directions import distance_weights, sample_offsets
+from nbv_prob_cnn.gain.opencl import encode_grid, get_ray_caster
+
+E, O, U = 0, 1, -1  # noqa: E741
+
+
+def _explored_world(rng: np.random.Generator, shape: tuple[int, ...]) -> tuple[np.ndarray, np.ndarray]:
+    """Unknown space with an explored (empty) box on one side, occupied boxes in and around it,
+    and smooth-ish random probabilities: gains differ a lot between origins (pruning happens)."""
+    state = np.full(shape, U, dtype=np.int8)
+    explored = tuple(slice(1, max(2, int(0.6 * s))) for s in shape)
+    state[explored] = E
+    for _ in range(4):
+        lo = [int(rng.integers(0, s - 3)) for s in shape]
+        state[tuple(slice(a, a + int(rng.integers(2, 5))) for a in lo)] = O
+    noise = rng.random(shape).astype(np.float32)
+    prob = np.where(state == U, 0.05 + 0.9 * noise**3, (state == O).astype(np.float32)).astype(np.float32)
+    return state, prob
+
+
+def _setup(shape, n_rays):
+    dims = len(shape)
+    d = ray_directions(dims, n_rays)
+    member = view_membership(d, orientations(dims), 60.0, None if dims == 2 else 46.0)
+    return d, member
+
+
+CASES = [((40, 36), 16, 24), ((41, 37), 4, 30), ((19, 17, 15), 4, 12), ((16, 15, 17), 4, 9), ((14, 13, 12), 16, 8)]
+
+
+@pytest.mark.parametrize("shape,n_rays,r_max", CASES)
+@pytest.mark.parametrize("mode", ["prob", "ig"])
+@pytest.mark.parametrize("seed", [0, 1])
+@pytest.mark.parametrize("block_size", [2, 4])
+def test_best_view_equals_exhaustive_and_numpy(shape, n_rays, r_max, mode, seed, block_size):
+    """Same (origin, view) as the exhaustive argmax (OpenCL and the numpy reference), gain
+    within 1e-4 of the reference."""
+    rng = np.random.default_rng(seed)
+    state, prob = _explored_world(rng, shape)
+    d, member = _setup(shape, n_rays)
+    p = prob if mode == "prob" else None
+    origins = np.argwhere(state == E)
+    exhaustive = origin_view_gains(state, p, d, r_max, member, origins, "opencl", mode=mode, min_range=2)
+    reference = origin_view_gains(state, p, d, r_max, member, origins, "numpy", mode=mode, min_range=2)
+    code = encode_grid(state, p)
+    total = float(distance_weights(r_max, len(shape)).sum())
+    index, view, gain, _ = get_ray_caster().best_view(
+        code, origins, sample_offsets(d, r_max), member, total, mode, 0.0, 2.0, first_batch=16, block_size=block_size
+    )
+    assert (index, view, gain) == best_origin_view(state, p, d, r_max, member, origins, "opencl", mode=mode,
+                                                   min_range=2) or block_size != 2  # fmt: skip
+    assert reference.max() > 0.05
+    flat = int(np.argmax(exhaustive))
+    assert (index, view) == divmod(flat, exhaustive.shape[1]) == divmod(int(np.argmax(reference)), reference.shape[1])
+    assert gain == exhaustive.flat[flat]
+    assert abs(gain - reference.max()) <= 1e-4
+
+
+@pytest.mark.parametrize("shape,n_rays,r_max", CASES)
+@pytest.mark.parametrize("mode", ["prob", "ig"])
+@pytest.mark.parametrize("size", [2, 3, 4])
+def test_block_bounds_bound_every_origin(shape, n_rays, r_max, mode, size):
+    """Each block's per-view bound is at least the exact gain of every origin of the block."""
+    state, prob = _explored_world(np.random.default_rng(2), shape)
+    d, member = _setup(shape, n_rays)
+    p = prob if mode == "prob" else None
+    origins = np.argwhere(state == E)
+    exact = origin_view_gains(state, p, d, r_max, member, origins, "numpy", mode=mode, min_range=2)
+    code = encode_grid(state, p)
+    total = float(distance_weights(r_max, len(shape)).sum())
+    block_of, bounds = get_ray_caster().block_bounds(
+        code, origins, sample_offsets(d, r_max), member, total, mode, size
+    )
+    assert block_of.shape == (origins.shape[0],) and bounds.shape[1] == member.shape[1]
+    assert bounds.shape[0] < origins.shape[0]  # blocks gather several origins
+    assert np.all(bounds[block_of] >= exact - 1e-5)
+    assert (bounds[block_of] - exact).min() < 0.5 * exact.max()  # tight somewhere, not a trivial bound
+    # every block is a corner's window: origins of one block lie within size - 1 cells per axis
+    for block in np.unique(block_of)[:50]:
+        members = origins[block_of == block]
+        assert np.all(members.max(axis=0) - members.min(axis=0) <= size - 1)
+
+
+def test_best_view_prunes_origins():
+    """Unknown space only in one corner: origins out of its reach are never evaluated exactly,
+    the result is unchanged."""
+    shape, n_rays, r_max = (48, 44, 40), 4, 16
+    state = np.zeros(shape, dtype=np.int8)
+    state[:12, :12, :12] = U
+    state[14:18, 5:9, 3:20] = O
+    prob = np.where(state == U, 0.3, (state == O).astype(np.float32)).astype(np.float32)
+    d, member = _setup(shape, n_rays)
+    origins = np.argwhere(state == E)
+    code = encode_grid(state, prob)
+    total = float(distance_weights(r_max, 3).sum())
+    index, view, gain, evaluated = get_ray_caster().best_view(
+        code, origins, sample_offsets(d, r_max), member, total, "prob", 0.0, 0.0, first_batch=64
+    )
+    exhaustive = origin_view_gains(state, prob, d, r_max, member, origins, "opencl")
+    assert (index, view) == divmod(int(np.argmax(exhaustive)), exhaustive.shape[1])
+    assert gain == exhaustive.max() > 0
+    assert evaluated < origins.shape[0] // 4
+
+
+def test_best_view_ties_go_to_first_origin():
+    """All origins equal (symmetric empty corridor ends): the first origin and view, as argmax."""
+    state = np.full((9, 9), O, dtype=np.int8)
+    state[2:7, 4] = E
+    state[1, 4] = state[7, 4] = U
+    prob = np.where(state == U, 0.5, (state == O).astype(np.float32)).astype(np.float32)
+    d, member = _setup(state.shape, 16)
+    origins = np.argwhere(state == E)
+    exhaustive = origin_view_gains(state, prob, d, 8, member, origins, "opencl")
+    index, view, gain = best_origin_view(state, prob, d, 8, member, origins, "opencl")
+    assert (index, view) == divmod(int(np.argmax(exhaustive)), exhaustive.shape[1])
+    assert gain == exhaustive.max() > 0
+
+
+def test_best_view_no_origins_and_bad_membership():
+    state = np.zeros((6, 6), dtype=np.int8)
+    d, member = _setup(state.shape, 4)
+    prob = np.zeros(state.shape, dtype=np.float32)
+    assert best_origin_view(state, prob, d, 5, member, np.zeros((0, 2), dtype=np.int64), "opencl")[0] == -1
+    with pytest.raises(ValueError, match="membership"):
+        best_origin_view(state, prob, d, 5, member[:-1], None, "opencl")
+
+
+def test_best_view_sparse_origins_evaluated_exhaustively():
+    """Scattered origins (one per block): no bounds, every origin evaluated, same argmax."""
+    shape, r_max = (19, 17, 15), 10
+    state, prob = _explored_world(np.random.default_rng(4), shape)
+    d, member = _setup(shape, 4)
+    origins = np.argwhere(state == E)[::9]
+    code = encode_grid(state, prob)
+    total = float(distance_weights(r_max, 3).sum())
+    index, view, gain, evaluated = get_ray_caster().best_view(
+        code, origins, sample_offsets(d, r_max), member, total, "prob", 0.0, 0.0
+    )
+    reference = origin_view_gains(state, prob, d, r_max, member, origins, "numpy")
+    assert evaluated == origins.shape[0]
+    assert (index, view) == divmod(int(np.argmax(reference)), reference.shape[1])
+    assert abs(gain - reference.max()) <= 1e-4
