@@ -97,15 +97,10 @@ def ray_gains(
         state, prob, directions, r_max, origins, backend, mode, eps
     )
     if backend == "numpy":
-        if mode == "ig":
-            return ig_gains_reference(state, directions, r_max, origins, min_range)
-        return ray_gains_reference(state, prob, directions, r_max, origins)
+        return _reference_ray_gains(state, prob, directions, r_max, origins, mode, min_range)
+    from nbv_prob_cnn.gain.opencl import get_ray_caster
 
-    from nbv_prob_cnn.gain.opencl import encode_grid, get_ray_caster
-
-    code = encode_grid(state, prob if mode == "prob" else None)
-    offsets = sample_offsets(directions, r_max)
-    total = float(distance_weights(r_max, state.ndim).sum())
+    code, offsets, total = _kernel_inputs(state, prob, directions, r_max, mode)
     return get_ray_caster().run(code, origins, offsets, total, mode, eps, min_range)
 
 
@@ -142,17 +137,12 @@ def origin_view_gains(
     )
     member = _check_membership(membership, directions)
     if backend == "numpy":
-        if mode == "ig":
-            gains = ig_gains_reference(state, directions, r_max, origins, min_range)
-        else:
-            gains = ray_gains_reference(state, prob, directions, r_max, origins)
-        return gains @ member.astype(np.float32)
+        return _reference_ray_gains(state, prob, directions, r_max, origins, mode, min_range) @ member.astype(
+            np.float32
+        )
+    from nbv_prob_cnn.gain.opencl import get_ray_caster
 
-    from nbv_prob_cnn.gain.opencl import encode_grid, get_ray_caster
-
-    code = encode_grid(state, prob if mode == "prob" else None)
-    offsets = sample_offsets(directions, r_max)
-    total = float(distance_weights(r_max, state.ndim).sum())
+    code, offsets, total = _kernel_inputs(state, prob, directions, r_max, mode)
     return get_ray_caster().run_views(code, origins, offsets, member, total, mode, eps, min_range)
 
 
@@ -190,18 +180,31 @@ def best_origin_view(
                                   min_range=min_range)  # fmt: skip
         flat = int(np.argmax(gains))
         return flat // gains.shape[1], flat % gains.shape[1], float(gains.flat[flat])
-    from nbv_prob_cnn.gain.opencl import encode_grid, get_ray_caster
-    code = encode_grid(state, prob if mode == "prob" else None)
-    offsets = sample_offsets(directions, r_max)
-    total = float(distance_weights(r_max, state.ndim).sum())
-    from nbv_prob_cnn.gain.opencl import BOUND_BLOCK
+    from nbv_prob_cnn.gain.opencl import BOUND_BLOCK, get_ray_caster
 
     if block_size is not None and (not isinstance(block_size, (int, np.integer)) or block_size < 1):
         raise ValueError(f"block_size: expected a positive integer, got {block_size!r}")
+    code, offsets, total = _kernel_inputs(state, prob, directions, r_max, mode)
     origin, view, gain, _ = get_ray_caster().best_view(
         code, origins, offsets, member, total, mode, eps, min_range, block_size=block_size or BOUND_BLOCK
     )
     return origin, view, gain
+
+
+def _reference_ray_gains(state, prob, directions, r_max, origins, mode, min_range) -> np.ndarray:
+    """``(N, R)`` ray gains from the numpy reference of ``mode``."""
+    if mode == "ig":
+        return ig_gains_reference(state, directions, r_max, origins, min_range)
+    return ray_gains_reference(state, prob, directions, r_max, origins)
+
+
+def _kernel_inputs(state, prob, directions, r_max, mode) -> tuple[np.ndarray, np.ndarray, float]:
+    """What every OpenCL gain kernel reads: the encoded grid, the sample offsets of the rays and
+    the weight normaliser ``sum t^nu``."""
+    from nbv_prob_cnn.gain.opencl import encode_grid
+
+    code = encode_grid(state, prob if mode == "prob" else None)
+    return code, sample_offsets(directions, r_max), float(distance_weights(r_max, state.ndim).sum())
 
 
 def _check_membership(membership: np.ndarray, directions: np.ndarray) -> np.ndarray:
