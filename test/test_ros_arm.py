@@ -24,13 +24,13 @@ _counter = iter(range(1000))
 
 
 @pytest.fixture
-def ros(tmp_path):
-    """A fresh domain (101..119: the other ROS tests use 1..100, 120..219 and 221..232), an rclpy
-    context and a client node for one test."""
+def ros(tmp_path, monkeypatch):
+    """A fresh domain (101..119, shared with test_ros_explore's 101..109 and test_ros_namespaces'
+    111..119: test modules run one after another), an rclpy context and a client node for one test."""
     domain = 101 + (os.getpid() + next(_counter)) % 19
     env = ros_environment(domain)
-    saved = {k: os.environ.get(k) for k in env}
-    os.environ.update(env)
+    for key, value in env.items():  # restored by monkeypatch after the test
+        monkeypatch.setenv(key, value)
     context = rclpy.Context()
     rclpy.init(context=context)
     node = rclpy.create_node("test_arm_client", context=context)
@@ -42,11 +42,6 @@ def ros(tmp_path):
     executor.remove_node(node)
     node.destroy_node()
     rclpy.shutdown(context=context)
-    for key, value in saved.items():
-        if value is None:
-            os.environ.pop(key, None)
-        else:
-            os.environ[key] = value
 
 
 def spin_until(executor, predicate, timeout_s: float) -> bool:

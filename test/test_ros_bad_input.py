@@ -193,7 +193,7 @@ def test_integrator_battery(ros_env: dict, tmp_path: Path) -> None:  # noqa: F81
     assert wait_for(lambda: not leaked_segments(before, domain), 5.0), leaked_segments(before, domain)
 
 
-def test_planning_battery(tmp_path: Path) -> None:
+def test_planning_battery(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     """Calls before any grid, a 2^24+1-cell grid, SIGKILL of completion_server while the planner
     waits on it (and recovery after its restart), then SIGINT with no leaked shared memory."""
     import signal
@@ -208,69 +208,62 @@ def test_planning_battery(tmp_path: Path) -> None:
     from nbv_prob_cnn.ros.graph import ros_environment
 
     env = ros_environment(domain_id(3))
-    saved = {k: os.environ.get(k) for k in env}
-    os.environ.update(env)
+    for key, value in env.items():  # restored by monkeypatch after the test
+        monkeypatch.setenv(key, value)
     domain = int(env["ROS_DOMAIN_ID"])
     before = shm_segments()
     completion = {"dataset": "3du", "device": "cpu"}
-    try:
-        with NodeGraph(env, log_dir=tmp_path) as graph, RosClient(domain) as client:
-            server = graph.start_node("completion_server", "completion_server", completion)
-            graph.start_node("gain_server", "gain_server", {"dataset": "3du", "backend": "opencl"})
-            planner = graph.start_node(
-                "nbv_planner", "nbv_planner", {"dataset": "3du", "method": "cnn_prob", "service_timeout_s": 5.0}
-            )
-            plan = client.node.create_client(PlanNextBestView, "/nbv/plan")
-            complete = client.node.create_client(CompleteGrid, "/nbv/complete")
-            rank = client.node.create_client(RankViews, "/nbv/rank_views")
+    with NodeGraph(env, log_dir=tmp_path) as graph, RosClient(domain) as client:
+        server = graph.start_node("completion_server", "completion_server", completion)
+        graph.start_node("gain_server", "gain_server", {"dataset": "3du", "backend": "opencl"})
+        planner = graph.start_node(
+            "nbv_planner", "nbv_planner", {"dataset": "3du", "method": "cnn_prob", "service_timeout_s": 5.0}
+        )
+        plan = client.node.create_client(PlanNextBestView, "/nbv/plan")
+        complete = client.node.create_client(CompleteGrid, "/nbv/complete")
+        rank = client.node.create_client(RankViews, "/nbv/rank_views")
 
-            # calls before any grid: a reason, not a crash
-            reply = client.call(plan, PlanNextBestView.Request(), timeout_s=START_TIMEOUT_S)
-            assert not reply.success and "no grid" in reply.message
+        # calls before any grid: a reason, not a crash
+        reply = client.call(plan, PlanNextBestView.Request(), timeout_s=START_TIMEOUT_S)
+        assert not reply.success and "no grid" in reply.message
 
-            # 2^24 + 1 cells (97 x 257 x 673): refused with a reason by both servers
-            huge = VoxelGrid(size_x=97, size_y=257, size_z=673, resolution=0.01)
-            huge.data = bytes(97 * 257 * 673)
-            for srv, request in ((complete, CompleteGrid.Request(grid=huge)), (rank, RankViews.Request(grid=huge))):
-                reply = client.call(srv, request, timeout_s=60.0)
-                assert not reply.success and "16777217 cells exceed" in reply.message, reply.message
+        # 2^24 + 1 cells (97 x 257 x 673): refused with a reason by both servers
+        huge = VoxelGrid(size_x=97, size_y=257, size_z=673, resolution=0.01)
+        huge.data = bytes(97 * 257 * 673)
+        for srv, request in ((complete, CompleteGrid.Request(grid=huge)), (rank, RankViews.Request(grid=huge))):
+            reply = client.call(srv, request, timeout_s=60.0)
+            assert not reply.success and "16777217 cells exceed" in reply.message, reply.message
 
-            # a valid grid: planning through both servers works
-            state = np.full((32, 32, 32), -1, dtype=np.int8)
-            state[4:28, 4:28, 2:20] = np.random.default_rng(4).choice(np.array([-1, 0, 0, 0, 1], np.int8), (24, 24, 18))
-            geometry = GridGeometry((0.0, 0.0, 0.0), 0.02, state.shape)
-            client.node.create_publisher(VoxelGrid, "/nbv/grid", GRID_QOS).publish(grid_to_msg(state, geometry))
-            good = PlanNextBestView.Request(top_k=1)
-            assert client.spin_until(lambda: client.call(plan, good, timeout_s=60.0).success, 60.0)
+        # a valid grid: planning through both servers works
+        state = np.full((32, 32, 32), -1, dtype=np.int8)
+        state[4:28, 4:28, 2:20] = np.random.default_rng(4).choice(np.array([-1, 0, 0, 0, 1], np.int8), (24, 24, 18))
+        geometry = GridGeometry((0.0, 0.0, 0.0), 0.02, state.shape)
+        client.node.create_publisher(VoxelGrid, "/nbv/grid", GRID_QOS).publish(grid_to_msg(state, geometry))
+        good = PlanNextBestView.Request(top_k=1)
+        assert client.spin_until(lambda: client.call(plan, good, timeout_s=60.0).success, 60.0)
 
-            # completion_server dies while the planner waits on it (stopped first, so the request
-            # is surely in flight, then killed): the plan fails with a reason, the planner lives on
-            os.killpg(server.pid, signal.SIGSTOP)
-            killed = segments_of(server.pid)  # its shared memory: left behind by SIGKILL, by design
-            future = plan.call_async(good)
-            client.spin_until(lambda: False, 1.0)
-            os.killpg(server.pid, signal.SIGKILL)
-            client.executor.spin_until_future_complete(future, timeout_sec=30.0)
-            assert future.done(), "the planner did not answer after completion_server died"
-            reply = future.result()
-            assert not reply.success and "/nbv/complete" in reply.message, reply.message
-            assert planner.poll() is None
+        # completion_server dies while the planner waits on it (stopped first, so the request
+        # is surely in flight, then killed): the plan fails with a reason, the planner lives on
+        os.killpg(server.pid, signal.SIGSTOP)
+        killed = segments_of(server.pid)  # its shared memory: left behind by SIGKILL, by design
+        future = plan.call_async(good)
+        client.spin_until(lambda: False, 1.0)
+        os.killpg(server.pid, signal.SIGKILL)
+        client.executor.spin_until_future_complete(future, timeout_sec=30.0)
+        assert future.done(), "the planner did not answer after completion_server died"
+        reply = future.result()
+        assert not reply.success and "/nbv/complete" in reply.message, reply.message
+        assert planner.poll() is None
 
-            # restarted, it serves again and planning recovers
-            graph.start_node("completion_server_2", "completion_server", completion)
-            assert client.spin_until(lambda: client.call(plan, good, timeout_s=60.0).success, 90.0)
-            assert planner.poll() is None
-            # the shared memory our live nodes use (other runs on this machine make their own)
-            ours = set().union(*(segments_of(p.pid) for p in graph.processes.values() if p.poll() is None))
-        codes = graph.stop()
-        assert codes["completion_server"] == -signal.SIGKILL
-        assert all(code in (0, -signal.SIGINT) for name, code in codes.items() if name != "completion_server"), codes
-    finally:
-        for key, value in saved.items():
-            if value is None:
-                os.environ.pop(key, None)
-            else:
-                os.environ[key] = value
+        # restarted, it serves again and planning recovers
+        graph.start_node("completion_server_2", "completion_server", completion)
+        assert client.spin_until(lambda: client.call(plan, good, timeout_s=60.0).success, 90.0)
+        assert planner.poll() is None
+        # the shared memory our live nodes use (other runs on this machine make their own)
+        ours = set().union(*(segments_of(p.pid) for p in graph.processes.values() if p.poll() is None))
+    codes = graph.stop()
+    assert codes["completion_server"] == -signal.SIGKILL
+    assert all(code in (0, -signal.SIGINT) for name, code in codes.items() if name != "completion_server"), codes
     # SIGINT left nothing behind; only the killed server's files remain (run_graph removes those)
     assert killed, "the server mapped no shared memory: the check below would prove nothing"
     assert ours, "the nodes mapped no shared memory: the check below would prove nothing"

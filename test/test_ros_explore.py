@@ -68,11 +68,11 @@ class FakeCamera:
 
 
 @pytest.fixture
-def explore_graph(tmp_path):
+def explore_graph(tmp_path, monkeypatch):
     domain = 101 + (os.getpid() + next(_counter)) % 9  # 101..109: no other test module uses these
     env = ros_environment(domain)
-    saved = {k: os.environ.get(k) for k in env}
-    os.environ.update(env)
+    for key, value in env.items():  # restored by monkeypatch after the test
+        monkeypatch.setenv(key, value)
     context = rclpy.Context()
     rclpy.init(context=context)
     node = rclpy.create_node("explore_test", context=context)
@@ -95,11 +95,6 @@ def explore_graph(tmp_path):
     node.destroy_node()
     rclpy.shutdown(context=context)
     spinner.join(timeout=5)
-    for key, value in saved.items():
-        if value is None:
-            os.environ.pop(key, None)
-        else:
-            os.environ[key] = value
 
 
 def wait(future, timeout_s: float = 60.0):

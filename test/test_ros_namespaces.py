@@ -65,10 +65,10 @@ def room(low: int, high: int) -> np.ndarray:
 
 
 @pytest.mark.slow
-def test_two_namespaced_graphs_in_one_domain(tmp_path):
+def test_two_namespaced_graphs_in_one_domain(tmp_path, monkeypatch):
     env = ros_environment(111 + os.getpid() % 9)  # 111..119: no other test module uses these
-    saved = {k: os.environ.get(k) for k in env}
-    os.environ.update(env)
+    for key, value in env.items():  # restored by monkeypatch after the test
+        monkeypatch.setenv(key, value)
     context = rclpy.Context()
     rclpy.init(context=context)
     node = rclpy.create_node("namespace_test", context=context)
@@ -108,8 +108,3 @@ def test_two_namespaced_graphs_in_one_domain(tmp_path):
         graph.stop()
         node.destroy_node()
         rclpy.shutdown(context=context)
-        for key, value in saved.items():
-            if value is None:
-                os.environ.pop(key, None)
-            else:
-                os.environ[key] = value

@@ -35,12 +35,12 @@ _counter = iter(range(1000))
 
 
 @pytest.fixture
-def ros(tmp_path):
+def ros(tmp_path, monkeypatch):
     """A fresh domain (221..232), an rclpy context and a client node for one test."""
     domain = 221 + (os.getpid() + next(_counter)) % 12
     env = ros_environment(domain)
-    saved = {k: os.environ.get(k) for k in env}
-    os.environ.update(env)
+    for key, value in env.items():  # restored by monkeypatch after the test
+        monkeypatch.setenv(key, value)
     context = rclpy.Context()
     rclpy.init(context=context)
     node = rclpy.create_node("test_client", context=context)
@@ -49,11 +49,6 @@ def ros(tmp_path):
     graph.stop()
     node.destroy_node()
     rclpy.shutdown(context=context)
-    for key, value in saved.items():
-        if value is None:
-            os.environ.pop(key, None)
-        else:
-            os.environ[key] = value
 
 
 def call(node, context, srv_type, name, request, timeout_s=60.0):
