@@ -13,3 +13,23 @@ def rng():
     import numpy as np
 
     return np.random.default_rng(12345)
+
+
+#: The DDS settings of :func:`nbv_prob_cnn.ros.graph.ros_environment` that the test process
+#: itself needs to meet the nodes it starts.
+DDS_KEYS = ("ROS_AUTOMATIC_DISCOVERY_RANGE", "RMW_IMPLEMENTATION", "FASTRTPS_DEFAULT_PROFILES_FILE", "ROS_DOMAIN_ID")
+
+
+@pytest.fixture
+def ros_domain(monkeypatch):
+    """Factory: ``ros_domain(domain_id)`` returns the environment for our nodes on that domain
+    and gives this test process the same DDS settings (restored after the test)."""
+    from nbv_prob_cnn.ros.graph import ros_environment
+
+    def use(domain_id: int) -> dict[str, str]:
+        env = ros_environment(domain_id)
+        for key in DDS_KEYS:
+            monkeypatch.setenv(key, env[key])
+        return env
+
+    return use

@@ -18,19 +18,17 @@ from sensor_msgs.msg import JointState  # noqa: E402
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint  # noqa: E402
 
 from nbv_prob_cnn.arm.robot import RobotModel  # noqa: E402
-from nbv_prob_cnn.ros.graph import NodeGraph, ros_environment  # noqa: E402
+from nbv_prob_cnn.ros.graph import NodeGraph  # noqa: E402
 
 _counter = iter(range(1000))
 
 
 @pytest.fixture
-def ros(tmp_path, monkeypatch):
+def ros(tmp_path, ros_domain):
     """A fresh domain (101..119, shared with test_ros_explore's 101..109 and test_ros_namespaces'
     111..119: test modules run one after another), an rclpy context and a client node for one test."""
     domain = 101 + (os.getpid() + next(_counter)) % 19
-    env = ros_environment(domain)
-    for key, value in env.items():  # restored by monkeypatch after the test
-        monkeypatch.setenv(key, value)
+    env = ros_domain(domain)
     context = rclpy.Context()
     rclpy.init(context=context)
     node = rclpy.create_node("test_arm_client", context=context)

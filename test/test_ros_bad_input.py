@@ -193,7 +193,7 @@ def test_integrator_battery(ros_env: dict, tmp_path: Path) -> None:  # noqa: F81
     assert wait_for(lambda: not leaked_segments(before, domain), 5.0), leaked_segments(before, domain)
 
 
-def test_planning_battery(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+def test_planning_battery(tmp_path: Path, ros_domain) -> None:
     """Calls before any grid, a 2^24+1-cell grid, SIGKILL of completion_server while the planner
     waits on it (and recovery after its restart), then SIGINT with no leaked shared memory."""
     import signal
@@ -205,11 +205,8 @@ def test_planning_battery(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> No
     from nbv_prob_cnn.geometry import GridGeometry
     from nbv_prob_cnn.ros.common import GRID_QOS
     from nbv_prob_cnn.ros.conversions import grid_to_msg
-    from nbv_prob_cnn.ros.graph import ros_environment
 
-    env = ros_environment(domain_id(3))
-    for key, value in env.items():  # restored by monkeypatch after the test
-        monkeypatch.setenv(key, value)
+    env = ros_domain(domain_id(3))
     domain = int(env["ROS_DOMAIN_ID"])
     before = shm_segments()
     completion = {"dataset": "3du", "device": "cpu"}

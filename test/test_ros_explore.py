@@ -25,7 +25,7 @@ from rclpy.executors import MultiThreadedExecutor  # noqa: E402
 from nbv_prob_cnn.geometry import GridGeometry  # noqa: E402
 from nbv_prob_cnn.ros.common import GRID_QOS  # noqa: E402
 from nbv_prob_cnn.ros.conversions import grid_to_msg  # noqa: E402
-from nbv_prob_cnn.ros.graph import NodeGraph, ros_environment  # noqa: E402
+from nbv_prob_cnn.ros.graph import NodeGraph  # noqa: E402
 
 pytestmark = pytest.mark.slow  # multi-process ROS graphs
 
@@ -68,11 +68,9 @@ class FakeCamera:
 
 
 @pytest.fixture
-def explore_graph(tmp_path, monkeypatch):
+def explore_graph(tmp_path, ros_domain):
     domain = 101 + (os.getpid() + next(_counter)) % 9  # 101..109: no other test module uses these
-    env = ros_environment(domain)
-    for key, value in env.items():  # restored by monkeypatch after the test
-        monkeypatch.setenv(key, value)
+    env = ros_domain(domain)
     context = rclpy.Context()
     rclpy.init(context=context)
     node = rclpy.create_node("explore_test", context=context)

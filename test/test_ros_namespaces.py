@@ -19,7 +19,7 @@ from nbv_prob_cnn.geometry import GridGeometry  # noqa: E402
 from nbv_prob_cnn.ros import names  # noqa: E402
 from nbv_prob_cnn.ros.common import GRID_QOS  # noqa: E402
 from nbv_prob_cnn.ros.conversions import grid_to_msg  # noqa: E402
-from nbv_prob_cnn.ros.graph import NodeGraph, node_command, ros_environment, wait_for  # noqa: E402
+from nbv_prob_cnn.ros.graph import NodeGraph, node_command, wait_for  # noqa: E402
 
 GEOMETRY = GridGeometry((0.0, 0.0, 0.0), 0.02, (24, 24, 24))
 DOCUMENTED = {
@@ -65,10 +65,8 @@ def room(low: int, high: int) -> np.ndarray:
 
 
 @pytest.mark.slow
-def test_two_namespaced_graphs_in_one_domain(tmp_path, monkeypatch):
-    env = ros_environment(111 + os.getpid() % 9)  # 111..119: no other test module uses these
-    for key, value in env.items():  # restored by monkeypatch after the test
-        monkeypatch.setenv(key, value)
+def test_two_namespaced_graphs_in_one_domain(tmp_path, ros_domain):
+    env = ros_domain(111 + os.getpid() % 9)  # 111..119: shared only with test_ros_arm
     context = rclpy.Context()
     rclpy.init(context=context)
     node = rclpy.create_node("namespace_test", context=context)

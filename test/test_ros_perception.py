@@ -40,7 +40,7 @@ from nbv_prob_cnn.perception.bags import (  # noqa: E402
 )
 from nbv_prob_cnn.ros.common import GRID_QOS  # noqa: E402
 from nbv_prob_cnn.ros.conversions import msg_to_grid  # noqa: E402
-from nbv_prob_cnn.ros.graph import NodeGraph, leaked_segments, ros_environment, shm_segments, wait_for  # noqa: E402
+from nbv_prob_cnn.ros.graph import NodeGraph, leaked_segments, shm_segments, wait_for  # noqa: E402
 
 pytestmark = pytest.mark.slow  # multi-process ROS graphs
 
@@ -148,20 +148,12 @@ class RosClient:
 
 
 @pytest.fixture
-def ros_env(monkeypatch: pytest.MonkeyPatch, request: pytest.FixtureRequest):
+def ros_env(ros_domain, request: pytest.FixtureRequest):
     """The graph environment of one test; the test process gets the same DDS settings."""
     index = {"test_sim_camera_to_integrator": 0, "test_bag_replay_matches_offline_integration": 1}.get(
         request.node.name, 2
     )
-    env = ros_environment(domain_id(index))
-    for key in (
-        "ROS_AUTOMATIC_DISCOVERY_RANGE",
-        "RMW_IMPLEMENTATION",
-        "FASTRTPS_DEFAULT_PROFILES_FILE",
-        "ROS_DOMAIN_ID",
-    ):
-        monkeypatch.setenv(key, env[key])
-    return env
+    return ros_domain(domain_id(index))
 
 
 def test_sim_camera_to_integrator(ros_env: dict, tmp_path: Path) -> None:

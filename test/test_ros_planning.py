@@ -25,7 +25,7 @@ from nbv_prob_cnn.planners.methods import GAIN_METHODS  # noqa: E402
 from nbv_prob_cnn.pose_scoring import INVALID_POSE, VALID, score_poses  # noqa: E402
 from nbv_prob_cnn.ros.common import GRID_QOS  # noqa: E402
 from nbv_prob_cnn.ros.conversions import grid_to_msg  # noqa: E402
-from nbv_prob_cnn.ros.graph import NodeGraph, ros_environment, wait_for  # noqa: E402
+from nbv_prob_cnn.ros.graph import NodeGraph, wait_for  # noqa: E402
 
 pytestmark = pytest.mark.slow  # multi-process ROS graphs
 
@@ -35,12 +35,10 @@ _counter = iter(range(1000))
 
 
 @pytest.fixture
-def ros(tmp_path, monkeypatch):
+def ros(tmp_path, ros_domain):
     """A fresh domain (221..232), an rclpy context and a client node for one test."""
     domain = 221 + (os.getpid() + next(_counter)) % 12
-    env = ros_environment(domain)
-    for key, value in env.items():  # restored by monkeypatch after the test
-        monkeypatch.setenv(key, value)
+    env = ros_domain(domain)
     context = rclpy.Context()
     rclpy.init(context=context)
     node = rclpy.create_node("test_client", context=context)

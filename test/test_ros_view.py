@@ -23,7 +23,7 @@ from nbv_prob_cnn import cli  # noqa: E402
 from nbv_prob_cnn.geometry import GridGeometry  # noqa: E402
 from nbv_prob_cnn.ros.common import GRID_QOS  # noqa: E402
 from nbv_prob_cnn.ros.conversions import grid_to_msg  # noqa: E402
-from nbv_prob_cnn.ros.graph import NodeGraph, ros_environment  # noqa: E402
+from nbv_prob_cnn.ros.graph import NodeGraph  # noqa: E402
 from nbv_prob_cnn.ros.markers import planning_markers  # noqa: E402
 from nbv_prob_cnn.visualize_run import gain_heat_map, load_run  # noqa: E402
 
@@ -38,15 +38,8 @@ def test_gain_heat_map_keeps_the_best_gain_per_cell():
 
 
 @pytest.mark.slow
-def test_recorded_run_renders(tmp_path: Path, monkeypatch: pytest.MonkeyPatch):
-    env = ros_environment(domain_id(5))
-    for key in (
-        "ROS_AUTOMATIC_DISCOVERY_RANGE",
-        "RMW_IMPLEMENTATION",
-        "FASTRTPS_DEFAULT_PROFILES_FILE",
-        "ROS_DOMAIN_ID",
-    ):
-        monkeypatch.setenv(key, env[key])
+def test_recorded_run_renders(tmp_path: Path, ros_domain):
+    env = ros_domain(domain_id(5))
     state = np.zeros(GEOMETRY.shape, np.int8)
     occupied_cells = np.array([[1, 2, 0], [5, 5, 3], [7, 0, 1]])
     state[tuple(occupied_cells.T)] = 1
