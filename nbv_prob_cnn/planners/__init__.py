@@ -14,7 +14,14 @@ from nbv_prob_cnn.planners.base import (
     search_views,
 )
 from nbv_prob_cnn.planners.methods import GAIN_METHODS, GainMethod, GainPlanner
-from nbv_prob_cnn.planners.registry import METHODS, MethodSpec, make_planner, method_spec, ros_method
+from nbv_prob_cnn.planners.registry import (
+    METHODS,
+    MethodSpec,
+    check_ros_method,
+    make_planner,
+    method_spec,
+    ros_method,
+)
 
 #: name -> factory, derived from :data:`METHODS` (kept for existing callers).
 PLANNER_FACTORIES: dict[str, Callable[[], Planner]] = {name: spec.factory for name, spec in METHODS.items()}
@@ -30,6 +37,7 @@ __all__ = [
     "PlanningContext",
     "RankingPlanner",
     "ViewChoice",
+    "check_ros_method",
     "make_planner",
     "method_spec",
     "ros_method",

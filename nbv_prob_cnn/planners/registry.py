@@ -97,3 +97,8 @@ def ros_method(name: str, default: str) -> MethodSpec:
         allowed = sorted(m for m, s in METHODS.items() if not s.needs_ground_truth)
         raise ValueError(f"unknown method {name!r}; expected one of {allowed}")
     return spec
+
+
+def check_ros_method(name: str) -> None:
+    """A parameter check: ``name`` is a method the ROS nodes serve (raises ValueError otherwise)."""
+    ros_method(name, name)

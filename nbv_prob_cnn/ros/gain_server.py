@@ -21,7 +21,7 @@ from rclpy.node import Node
 from nbv_prob_cnn.camera import DATASETS
 from nbv_prob_cnn.geometry import GridGeometry
 from nbv_prob_cnn.modes import BACKEND_NAMES, Backend
-from nbv_prob_cnn.planners import PlanningContext, ros_method
+from nbv_prob_cnn.planners import PlanningContext, check_ros_method
 from nbv_prob_cnn.planners.methods import cnn_completion, probability_map
 from nbv_prob_cnn.planners.requests import gain_method, origin_filter, planning_context, rank_for_request, view_pose
 from nbv_prob_cnn.pose_scoring import INVALID_POSE, score_poses
@@ -37,16 +37,12 @@ from nbv_prob_cnn.ros.conversions import (
 MAX_POSES = 100_000
 
 
-def _check_method(name: str) -> None:
-    ros_method(name, name)
-
-
 @dataclass
 class GainServerConfig:
     """Parameters of ``gain_server`` (``method`` and ``completion_timeout_s`` may change at run time)."""
 
     dataset: str = param("3dt", "sensor/ray defaults and CNN weights", choices=tuple(sorted(DATASETS)))
-    method: str = param("prob_ig", "method when a request names none", dynamic=True, check=_check_method)
+    method: str = param("prob_ig", "method when a request names none", dynamic=True, check=check_ros_method)
     backend: Backend = param("auto", "ray-casting backend", choices=BACKEND_NAMES)
     n_rays: int = param(0, "ray sub-cells per side (0 = data set default)", min_value=0, max_value=64)
     completion: str = param(

@@ -28,7 +28,7 @@ from nbv_prob_cnn.camera import DATASETS
 from nbv_prob_cnn.grid import unknown_fraction_all
 from nbv_prob_cnn.modes import BACKEND_NAMES, MOVE_MODES, Backend, MoveMode
 from nbv_prob_cnn.perception.messages import stamp_ns
-from nbv_prob_cnn.planners import make_planner, ros_method
+from nbv_prob_cnn.planners import check_ros_method, make_planner, ros_method
 from nbv_prob_cnn.planners.requests import choice_from_pose, origin_filter, planning_context, view_pose
 from nbv_prob_cnn.ros import names
 from nbv_prob_cnn.ros.common import GRID_QOS, call_service, declare_config, param, positive_seconds, run_node
@@ -45,16 +45,12 @@ from nbv_prob_cnn.ros.markers import planning_markers
 NO_POSITIVE_GAIN = "no view with positive gain"
 
 
-def _check_method(name: str) -> None:
-    ros_method(name, name)
-
-
 @dataclass
 class PlannerConfig:
     """Parameters of ``nbv_planner`` (``method`` and ``service_timeout_s`` may change at run time)."""
 
     dataset: str = param("3dt", "sensor/ray defaults and CNN weights", choices=tuple(sorted(DATASETS)))
-    method: str = param("cnn_prob", "method when a request names none", dynamic=True, check=_check_method)
+    method: str = param("cnn_prob", "method when a request names none", dynamic=True, check=check_ros_method)
     in_process: bool = param(False, "complete and ray-cast here instead of via the servers")
     backend: Backend = param("auto", "ray-casting backend (in-process mode)", choices=BACKEND_NAMES)
     n_rays: int = param(0, "ray sub-cells per side (0 = default)", min_value=0, max_value=64)
