@@ -29,29 +29,19 @@ from sensor_msgs.msg import JointState
 from trajectory_msgs.msg import JointTrajectory
 
 from nbv_prob_cnn.arm.motion import JointMotion
-from nbv_prob_cnn.arm.robot import (
-    DEFAULT_BASE_XYZ,
-    DEFAULT_HAND_FROM_CAMERA_XYZ,
-    RobotModel,
-    robot_config,
-)
+from nbv_prob_cnn.arm.robot import RobotModel
 from nbv_prob_cnn.camera import quaternion_from_matrix
 from nbv_prob_cnn.ros import names
 from nbv_prob_cnn.ros.common import declare_config, param, run_node
+from nbv_prob_cnn.ros.robot_params import RobotParams
 
 NODE_NAME = "arm_sim"
 
 
 @dataclass
-class ArmSimConfig:
-    """Parameters of ``arm_sim`` (all read-only after start-up)."""
+class ArmSimConfig(RobotParams):
+    """Parameters of ``arm_sim`` (all read-only after start-up): the robot description, then these."""
 
-    urdf_path: str = param("", "robot URDF (empty = the Panda from pybullet_data)")
-    base_xyz: list = param(list(DEFAULT_BASE_XYZ), "root link position in frame_id (m)")
-    base_rpy: list = param([0.0, 0.0, 0.0], "root link roll, pitch, yaw (rad)")
-    camera_parent: str = param("", "link carrying the camera (empty = panda_hand)")
-    camera_xyz: list = param(list(DEFAULT_HAND_FROM_CAMERA_XYZ), "optical frame on the link (m)")
-    camera_rpy: list = param([0.0, 0.0, 0.0], "optical frame roll, pitch, yaw on the link (rad)")
     frame_id: str = param("world", "frame of the base pose and the camera pose")
     rate_hz: float = param(50.0, "publishing rate", min_value=0.1, max_value=1000.0)
     velocity_scale: float = param(0.5, "fraction of the URDF velocity limits", min_value=0.01, max_value=1.0)
@@ -65,9 +55,7 @@ class ArmSim(Node):
         super().__init__(NODE_NAME)
         self.config = declare_config(self, ArmSimConfig)  # also sets self.<name> for each parameter
         cfg = self.config
-        config = robot_config(
-            cfg.urdf_path, cfg.base_xyz, cfg.base_rpy, cfg.camera_parent, cfg.camera_xyz, cfg.camera_rpy
-        )
+        config = cfg.robot_config()
         scale, initial, rate = cfg.velocity_scale, cfg.initial_positions, cfg.rate_hz
         self.robot = RobotModel(config)
         limits = np.asarray(self.robot.model.velocityLimit, dtype=np.float64) * float(scale)
