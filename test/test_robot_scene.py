@@ -191,3 +191,30 @@ def test_stamp_sync_waits_for_joint_states_when_required():
     plain.add_image(1, "image", now=0.0)
     plain.add_info(1, "info")
     assert [f.joints for f in plain.add_pose(1, "pose")] == [None]
+
+
+def test_both_bodies_filter_every_pixel_of_the_rendered_panda():
+    """The Panda rendered with its visual meshes, filtered with its collision bodies alone and with
+    both: the pybullet collision meshes leave a few silhouette pixels, the union none."""
+    from nbv_prob_cnn.arm.robot_scene import RobotScene
+    from nbv_prob_cnn.arm.self_filter import RobotSelfFilter
+
+    robot = RobotModel()
+    q = robot.reference_q
+    intrinsics = Intrinsics.from_hfov(160, 120, 70.0)
+    pose = np.eye(4)
+    eye = np.array([0.9, 0.742, 0.8])
+    pose[:3, :3] = look_rotation(np.array([0.0, 0.742, 0.35]) - eye)
+    pose[:3, 3] = eye
+    depth = RobotScene(robot, "visual").depth(q, intrinsics, pose)
+    seen = depth > 0
+    assert seen.sum() > 1000
+    collision = RobotSelfFilter(robot, "collision").mask(depth, q, intrinsics, pose)
+    both = RobotSelfFilter(robot, "both")
+    assert len(both.scene.meshes) == len(robot.collision_model.geometryObjects) + len(
+        robot.visual_model.geometryObjects
+    )
+    union = both.mask(depth, q, intrinsics, pose)
+    assert np.all(union[seen])  # every arm pixel
+    assert np.all(union[collision])  # a superset of the collision mask
+    assert 0 < (seen & ~collision).sum() < 0.01 * seen.sum()  # what collision bodies alone leave

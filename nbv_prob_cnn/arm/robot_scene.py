@@ -15,7 +15,10 @@ from nbv_prob_cnn.arm.collision import body_mesh
 from nbv_prob_cnn.arm.robot import RobotModel
 from nbv_prob_cnn.perception.depth_camera import DepthCamera, Intrinsics, MeshScene
 
-BODIES = ("collision", "visual")
+#: The URDF geometry a scene is made of; ``both`` is the union of the two (the pybullet Panda's
+#: collision meshes do not enclose its visual meshes everywhere: a few silhouette pixels of the
+#: visual meshes lie outside them).
+BODIES = ("collision", "visual", "both")
 
 
 class RobotScene:
@@ -23,21 +26,25 @@ class RobotScene:
 
     Args:
         robot: robot model.
-        bodies: ``"collision"`` or ``"visual"`` geometry of the URDF.
+        bodies: ``"collision"``, ``"visual"`` or ``"both"`` geometries of the URDF.
     """
 
     def __init__(self, robot: RobotModel, bodies: str = "collision") -> None:
         import pinocchio as pin
 
         if bodies not in BODIES:
-            raise ValueError(f"bodies: expected 'collision' or 'visual', got {bodies!r}")
+            raise ValueError(f"bodies: expected one of {list(BODIES)}, got {bodies!r}")
         self.robot = robot
         self.bodies = bodies
         self._pin = pin
-        self.geometry_model = robot.collision_model if bodies == "collision" else robot.visual_model
-        self.geometry_data = pin.GeometryData(self.geometry_model)
+        self.geometry_models = [
+            model
+            for name, model in (("collision", robot.collision_model), ("visual", robot.visual_model))
+            if bodies in (name, "both")
+        ]
+        self.geometry_data = [pin.GeometryData(model) for model in self.geometry_models]
         self.data = robot.model.createData()
-        self.meshes = [body_mesh(obj) for obj in self.geometry_model.geometryObjects]
+        self.meshes = [body_mesh(obj) for model in self.geometry_models for obj in model.geometryObjects]
         self._scene_q: bytes | None = None
         self._scene: MeshScene | None = None
         self._cameras: dict[Intrinsics, DepthCamera] = {}
@@ -47,12 +54,14 @@ class RobotScene:
         """``(vertices, faces)`` of every body in world coordinates at configuration ``q``."""
         q = self.robot.check_q(q)
         self._pin.forwardKinematics(self.robot.model, self.data, q)
-        self._pin.updateGeometryPlacements(self.robot.model, self.data, self.geometry_model, self.geometry_data)
-        out = []
-        for index, mesh in enumerate(self.meshes):
-            pose = self.geometry_data.oMg[index].homogeneous
-            out.append((np.asarray(mesh.vertices) @ pose[:3, :3].T + pose[:3, 3], np.asarray(mesh.faces)))
-        return out
+        placements: list[np.ndarray] = []
+        for model, data in zip(self.geometry_models, self.geometry_data, strict=True):
+            self._pin.updateGeometryPlacements(self.robot.model, self.data, model, data)
+            placements.extend(placement.homogeneous for placement in data.oMg)
+        return [
+            (np.asarray(mesh.vertices) @ pose[:3, :3].T + pose[:3, 3], np.asarray(mesh.faces))
+            for mesh, pose in zip(self.meshes, placements, strict=True)
+        ]
 
     def scene(self, q: np.ndarray) -> MeshScene:
         """The bodies at ``q`` as a :class:`~nbv_prob_cnn.perception.depth_camera.MeshScene`

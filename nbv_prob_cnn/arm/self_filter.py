@@ -4,8 +4,10 @@ The robot's bodies are placed by forward kinematics at the current joint state a
 the camera (:class:`~nbv_prob_cnn.arm.robot_scene.RobotScene`, rebuilt only when the joint state changes).
 A measured pixel is the robot when the robot covers it and the measurement is not in front of the
 robot by more than ``tolerance_m``; those pixels become 0 ("no return"), so they neither mark
-occupied cells nor carve free space. Collision bodies are used by default: they enclose the
-visual meshes, so the filter errs towards removing a little more.
+occupied cells nor carve free space. Collision bodies are used by default: they mostly enclose
+the visual meshes, so the filter errs towards removing a little more; ``bodies="both"`` (the
+union with the visual meshes) also removes the few silhouette pixels where a visual mesh sticks
+out of its collision body (what the ``integrator`` node uses against ``sim_camera render_arm``).
 """
 
 from __future__ import annotations
@@ -22,7 +24,7 @@ class RobotSelfFilter:
 
     Args:
         robot: robot model.
-        bodies: ``"collision"`` or ``"visual"`` geometry of the URDF.
+        bodies: ``"collision"``, ``"visual"`` or ``"both"`` geometries of the URDF.
         tolerance_m: measured depth this much in front of the rendered robot still counts as robot.
     """
 
