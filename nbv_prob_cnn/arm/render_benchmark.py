@@ -74,17 +74,30 @@ def arm_render_benchmark(seed: int = 1000, repeats: int = 10, width: int = 640, 
     )
     lines = [header, "", columns, "|---|---|---|---|---|---|---|---|"]
     for name, pose in views.items():
-        plain = median_ms(lambda i, pose=pose: camera.render(pose), repeats)
-        resting = median_ms(lambda i, pose=pose: camera.render(pose, [visual.scene(q0)]), repeats)
-        moving_ms = median_ms(lambda i, pose=pose: camera.render(pose, [visual.scene(moving[i])]), repeats)
         depth = camera.render(pose, [visual.scene(q0)])
-        filter_resting = median_ms(lambda i, d=depth, pose=pose: self_filter.filter(d, q0, intrinsics, pose), repeats)
-        filter_moving = median_ms(
-            lambda i, d=depth, pose=pose: self_filter.filter(d, moving[i], intrinsics, pose), repeats
+
+        def render(i: int, pose: np.ndarray = pose) -> object:
+            return camera.render(pose)
+
+        def render_resting(i: int, pose: np.ndarray = pose) -> object:
+            return camera.render(pose, [visual.scene(q0)])
+
+        def render_moving(i: int, pose: np.ndarray = pose) -> object:
+            return camera.render(pose, [visual.scene(moving[i])])
+
+        def filter_resting(i: int, pose: np.ndarray = pose, depth: np.ndarray = depth) -> object:
+            return self_filter.filter(depth, q0, intrinsics, pose)
+
+        def filter_moving(i: int, pose: np.ndarray = pose, depth: np.ndarray = depth) -> object:
+            return self_filter.filter(depth, moving[i], intrinsics, pose)
+
+        plain, resting, moving_ms, resting_filter, moving_filter = (
+            median_ms(function, repeats)
+            for function in (render, render_resting, render_moving, filter_resting, filter_moving)
         )
         arm = self_filter.mask(depth, q0, intrinsics, pose)
         lines.append(
-            f"| {name} | {plain:.1f} | {resting:.1f} | {moving_ms:.1f} | {filter_resting:.1f} | {filter_moving:.1f} | "
+            f"| {name} | {plain:.1f} | {resting:.1f} | {moving_ms:.1f} | {resting_filter:.1f} | {moving_filter:.1f} | "
             f"{resting / plain:.2f} / {moving_ms / plain:.2f} | {100.0 * arm.sum() / arm.size:.2f} % |"
         )
     return "\n".join(lines)
