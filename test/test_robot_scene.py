@@ -186,6 +186,20 @@ def test_stamp_sync_waits_for_joint_states_when_required():
     [(stamp, reason, text)] = sync.expire(now=5.0, timeout_s=1.0)
     assert stamp == 2_000_000_000 and reason == DropReason.NO_JOINT_STATES
     assert text == "no joint_states within ±0.01 s (nearest is -0.950 s away)"
+    # joint states pair only once one at or after the image has come: a nearer one could follow
+    sync.add_image(3_000_000_000, "image", now=10.0)
+    sync.add_info(3_000_000_000, "info")
+    sync.add_pose(3_000_000_000, "pose")
+    assert sync.add_joints(2_992_000_000, "before") == []  # 8 ms before: within the tolerance, not settled
+    [frame] = sync.add_joints(3_004_000_000, "after")  # 4 ms after: nearer
+    assert frame.joints == "after"
+    sync.add_image(4_000_000_000, "image", now=10.0)
+    sync.add_info(4_000_000_000, "info")
+    sync.add_pose(4_000_000_000, "pose")
+    assert sync.add_joints(3_995_000_000, "before") == []
+    [(stamp, reason, text)] = sync.expire(now=20.0, timeout_s=1.0)
+    assert stamp == 4_000_000_000 and reason == DropReason.NO_JOINT_STATES
+    assert text == "no joint_states stamped at or after the image (newest is -0.005 s away)"
     # without the requirement, frames pair as before and carry no joint states
     plain = StampSync(10_000_000)
     plain.add_image(1, "image", now=0.0)

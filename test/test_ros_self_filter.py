@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 import os
 import signal
+import time
 from pathlib import Path
 
 import numpy as np
@@ -17,7 +18,7 @@ rclpy = pytest.importorskip("rclpy")
 pytest.importorskip("nbv_prob_cnn_msgs")
 
 from nbv_prob_cnn_msgs.msg import VoxelGrid  # noqa: E402
-from nbv_prob_cnn_msgs.srv import MoveCamera  # noqa: E402
+from nbv_prob_cnn_msgs.srv import MoveCamera, MoveToJoints  # noqa: E402
 from sensor_msgs.msg import JointState  # noqa: E402
 from std_srvs.srv import Trigger  # noqa: E402
 from test_ros_perception import START_TIMEOUT_S, RosClient, assert_clean_stop, log_text, stamp_ns  # noqa: E402
@@ -85,6 +86,7 @@ def test_arm_rendered_and_filtered_out_of_the_grid(ros_domain, tmp_path: Path) -
             raw: dict[str, VoxelGrid] = {}
             client.node.create_subscription(VoxelGrid, "/raw/nbv/grid", lambda m: raw.__setitem__("grid", m), GRID_QOS)
             move = client.node.create_client(MoveCamera, "/sim_camera/move_to")
+            move_joints = client.node.create_client(MoveToJoints, "/arm_sim/move_to_joints")
             diagnostics = client.node.create_client(Trigger, "/integrator/diagnostics")
             request = MoveCamera.Request(
                 target=arrays_to_pose_stamped(np.array(CAMERA_POSE[:3]), np.array(CAMERA_POSE[3:]), "world")
@@ -124,6 +126,25 @@ def test_arm_rendered_and_filtered_out_of_the_grid(ros_domain, tmp_path: Path) -
             report = json.loads(client.call(diagnostics, Trigger.Request()).message)
             assert report["integrated"] == 1 and report["self_filtered_pixels"] > 500, report
 
+            # the arm moving while frames are taken: each frame carries the stamp of the joint state
+            # it shows, so the filter removes the arm wherever it was (the box holds only the table
+            # and the arm: nothing above the table may be occupied)
+            reply = client.call(
+                move_joints, MoveToJoints.Request(name=["panda_joint1", "panda_joint2"], position=[0.8, 0.4])
+            )
+            assert reply.success, reply.message
+            frames, deadline = [], time.monotonic() + reply.duration_s
+            while time.monotonic() < deadline or len(frames) < 3:
+                frames.append(stamp_ns(client.call(move, request).frame_stamp))
+            filtered, _ = msg_to_grid(client.wait_grid(frames[-1], timeout_s=30.0))
+            assert client.spin_until(lambda: stamp_ns(raw["grid"].header.stamp) >= frames[-1], 30.0)
+            unfiltered, _ = msg_to_grid(raw["grid"])
+            above = ORIGIN[2] + (np.arange(SHAPE[2]) + 0.5) * VOXEL > TABLE_TOP + 3 * VOXEL
+            assert (unfiltered[:, :, above] == OCCUPIED).sum() > raw_arm  # the arm seen at more places
+            assert (filtered[:, :, above] == OCCUPIED).sum() == 0
+            integrated = json.loads(client.call(diagnostics, Trigger.Request()).message)["integrated"]
+            assert integrated > 1
+
             # wrong joint names: arm_sim stops, the test publishes joint states of another robot
             arm_sim.send_signal(signal.SIGINT)
             assert arm_sim.wait(timeout=20.0) == 0
@@ -145,7 +166,7 @@ def test_arm_rendered_and_filtered_out_of_the_grid(ros_domain, tmp_path: Path) -
                 20.0,
             ), "the frame with bad joint states was not counted"
             report = json.loads(client.call(diagnostics, Trigger.Request()).message)
-            assert report["integrated"] == 1
+            assert report["integrated"] == integrated
             assert (
                 "unknown joint names ['elbow'], missing joints ['panda_joint1']"
                 in report["last_drop"]["bad_joint_states"]
@@ -156,7 +177,7 @@ def test_arm_rendered_and_filtered_out_of_the_grid(ros_domain, tmp_path: Path) -
             reply = client.call(move, request)
             assert reply.success
             client.wait_grid(stamp_ns(reply.frame_stamp), timeout_s=30.0)
-            assert json.loads(client.call(diagnostics, Trigger.Request()).message)["integrated"] == 2
+            assert json.loads(client.call(diagnostics, Trigger.Request()).message)["integrated"] == integrated + 1
         assert_clean_stop(graph)
     assert "unknown joint names ['elbow']" in log_text(tmp_path, "integrator")
     assert "unknown joint names ['elbow']" in log_text(tmp_path, "sim_camera")

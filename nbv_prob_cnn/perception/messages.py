@@ -280,7 +280,9 @@ class StampSync:
     Not thread-safe (the node calls it under its lock). Poses and camera_infos are kept (the
     newest :data:`HISTORY`) and may serve several images; an image waits until both partners
     are there, or is dropped by :meth:`expire`. With ``require_joints`` an image also needs the
-    joint states nearest to its stamp within the tolerance (a third partner, kept the same way).
+    joint states nearest to its stamp within the tolerance (a third partner, kept the same way),
+    settled: only once joint states stamped at or after the image have arrived, since a nearer
+    one could still come (joint states stream at a high rate; the arm moves between them).
     """
 
     def __init__(self, tolerance_ns: int, require_joints: bool = False) -> None:
@@ -341,22 +343,36 @@ class StampSync:
         self._insert(self.joints, stamp, msg)
         return self._complete()
 
+    def settled_nearest(self, history: list[tuple[int, Any]], stamp: int) -> tuple[int, Any] | None:
+        """:meth:`nearest`, once ``history`` holds a message stamped at or after ``stamp``."""
+        if not history or history[-1][0] < stamp:
+            return None
+        return self.nearest(history, stamp)
+
     def _complete(self) -> list[PairedFrame]:
         done = []
         for stamp in sorted(self.images):
             info = self.nearest(self.infos, stamp)
             pose = self.nearest(self.poses, stamp)
-            joints = self.nearest(self.joints, stamp) if self.require_joints else (0, None)
+            joints = self.settled_nearest(self.joints, stamp) if self.require_joints else (0, None)
             if info is not None and pose is not None and joints is not None:
                 image, _ = self.images.pop(stamp)
                 done.append(PairedFrame(stamp, image, info[1], pose[1], joints=joints[1]))
         return done
 
-    def _partners(self) -> list[tuple[str, DropReason, list[tuple[int, Any]]]]:
-        partners = [("pose", DropReason.NO_POSE, self.poses), ("camera_info", DropReason.NO_CAMERA_INFO, self.infos)]
-        if self.require_joints:
-            partners.append(("joint_states", DropReason.NO_JOINT_STATES, self.joints))
-        return partners
+    def _missing(self, stamp: int) -> list[tuple[str, DropReason, list[tuple[int, Any]]]]:
+        """The partners an image still lacks: ``(name, drop reason, history)``."""
+        missing = [
+            (name, reason, history)
+            for name, reason, history in (
+                ("pose", DropReason.NO_POSE, self.poses),
+                ("camera_info", DropReason.NO_CAMERA_INFO, self.infos),
+            )
+            if self.nearest(history, stamp) is None
+        ]
+        if self.require_joints and self.settled_nearest(self.joints, stamp) is None:
+            missing.append(("joint_states", DropReason.NO_JOINT_STATES, self.joints))
+        return missing
 
     def expire(self, now: float, timeout_s: float) -> list[tuple[int, DropReason, str]]:
         """Drop images that waited longer than ``timeout_s``; returns ``(stamp, reason, text)``."""
@@ -367,11 +383,14 @@ class StampSync:
                 continue
             del self.images[stamp]
             reasons = []
-            missing = [partner for partner in self._partners() if self.nearest(partner[2], stamp) is None]
+            missing = self._missing(stamp)
             kind = missing[0][1] if missing else DropReason.NO_POSE
             for name, _, history in missing:
                 if not history:
                     reasons.append(f"no {name} received yet")
+                elif self.nearest(history, stamp) is not None:  # joint states: none at or after the image
+                    offset = (history[-1][0] - stamp) * 1e-9
+                    reasons.append(f"no {name} stamped at or after the image (newest is {offset:+.3f} s away)")
                 else:
                     closest = min(history, key=lambda item: abs(item[0] - stamp))
                     offset = (closest[0] - stamp) * 1e-9

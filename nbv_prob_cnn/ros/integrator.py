@@ -114,6 +114,8 @@ SERVICE_DIAGNOSTICS = names.INTEGRATOR_DIAGNOSTICS
 TOPIC_DIAGNOSTICS = "/diagnostics"
 #: Most frames waiting for integration with ``drop_when_behind:=false`` (older ones are dropped beyond it).
 MAX_BACKLOG = 1000
+#: Depth of the ``joint_states`` subscription with ``self_filter`` (2 s of a 50 Hz stream).
+JOINT_STATES_QUEUE = 100
 #: Re-exported for callers that took them from here.
 __all__ = ["ENCODINGS", "Integrator", "PairedFrame", "StampSync", "main"]
 
@@ -242,8 +244,10 @@ class Integrator(Node):
             TransformStamped, names.CAMERA_POSE, self._on_pose, camera_qos, callback_group=inputs, raw=True
         )
         if cfg.self_filter:
+            # the filter needs the joint state of each frame's stamp: keep a few seconds of them (they are small)
+            joints_qos = subscription_qos(max(cfg.queue_size, JOINT_STATES_QUEUE), cfg.qos_reliability)
             self.create_subscription(
-                JointState, names.JOINT_STATES, self._on_joints, camera_qos, callback_group=inputs, raw=True
+                JointState, names.JOINT_STATES, self._on_joints, joints_qos, callback_group=inputs, raw=True
             )
         self.create_timer(0.1, self._on_expire_timer, callback_group=inputs)
         self.create_service(Trigger, SERVICE_RESET, self._on_reset, callback_group=services)

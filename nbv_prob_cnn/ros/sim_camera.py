@@ -13,9 +13,12 @@ Target poses are ``camera_optical`` poses (REP-103: z forward, x right, y down) 
 
 With ``render_arm:=true`` the arm (the robot of the robot description parameters ``urdf_path``,
 ``base_xyz``, ..., its visual meshes) is rendered into every frame at the latest ``joint_states``
-(``sensor_msgs/JointState``, e.g. from ``arm_sim``; every joint must be named); until the first
-joint state arrives no frame is published (``move_to`` answers with an error), and joint states
-naming unknown or missing joints are refused with a warning (the previous one stays in use).
+(``sensor_msgs/JointState``, e.g. from ``arm_sim``; every joint must be named), and the frame is
+stamped with that joint state's stamp when it is at most 0.5 s old (else with the time now): the
+moment the arm was where the frame shows it, so a self-filter pairing by stamp sees the same
+joint state even when rendering lags. Until the first joint state arrives no frame is
+published (``move_to`` answers with an error), and joint states naming unknown or missing joints
+are refused with a warning (the previous one stays in use).
 
 Frames are rendered by :class:`~nbv_prob_cnn.perception.DepthCamera` and converted by the
 rosbag2 helpers of :mod:`nbv_prob_cnn.perception.bags` (CDR bytes published as they are), so a
@@ -58,6 +61,8 @@ from nbv_prob_cnn.ros.robot_params import RobotParams
 NODE_NAME = "sim_camera"
 TOPIC_GOAL_POSE = names.GOAL_POSE
 SERVICE_MOVE_TO = names.MOVE_TO
+#: ``render_arm``: a frame carries the stamp of the joint state it shows when that is at most this old.
+ARM_STATE_MAX_AGE_NS = 500_000_000
 
 
 def look_at_pose(position, target) -> list[float]:
@@ -205,13 +210,15 @@ class SimCamera(Node):
         self.frames = 0
         self.bad_joint_states = 0
         self._arm_q: np.ndarray | None = None
+        self._arm_stamp_ns = 0
         self._arm = None
         if cfg.render_arm:
             from nbv_prob_cnn.arm.robot import RobotModel
             from nbv_prob_cnn.arm.robot_scene import RobotScene
 
             self._arm = RobotScene(RobotModel(cfg.robot_config()), "visual")
-            self.create_subscription(JointState, names.JOINT_STATES, self._on_joint_states, 10)
+            # only the newest joint state matters: a backlog would render the arm where it was
+            self.create_subscription(JointState, names.JOINT_STATES, self._on_joint_states, 1)
 
         qos = QoSProfile(
             history=HistoryPolicy.KEEP_LAST,
@@ -240,11 +247,16 @@ class SimCamera(Node):
         """
         with self._lock:
             occluders = []
+            stamp_ns = self.get_clock().now().nanoseconds
             if self._arm is not None:
                 if self._arm_q is None:
                     raise ValueError(f"render_arm: no {names.JOINT_STATES} received yet, no frame rendered")
                 occluders.append(self._arm.scene(self._arm_q))  # rebuilt only when the joints moved
-            stamp_ns = max(self.get_clock().now().nanoseconds, self._last_stamp_ns + 1)
+                # the frame shows the arm as it was at that joint state: it carries its stamp (unless
+                # the joint states stopped: then the frame is stamped now and shows the last known arm)
+                if 0 <= stamp_ns - self._arm_stamp_ns <= ARM_STATE_MAX_AGE_NS:
+                    stamp_ns = self._arm_stamp_ns
+            stamp_ns = max(stamp_ns, self._last_stamp_ns + 1)
             self._last_stamp_ns = stamp_ns
             depth = self._camera.render(self._pose, occluders)
             store = typestore()
@@ -294,6 +306,7 @@ class SimCamera(Node):
             return
         with self._lock:
             self._arm_q = q
+            self._arm_stamp_ns = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
 
     def _on_move_to(self, request: MoveCamera.Request, response: MoveCamera.Response) -> MoveCamera.Response:
         try:
