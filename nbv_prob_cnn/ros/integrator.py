@@ -174,7 +174,7 @@ class IntegratorConfig(RobotParams):
         "(lossless bag replays)", choices=RELIABILITY,
     )  # fmt: skip
     self_filter: bool = param(
-        False, "remove the pixels that see the arm (collision bodies at the joint_states nearest to each frame, "
+        False, "remove the pixels that see the arm (self_filter_bodies at the joint_states nearest to each frame, "
         "robot description parameters) before integration; frames without joint states are dropped",
     )  # fmt: skip
     self_filter_bodies: str = param(
