@@ -157,8 +157,10 @@ def test_arm_rendered_and_filtered_out_of_the_grid(ros_domain, tmp_path: Path) -
                 joints.publish(msg)
 
             client.node.create_timer(0.01, publish_joints)
-            client.spin_until(lambda: False, 0.5)
-            assert client.call(move, request).success  # sim_camera keeps the last good joint state
+            # sim_camera keeps showing the last good joint state; once that is older than 0.5 s
+            # (ARM_STATE_MAX_AGE_NS) its frames are stamped with the time now, among the bad ones
+            client.spin_until(lambda: False, 1.0)
+            assert client.call(move, request).success
             assert client.spin_until(
                 lambda: (
                     json.loads(client.call(diagnostics, Trigger.Request()).message)["dropped"]["bad_joint_states"] >= 1
