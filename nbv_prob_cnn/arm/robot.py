@@ -267,6 +267,29 @@ class RobotModel:
             q[self.joint_names.index(name)] = float(value)
         return q
 
+    def joint_state_configuration(self, names: Sequence[str], positions: Sequence[float]) -> np.ndarray:
+        """The configuration of a complete joint state (``sensor_msgs/JointState`` names and
+        positions): every joint of the robot must be named, once.
+
+        Raises:
+            ValueError: names and positions of different lengths, duplicate, unknown or missing
+                joint names (the message names them), or non-finite positions.
+        """
+        names = [str(name) for name in names]
+        if len(names) != len(positions):
+            raise ValueError(f"joint_states: {len(names)} joint names but {len(positions)} positions")
+        duplicates = sorted({name for name in names if names.count(name) > 1})
+        if duplicates:
+            raise ValueError(f"joint_states: duplicate joint names {duplicates}")
+        missing = [name for name in self.joint_names if name not in names]
+        unknown = sorted(set(names) - set(self.joint_names))
+        if missing or unknown:
+            raise ValueError(
+                f"joint_states: unknown joint names {unknown}, missing joints {missing}; "
+                f"the robot's joints are {self.joint_names}"
+            )
+        return self.configuration(dict(zip(names, positions, strict=True)))
+
     def joint_positions(self, q: np.ndarray) -> dict[str, float]:
         """Name → position of a configuration vector."""
         q = self.check_q(q)

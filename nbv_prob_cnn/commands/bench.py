@@ -9,9 +9,10 @@ from nbv_prob_cnn.benchmark import DEFAULT_CASES, format_table, run_case
 NAME = "bench"
 HELP = (
     "Benchmarks: planning iterations on half-explored grids (OpenCL vs numpy), CNN inference, TSDF "
-    "integration, the transport overhead of the ROS node split, and the arm (capability map, IK, added cost)."
+    "integration, the transport overhead of the ROS node split, the arm (capability map, IK, added cost) and "
+    "the cost of rendering the arm into depth frames and filtering it out."
 )
-SUITES = ("planning", "cnn", "integrator", "ros", "arm")
+SUITES = ("planning", "cnn", "integrator", "ros", "arm", "arm_render")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -36,6 +37,7 @@ def run(args: argparse.Namespace) -> int:
             "integrator": run_integrator,
             "ros": run_ros,
             "arm": run_arm,
+            "arm_render": run_arm_render,
         }
         runners[suite](args)
         print(flush=True)
@@ -63,6 +65,12 @@ def run_arm(args: argparse.Namespace) -> None:
     from nbv_prob_cnn.arm.benchmark import arm_benchmark
 
     print(arm_benchmark(seed=args.seed, iterations=args.repeats))
+
+
+def run_arm_render(args: argparse.Namespace) -> None:
+    from nbv_prob_cnn.arm.render_benchmark import arm_render_benchmark
+
+    print(arm_render_benchmark(seed=args.seed, repeats=max(args.repeats, 10)))
 
 
 def run_ros(args: argparse.Namespace) -> None:

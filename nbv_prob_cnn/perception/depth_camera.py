@@ -15,12 +15,13 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
 from nbv_prob_cnn.sensor_noise import SensorNoise
 
-__all__ = ["DepthCamera", "DepthNoise", "Intrinsics", "check_pose"]
+__all__ = ["DepthCamera", "DepthNoise", "Intrinsics", "MeshScene", "check_pose"]
 
 
 @dataclass(frozen=True)
@@ -131,37 +132,18 @@ class DepthNoise:
         return depth.astype(np.float32, copy=False)
 
 
-class DepthCamera:
-    """Ray-casting depth camera over a fixed set of triangle meshes.
+class MeshScene:
+    """Triangle meshes in world metres, ready for ray casting (an open3d ``RaycastingScene``).
 
     Args:
-        meshes: triangle meshes in world metres (``trimesh.Trimesh``, ``open3d.geometry.TriangleMesh``,
-            ``open3d.t.geometry.TriangleMesh`` or ``(vertices, faces)`` pairs).
-        intrinsics: image size and pinhole parameters (default 640×480, 60° HFOV).
-        noise: optional :class:`~nbv_prob_cnn.sensor_noise.SensorNoise` (a sensor model, e.g.
-            ``sensor_noise("kinect_v1")``; grazing angles use the ray-cast surface normals) or
-            the older :class:`DepthNoise`; off by default (exact depth).
-        noise_seed: seed of the generator of a ``SensorNoise`` (same seed, same noisy images).
-        depth_min, depth_max: returns outside ``[depth_min, depth_max]`` (z-depth, metres)
-            become 0 (no return).
+        meshes: ``trimesh.Trimesh``, ``open3d.geometry.TriangleMesh``,
+            ``open3d.t.geometry.TriangleMesh`` or ``(vertices, faces)`` pairs; meshes without
+            triangles are skipped.
     """
 
-    def __init__(
-        self,
-        meshes: Sequence[object],
-        intrinsics: Intrinsics | None = None,
-        noise: DepthNoise | SensorNoise | None = None,
-        depth_min: float = 0.0,
-        depth_max: float = math.inf,
-        noise_seed: int = 0,
-    ) -> None:
-        import open3d as o3d  # heavy import, only when a camera is built
+    def __init__(self, meshes: Sequence[object]) -> None:
+        import open3d as o3d  # heavy import, only when a scene is built
 
-        self.intrinsics = intrinsics if intrinsics is not None else Intrinsics.from_hfov()
-        self.noise = noise
-        self._noise_rng = np.random.default_rng(noise_seed)
-        self.depth_min = float(depth_min)
-        self.depth_max = float(depth_max)
         self._scene = o3d.t.geometry.RaycastingScene()
         self.n_meshes = 0
         for mesh in meshes:
@@ -173,22 +155,75 @@ class DepthCamera:
                 o3d.core.Tensor(np.ascontiguousarray(faces, dtype=np.uint32)),  # type: ignore[call-overload]
             )
             self.n_meshes += 1
+
+    def cast(self, rays: Any) -> tuple[np.ndarray, Any]:
+        """Ray parameter of the first hit (``inf`` = none) of each ray of an open3d ``(..., 6)``
+        float32 tensor ``[origin, direction]``, and open3d's result (for the hit normals)."""
+        result = self._scene.cast_rays(rays)  # type: ignore[call-overload]  # open3d stubs
+        return result["t_hit"].numpy(), result
+
+
+class DepthCamera:
+    """Ray-casting depth camera over a fixed set of triangle meshes.
+
+    Args:
+        meshes: triangle meshes in world metres (``trimesh.Trimesh``, ``open3d.geometry.TriangleMesh``,
+            ``open3d.t.geometry.TriangleMesh`` or ``(vertices, faces)`` pairs), or a
+            :class:`MeshScene` built before (used as it is).
+        intrinsics: image size and pinhole parameters (default 640×480, 60° HFOV).
+        noise: optional :class:`~nbv_prob_cnn.sensor_noise.SensorNoise` (a sensor model, e.g.
+            ``sensor_noise("kinect_v1")``; grazing angles use the ray-cast surface normals) or
+            the older :class:`DepthNoise`; off by default (exact depth).
+        noise_seed: seed of the generator of a ``SensorNoise`` (same seed, same noisy images).
+        depth_min, depth_max: returns outside ``[depth_min, depth_max]`` (z-depth, metres)
+            become 0 (no return).
+    """
+
+    def __init__(
+        self,
+        meshes: Sequence[object] | MeshScene,
+        intrinsics: Intrinsics | None = None,
+        noise: DepthNoise | SensorNoise | None = None,
+        depth_min: float = 0.0,
+        depth_max: float = math.inf,
+        noise_seed: int = 0,
+    ) -> None:
+        self.intrinsics = intrinsics if intrinsics is not None else Intrinsics.from_hfov()
+        self.noise = noise
+        self._noise_rng = np.random.default_rng(noise_seed)
+        self.depth_min = float(depth_min)
+        self.depth_max = float(depth_max)
+        self.scene = meshes if isinstance(meshes, MeshScene) else MeshScene(meshes)
         self._rays_optical = self.intrinsics.pixel_rays()
 
-    def render(self, pose_world_from_optical: np.ndarray) -> np.ndarray:
-        """Depth image ``float32 (H, W)`` in metres (z-depth; 0 = no return) seen from a pose."""
+    @property
+    def n_meshes(self) -> int:
+        return self.scene.n_meshes
+
+    def render(self, pose_world_from_optical: np.ndarray, occluders: Sequence[MeshScene] = ()) -> np.ndarray:
+        """Depth image ``float32 (H, W)`` in metres (z-depth; 0 = no return) seen from a pose.
+
+        ``occluders`` are further scenes (e.g. a robot arm at its current joint state) seen
+        together with the camera's own: each pixel returns the nearest surface of all of them,
+        before the depth range and the noise are applied.
+        """
         import open3d as o3d
 
         pose = check_pose(pose_world_from_optical, "pose_world_from_optical")
         directions = self._rays_optical @ pose[:3, :3].T
         origins = np.broadcast_to(pose[:3, 3], directions.shape)
-        rays = np.concatenate([origins, directions], axis=-1).astype(np.float32)
-        result = self._scene.cast_rays(o3d.core.Tensor(rays))  # type: ignore[call-overload]  # open3d stubs
-        hit = result["t_hit"].numpy()
+        rays = o3d.core.Tensor(np.concatenate([origins, directions], axis=-1).astype(np.float32))  # type: ignore[call-overload]
+        hit, result = self.scene.cast(rays)
+        normals = result["primitive_normals"].numpy() if isinstance(self.noise, SensorNoise) else None
+        for occluder in occluders:
+            occluder_hit, occluder_result = occluder.cast(rays)
+            nearer = occluder_hit < hit
+            hit = np.where(nearer, occluder_hit, hit)
+            if normals is not None:
+                normals = np.where(nearer[..., None], occluder_result["primitive_normals"].numpy(), normals)
         depth = np.where(np.isfinite(hit), hit, 0.0).astype(np.float32)
         depth[(depth < self.depth_min) | (depth > self.depth_max)] = 0.0
         if isinstance(self.noise, SensorNoise):
-            normals = result["primitive_normals"].numpy()
             unit = directions / np.linalg.norm(directions, axis=-1, keepdims=True)
             cos_incidence = np.abs(np.sum(normals * unit, axis=-1))
             depth = self.noise.apply_image(depth, self._noise_rng, cos_incidence)

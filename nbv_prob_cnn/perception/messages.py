@@ -26,6 +26,7 @@ OPTICAL_FRAME = "camera_optical"
 MSG_IMAGE = "sensor_msgs/msg/Image"
 MSG_CAMERA_INFO = "sensor_msgs/msg/CameraInfo"
 MSG_TRANSFORM = "geometry_msgs/msg/TransformStamped"
+MSG_JOINT_STATE = "sensor_msgs/msg/JointState"
 #: REP-118 depth encodings: ``32FC1`` metres, ``16UC1`` millimetres (0 or NaN = no return).
 ENCODINGS = ("32FC1", "16UC1")
 _ENCODINGS = {"32FC1": ("f4", 4), "16UC1": ("u2", 2)}
@@ -46,6 +47,8 @@ class DropReason(str, enum.Enum):
     POSE_FRAME = "pose_frame"  # pose in another frame than the grid's (no tf here)
     NO_POSE = "no_pose"  # no pose within the sync tolerance before the timeout
     NO_CAMERA_INFO = "no_camera_info"  # no camera_info within the tolerance before the timeout
+    NO_JOINT_STATES = "no_joint_states"  # self-filter on: no joint_states within the tolerance before the timeout
+    BAD_JOINT_STATES = "bad_joint_states"  # self-filter on: joint_states with unknown/missing joints or bad values
     TOO_MANY_PENDING = "too_many_pending"  # more than MAX_PENDING images waiting for partners
     BEHIND = "behind"  # integration fell behind (drop_when_behind)
     RESET = "reset"  # waiting when the grid was reset
@@ -260,13 +263,15 @@ def transform_msg_to_pose(msg: Any) -> np.ndarray:
 # ------------------------------------------------------------------------ synchronisation
 @dataclass
 class PairedFrame:
-    """Image, camera_info and pose messages (rosbags objects) of one stamp."""
+    """Image, camera_info and pose messages (rosbags objects) of one stamp, and the joint
+    states when the sync requires them (else ``None``)."""
 
     stamp_ns: int
     image: Any
     info: Any
     pose: Any
     generation: int = 0
+    joints: Any = None
 
 
 class StampSync:
@@ -274,19 +279,25 @@ class StampSync:
 
     Not thread-safe (the node calls it under its lock). Poses and camera_infos are kept (the
     newest :data:`HISTORY`) and may serve several images; an image waits until both partners
-    are there, or is dropped by :meth:`expire`.
+    are there, or is dropped by :meth:`expire`. With ``require_joints`` an image also needs the
+    joint states nearest to its stamp within the tolerance (a third partner, kept the same way),
+    settled: only once joint states stamped at or after the image have arrived, since a nearer
+    one could still come (joint states stream at a high rate; the arm moves between them).
     """
 
-    def __init__(self, tolerance_ns: int) -> None:
+    def __init__(self, tolerance_ns: int, require_joints: bool = False) -> None:
         self.tolerance_ns = int(tolerance_ns)
+        self.require_joints = bool(require_joints)
         self.images: dict[int, tuple[Any, float]] = {}  # stamp -> (message, arrival time.monotonic())
         self.infos: list[tuple[int, Any]] = []  # sorted by stamp
         self.poses: list[tuple[int, Any]] = []
+        self.joints: list[tuple[int, Any]] = []
 
     def clear(self) -> None:
         self.images.clear()
         self.infos.clear()
         self.poses.clear()
+        self.joints.clear()
 
     @staticmethod
     def _insert(history: list[tuple[int, Any]], stamp: int, msg: Any) -> None:
@@ -328,15 +339,40 @@ class StampSync:
         self._insert(self.poses, stamp, msg)
         return self._complete()
 
+    def add_joints(self, stamp: int, msg: Any) -> list[PairedFrame]:
+        self._insert(self.joints, stamp, msg)
+        return self._complete()
+
+    def settled_nearest(self, history: list[tuple[int, Any]], stamp: int) -> tuple[int, Any] | None:
+        """:meth:`nearest`, once ``history`` holds a message stamped at or after ``stamp``."""
+        if not history or history[-1][0] < stamp:
+            return None
+        return self.nearest(history, stamp)
+
     def _complete(self) -> list[PairedFrame]:
         done = []
         for stamp in sorted(self.images):
             info = self.nearest(self.infos, stamp)
             pose = self.nearest(self.poses, stamp)
-            if info is not None and pose is not None:
+            joints = self.settled_nearest(self.joints, stamp) if self.require_joints else (0, None)
+            if info is not None and pose is not None and joints is not None:
                 image, _ = self.images.pop(stamp)
-                done.append(PairedFrame(stamp, image, info[1], pose[1]))
+                done.append(PairedFrame(stamp, image, info[1], pose[1], joints=joints[1]))
         return done
+
+    def _missing(self, stamp: int) -> list[tuple[str, DropReason, list[tuple[int, Any]]]]:
+        """The partners an image still lacks: ``(name, drop reason, history)``."""
+        missing = [
+            (name, reason, history)
+            for name, reason, history in (
+                ("pose", DropReason.NO_POSE, self.poses),
+                ("camera_info", DropReason.NO_CAMERA_INFO, self.infos),
+            )
+            if self.nearest(history, stamp) is None
+        ]
+        if self.require_joints and self.settled_nearest(self.joints, stamp) is None:
+            missing.append(("joint_states", DropReason.NO_JOINT_STATES, self.joints))
+        return missing
 
     def expire(self, now: float, timeout_s: float) -> list[tuple[int, DropReason, str]]:
         """Drop images that waited longer than ``timeout_s``; returns ``(stamp, reason, text)``."""
@@ -347,12 +383,14 @@ class StampSync:
                 continue
             del self.images[stamp]
             reasons = []
-            kind = DropReason.NO_POSE if self.nearest(self.poses, stamp) is None else DropReason.NO_CAMERA_INFO
-            for name, history in (("pose", self.poses), ("camera_info", self.infos)):
-                if self.nearest(history, stamp) is not None:
-                    continue
+            missing = self._missing(stamp)
+            kind = missing[0][1] if missing else DropReason.NO_POSE
+            for name, _, history in missing:
                 if not history:
                     reasons.append(f"no {name} received yet")
+                elif self.nearest(history, stamp) is not None:  # joint states: none at or after the image
+                    offset = (history[-1][0] - stamp) * 1e-9
+                    reasons.append(f"no {name} stamped at or after the image (newest is {offset:+.3f} s away)")
                 else:
                     closest = min(history, key=lambda item: abs(item[0] - stamp))
                     offset = (closest[0] - stamp) * 1e-9

@@ -12,11 +12,21 @@ was integrated since the last grid. ``header.stamp`` is the stamp of the newest 
 so a client that moved the camera and got frame stamp ``T`` waits for a grid stamped ``>= T``
 (an all-unknown grid stamped 0 follows a reset).
 
+With ``self_filter:=true`` the node also subscribes ``joint_states`` (``sensor_msgs/JointState``,
+e.g. from ``arm_sim``), pairs each image with the joint state nearest to its stamp (± the same
+tolerance) and zeroes the pixels that see the arm before integration
+(:class:`~nbv_prob_cnn.arm.self_filter.RobotSelfFilter`: the ``self_filter_bodies`` of the robot
+description parameters ``urdf_path``, ``base_xyz``, ... rendered at that joint state); a frame
+is never integrated unfiltered: without a joint state in time it is dropped as
+``no_joint_states``, with joint states naming unknown or missing joints (or non-finite
+positions) as ``bad_joint_states`` (the log names the joints).
+
 No frame is dropped silently: every frame that cannot be used is counted under its reason
 (:class:`~nbv_prob_cnn.perception.messages.DropReason`: ``bad_message``, ``bad_encoding`` (not
 REP-118), ``size_mismatch`` (image data vs. its sizes, or image vs. camera_info),
 ``non_finite_pose`` (NaN/inf or zero quaternion), ``pose_frame`` (pose not in ``frame_id``),
-``no_pose`` / ``no_camera_info`` (nothing within the tolerance before ``pose_timeout_s``),
+``no_pose`` / ``no_camera_info`` / ``no_joint_states`` (nothing within the tolerance before
+``pose_timeout_s``), ``bad_joint_states``,
 ``too_many_pending``, ``behind``, ``reset``, ``integration_error``), logged (at most every 5 s
 per reason) and reported on ``/diagnostics`` (``diagnostic_msgs/DiagnosticArray`` every
 ``diagnostics_period_s``: WARN when frames were dropped in the last period, one key per reason)
@@ -60,9 +70,10 @@ from nbv_prob_cnn_msgs.msg import VoxelGrid
 from nbv_prob_cnn_msgs.srv import SaveGrid
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
 from rclpy.node import Node
-from sensor_msgs.msg import CameraInfo, Image
+from sensor_msgs.msg import CameraInfo, Image, JointState
 from std_srvs.srv import Trigger
 
+from nbv_prob_cnn.arm.robot_scene import BODIES
 from nbv_prob_cnn.geometry import GridGeometry
 from nbv_prob_cnn.grid import EMPTY, OCCUPIED, UNKNOWN
 from nbv_prob_cnn.perception.messages import (
@@ -70,6 +81,7 @@ from nbv_prob_cnn.perception.messages import (
     MAX_PENDING,
     MSG_CAMERA_INFO,
     MSG_IMAGE,
+    MSG_JOINT_STATE,
     MSG_TRANSFORM,
     DropCounts,
     DropReason,
@@ -91,6 +103,7 @@ from nbv_prob_cnn.perception.tsdf import (
 from nbv_prob_cnn.ros import names
 from nbv_prob_cnn.ros.common import GRID_QOS, RELIABILITY, declare_config, param, run_node, subscription_qos
 from nbv_prob_cnn.ros.conversions import grid_to_msg, time_msg
+from nbv_prob_cnn.ros.robot_params import RobotParams
 
 NODE_NAME = "integrator"
 TOPIC_GRID = names.GRID
@@ -101,6 +114,8 @@ SERVICE_DIAGNOSTICS = names.INTEGRATOR_DIAGNOSTICS
 TOPIC_DIAGNOSTICS = "/diagnostics"
 #: Most frames waiting for integration with ``drop_when_behind:=false`` (older ones are dropped beyond it).
 MAX_BACKLOG = 1000
+#: Depth of the ``joint_states`` subscription with ``self_filter`` (2 s of a 50 Hz stream).
+JOINT_STATES_QUEUE = 100
 #: Re-exported for callers that took them from here.
 __all__ = ["ENCODINGS", "Integrator", "PairedFrame", "StampSync", "main"]
 
@@ -116,8 +131,9 @@ def _check_shape(value) -> None:
 
 
 @dataclass
-class IntegratorConfig:
-    """Parameters of ``integrator`` (all fixed after start-up)."""
+class IntegratorConfig(RobotParams):
+    """Parameters of ``integrator`` (all fixed after start-up): the robot description (used with
+    ``self_filter``), then these."""
 
     frame_id: str = param("world", "fixed frame of the grid; poses must be given in it")
     origin: list = param([float(v) for v in DEFAULT_ORIGIN_M], "world coordinates [m] of the corner of cell (0, 0, 0)",
@@ -157,6 +173,18 @@ class IntegratorConfig:
         "best_effort", "camera subscriptions: best_effort (SENSOR_DATA, as drivers publish) or reliable "
         "(lossless bag replays)", choices=RELIABILITY,
     )  # fmt: skip
+    self_filter: bool = param(
+        False, "remove the pixels that see the arm (self_filter_bodies at the joint_states nearest to each frame, "
+        "robot description parameters) before integration; frames without joint states are dropped",
+    )  # fmt: skip
+    self_filter_bodies: str = param(
+        "both", "self-filter: URDF geometry rendered (both = collision and visual, which the collision meshes "
+        "do not enclose everywhere)", choices=BODIES,
+    )  # fmt: skip
+    self_filter_tolerance_m: float = param(
+        0.02, "self-filter: a return this much in front of the rendered arm still counts as the arm [m]",
+        min_value=0.0, max_value=1.0,
+    )  # fmt: skip
 
 
 class Integrator(Node):
@@ -182,7 +210,14 @@ class Integrator(Node):
         # _tsdf_lock the integrator and the grid state (never taken while holding _cv)
         self._cv = threading.Condition()
         self._tsdf_lock = threading.Lock()
-        self._sync = StampSync(round(tolerance * 1e9))
+        self._sync = StampSync(round(tolerance * 1e9), require_joints=cfg.self_filter)
+        self._self_filter = None
+        if cfg.self_filter:
+            from nbv_prob_cnn.arm.robot import RobotModel
+            from nbv_prob_cnn.arm.self_filter import RobotSelfFilter
+
+            robot = RobotModel(cfg.robot_config())
+            self._self_filter = RobotSelfFilter(robot, cfg.self_filter_bodies, cfg.self_filter_tolerance_m)
         self._queue: deque[PairedFrame] = deque()
         self._generation = 0
         self._stop = False
@@ -190,6 +225,8 @@ class Integrator(Node):
         self._newest_stamp_ns = 0
         self._next_publish = 0.0
         self.counts = dict.fromkeys(("images", "integrated", "grids"), 0)
+        if cfg.self_filter:
+            self.counts["self_filtered_pixels"] = 0
         self.drops = DropCounts()  # every frame not integrated is counted here under its reason
         self._drops_reported = 0
         self._last_drop_log: dict[DropReason, float] = {}
@@ -206,6 +243,12 @@ class Integrator(Node):
         self.create_subscription(
             TransformStamped, names.CAMERA_POSE, self._on_pose, camera_qos, callback_group=inputs, raw=True
         )
+        if cfg.self_filter:
+            # the filter needs the joint state of each frame's stamp: keep a few seconds of them (they are small)
+            joints_qos = subscription_qos(max(cfg.queue_size, JOINT_STATES_QUEUE), cfg.qos_reliability)
+            self.create_subscription(
+                JointState, names.JOINT_STATES, self._on_joints, joints_qos, callback_group=inputs, raw=True
+            )
         self.create_timer(0.1, self._on_expire_timer, callback_group=inputs)
         self.create_service(Trigger, SERVICE_RESET, self._on_reset, callback_group=services)
         self.create_service(SaveGrid, SERVICE_SAVE, self._on_save, callback_group=services)
@@ -217,6 +260,7 @@ class Integrator(Node):
         self.get_logger().info(
             f"grid {self.geometry.shape} voxel {voxel:g} m origin {list(self.geometry.origin)} in {self.frame_id!r}; "
             f"sync ±{tolerance:g} s, publish <= {self.publish_rate:g} Hz, drop_when_behind={self.drop_when_behind}"
+            + (f"; self-filter: {cfg.self_filter_bodies} bodies" if self._self_filter else "")
         )
 
     # -------------------------------------------------------------- callbacks
@@ -284,6 +328,12 @@ class Integrator(Node):
             return
         with self._cv:
             self._enqueue(self._sync.add_pose(stamp_of(msg), msg))
+
+    def _on_joints(self, raw: bytes) -> None:
+        msg = self._decode(raw, MSG_JOINT_STATE, names.JOINT_STATES)
+        if msg is not None:
+            with self._cv:
+                self._enqueue(self._sync.add_joints(stamp_of(msg), msg))
 
     def _on_expire_timer(self) -> None:
         with self._cv:
@@ -421,6 +471,8 @@ class Integrator(Node):
     def _integrate(self, frame: PairedFrame) -> None:
         try:
             depth, intrinsics, pose = decode_frame(frame)
+            if self._self_filter is not None:
+                depth = self._filter_arm(frame, depth, intrinsics, pose)
             with self._tsdf_lock:
                 if frame.generation != self._generation:
                     self.drops.add(DropReason.RESET)  # queued before a reset
@@ -437,6 +489,21 @@ class Integrator(Node):
             )
             return
         self.counts["integrated"] += 1
+
+    def _filter_arm(self, frame: PairedFrame, depth: np.ndarray, intrinsics, pose: np.ndarray) -> np.ndarray:
+        """``depth`` without the pixels that see the arm at the frame's joint states.
+
+        Raises:
+            FrameRejectedError: joint states with unknown or missing joints, or bad positions.
+        """
+        assert self._self_filter is not None
+        try:
+            q = self._self_filter.robot.joint_state_configuration(list(frame.joints.name), list(frame.joints.position))
+        except ValueError as exc:
+            raise FrameRejectedError(DropReason.BAD_JOINT_STATES, str(exc)) from exc
+        filtered = self._self_filter.filter(depth, q, intrinsics, pose)
+        self.counts["self_filtered_pixels"] += int(np.count_nonzero(depth > 0) - np.count_nonzero(filtered > 0))
+        return filtered
 
     def _publish_grid(self) -> None:
         if not self.context.ok():

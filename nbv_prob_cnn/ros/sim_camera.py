@@ -11,6 +11,15 @@ target is rendered and published inside the service call, the reply carries its 
 topic ``/camera/goal_pose`` (``geometry_msgs/PoseStamped``; a frame is published immediately).
 Target poses are ``camera_optical`` poses (REP-103: z forward, x right, y down) in ``frame_id``.
 
+With ``render_arm:=true`` the arm (the robot of the robot description parameters ``urdf_path``,
+``base_xyz``, ..., its visual meshes) is rendered into every frame at the latest ``joint_states``
+(``sensor_msgs/JointState``, e.g. from ``arm_sim``; every joint must be named), and the frame is
+stamped with that joint state's stamp when it is at most 0.5 s old (else with the time now): the
+moment the arm was where the frame shows it, so a self-filter pairing by stamp sees the same
+joint state even when rendering lags. Until the first joint state arrives no frame is
+published (``move_to`` answers with an error), and joint states naming unknown or missing joints
+are refused with a warning (the previous one stays in use).
+
 Frames are rendered by :class:`~nbv_prob_cnn.perception.DepthCamera` and converted by the
 rosbag2 helpers of :mod:`nbv_prob_cnn.perception.bags` (CDR bytes published as they are), so a
 live stream and a recorded bag carry byte-for-byte the same message layout.
@@ -30,7 +39,7 @@ from geometry_msgs.msg import PoseStamped, TransformStamped
 from nbv_prob_cnn_msgs.srv import MoveCamera
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
-from sensor_msgs.msg import CameraInfo, Image
+from sensor_msgs.msg import CameraInfo, Image, JointState
 
 from nbv_prob_cnn.camera import look_rotation, matrix_from_quaternion, quaternion_from_matrix
 from nbv_prob_cnn.perception.depth_camera import DepthCamera, DepthNoise, Intrinsics, room_mesh
@@ -47,10 +56,13 @@ from nbv_prob_cnn.perception.messages import (
 from nbv_prob_cnn.ros import names
 from nbv_prob_cnn.ros.common import declare_config, param, run_node
 from nbv_prob_cnn.ros.conversions import pose_to_arrays, time_msg
+from nbv_prob_cnn.ros.robot_params import RobotParams
 
 NODE_NAME = "sim_camera"
 TOPIC_GOAL_POSE = names.GOAL_POSE
 SERVICE_MOVE_TO = names.MOVE_TO
+#: ``render_arm``: a frame carries the stamp of the joint state it shows when that is at most this old.
+ARM_STATE_MAX_AGE_NS = 500_000_000
 
 
 def look_at_pose(position, target) -> list[float]:
@@ -122,8 +134,9 @@ def load_meshes(dataset: str, seed: int, mesh_file: str, room_margin_m: float = 
 
 
 @dataclass
-class SimCameraConfig:
-    """Parameters of ``sim_camera`` (all fixed after start-up)."""
+class SimCameraConfig(RobotParams):
+    """Parameters of ``sim_camera`` (all fixed after start-up): the robot description (used with
+    ``render_arm``), then these."""
 
     dataset: str = param("3dt", "generated world to look at (ignored with mesh_file)", choices=("3dt", "3du"))
     seed: int = param(1000, "world seed", min_value=0, max_value=2**31 - 1)
@@ -150,6 +163,10 @@ class SimCameraConfig:
         min_value=0.0, max_value=100.0,
     )  # fmt: skip
     noise_seed: int = param(0, "seed of the noise generator", min_value=0, max_value=2**31 - 1)
+    render_arm: bool = param(
+        False, "render the arm's visual meshes into every frame at the latest joint_states (robot description "
+        "parameters); no frame before the first joint state",
+    )  # fmt: skip
 
 
 class SimCamera(Node):
@@ -191,6 +208,17 @@ class SimCamera(Node):
         self._lock = threading.Lock()
         self._last_stamp_ns = 0
         self.frames = 0
+        self.bad_joint_states = 0
+        self._arm_q: np.ndarray | None = None
+        self._arm_stamp_ns = 0
+        self._arm = None
+        if cfg.render_arm:
+            from nbv_prob_cnn.arm.robot import RobotModel
+            from nbv_prob_cnn.arm.robot_scene import RobotScene
+
+            self._arm = RobotScene(RobotModel(cfg.robot_config()), "visual")
+            # only the newest joint state matters: a backlog would render the arm where it was
+            self.create_subscription(JointState, names.JOINT_STATES, self._on_joint_states, 1)
 
         qos = QoSProfile(
             history=HistoryPolicy.KEEP_LAST,
@@ -207,15 +235,30 @@ class SimCamera(Node):
         self.get_logger().info(
             f"{source}: {self._camera.n_meshes} mesh(es), {width}x{height} px, hfov {hfov:g} deg, "
             f"{self.encoding}, {rate:g} Hz, pose {np.round(self._pose[:3, 3], 3).tolist()}"
+            + (f"; rendering the arm ({len(self._arm.meshes)} visual meshes) at joint_states" if self._arm else "")
         )
 
     # ------------------------------------------------------------------ frames
     def publish_frame(self) -> int:
-        """Render and publish one frame from the current pose; returns its stamp (ns)."""
+        """Render and publish one frame from the current pose; returns its stamp (ns).
+
+        Raises:
+            ValueError: ``render_arm`` and no joint state received yet.
+        """
         with self._lock:
-            stamp_ns = max(self.get_clock().now().nanoseconds, self._last_stamp_ns + 1)
+            occluders = []
+            stamp_ns = self.get_clock().now().nanoseconds
+            if self._arm is not None:
+                if self._arm_q is None:
+                    raise ValueError(f"render_arm: no {names.JOINT_STATES} received yet, no frame rendered")
+                occluders.append(self._arm.scene(self._arm_q))  # rebuilt only when the joints moved
+                # the frame shows the arm as it was at that joint state: it carries its stamp (unless
+                # the joint states stopped: then the frame is stamped now and shows the last known arm)
+                if 0 <= stamp_ns - self._arm_stamp_ns <= ARM_STATE_MAX_AGE_NS:
+                    stamp_ns = self._arm_stamp_ns
+            stamp_ns = max(stamp_ns, self._last_stamp_ns + 1)
             self._last_stamp_ns = stamp_ns
-            depth = self._camera.render(self._pose)
+            depth = self._camera.render(self._pose, occluders)
             store = typestore()
             info = intrinsics_to_camera_info(self.intrinsics, stamp_ns, self.camera_frame)
             pose = pose_to_transform_msg(self._pose, stamp_ns, self.frame_id, self.camera_frame)
@@ -244,7 +287,26 @@ class SimCamera(Node):
 
     # --------------------------------------------------------------- callbacks
     def _on_timer(self) -> None:
-        self.publish_frame()
+        try:
+            self.publish_frame()
+        except ValueError as exc:
+            self.get_logger().warning(str(exc), throttle_duration_sec=5.0)
+
+    def _on_joint_states(self, msg: JointState) -> None:
+        if self._arm is None:
+            return
+        try:
+            q = self._arm.robot.joint_state_configuration(list(msg.name), list(msg.position))
+        except ValueError as exc:
+            self.bad_joint_states += 1
+            self.get_logger().warning(
+                f"{exc}; ignored ({self.bad_joint_states} so far), the arm stays where it was",
+                throttle_duration_sec=5.0,
+            )
+            return
+        with self._lock:
+            self._arm_q = q
+            self._arm_stamp_ns = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
 
     def _on_move_to(self, request: MoveCamera.Request, response: MoveCamera.Response) -> MoveCamera.Response:
         try:
