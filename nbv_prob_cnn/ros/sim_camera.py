@@ -10,6 +10,9 @@ Moves with the service ``/sim_camera/move_to`` (``nbv_prob_cnn_msgs/MoveCamera``
 target is rendered and published inside the service call, the reply carries its stamp) or the
 topic ``/camera/goal_pose`` (``geometry_msgs/PoseStamped``; a frame is published immediately).
 Target poses are ``camera_optical`` poses (REP-103: z forward, x right, y down) in ``frame_id``.
+With ``follow_arm:=true`` the camera rides on the simulated arm instead: it takes its pose from
+``arm/camera_pose`` (``arm_sim``'s forward kinematics) and stamps each frame with the stamp of
+the arm pose it was rendered at (the move requests are refused).
 
 Frames are rendered by :class:`~nbv_prob_cnn.perception.DepthCamera` and converted by the
 rosbag2 helpers of :mod:`nbv_prob_cnn.perception.bags` (CDR bytes published as they are), so a
@@ -44,6 +47,7 @@ from nbv_prob_cnn.perception.messages import (
     pose_to_transform_msg,
     typestore,
 )
+from nbv_prob_cnn.perception.messages import stamp_ns as message_stamp_ns
 from nbv_prob_cnn.ros import names
 from nbv_prob_cnn.ros.common import declare_config, param, run_node
 from nbv_prob_cnn.ros.conversions import pose_to_arrays, time_msg
@@ -150,6 +154,7 @@ class SimCameraConfig:
         min_value=0.0, max_value=100.0,
     )  # fmt: skip
     noise_seed: int = param(0, "seed of the noise generator", min_value=0, max_value=2**31 - 1)
+    follow_arm: bool = param(False, "take the pose from arm/camera_pose (arm_sim) instead of move_to/goal_pose")
 
 
 class SimCamera(Node):
@@ -175,6 +180,8 @@ class SimCamera(Node):
 
         if not self.frame_id or not self.camera_frame:
             raise ValueError("frame_id and camera_frame must not be empty")
+        if self.follow_arm and not rate > 0:
+            raise ValueError("follow_arm: needs rate_hz > 0 (the timer renders frames at the arm's latest pose)")
         if not depth_max > depth_min:
             raise ValueError(f"depth_max_m ({depth_max}) must be greater than depth_min_m ({depth_min})")
         if not isinstance(initial, list | tuple) or not all(isinstance(v, int | float) for v in initial):
@@ -190,6 +197,7 @@ class SimCamera(Node):
         self._camera = DepthCamera(meshes, self.intrinsics, noise=noise, depth_min=depth_min, depth_max=depth_max)
         self._lock = threading.Lock()
         self._last_stamp_ns = 0
+        self._arm_pose: tuple[np.ndarray, int] | None = None  # follow_arm: latest pose and its stamp (ns)
         self.frames = 0
 
         qos = QoSProfile(
@@ -203,6 +211,8 @@ class SimCamera(Node):
         self._pose_pub = self.create_publisher(TransformStamped, names.CAMERA_POSE, qos)
         self.create_service(MoveCamera, SERVICE_MOVE_TO, self._on_move_to)
         self.create_subscription(PoseStamped, TOPIC_GOAL_POSE, self._on_goal_pose, 10)
+        if self.follow_arm:
+            self.create_subscription(PoseStamped, names.ARM_CAMERA_POSE, self._on_arm_pose, 10)
         self._timer = self.create_timer(1.0 / rate, self._on_timer) if rate > 0 else None
         self.get_logger().info(
             f"{source}: {self._camera.n_meshes} mesh(es), {width}x{height} px, hfov {hfov:g} deg, "
@@ -210,10 +220,11 @@ class SimCamera(Node):
         )
 
     # ------------------------------------------------------------------ frames
-    def publish_frame(self) -> int:
-        """Render and publish one frame from the current pose; returns its stamp (ns)."""
+    def publish_frame(self, at_ns: int | None = None) -> int:
+        """Render and publish one frame from the current pose, stamped now (or ``at_ns``);
+        returns its stamp (ns)."""
         with self._lock:
-            stamp_ns = max(self.get_clock().now().nanoseconds, self._last_stamp_ns + 1)
+            stamp_ns = max(self.get_clock().now().nanoseconds, self._last_stamp_ns + 1) if at_ns is None else at_ns
             self._last_stamp_ns = stamp_ns
             depth = self._camera.render(self._pose)
             store = typestore()
@@ -237,6 +248,8 @@ class SimCamera(Node):
         return pose
 
     def _move(self, msg: PoseStamped) -> int:
+        if self.follow_arm:
+            raise ValueError("follow_arm is set: the camera moves with the arm (arm_sim/move_to_joints)")
         pose = self._target_pose(msg)
         with self._lock:
             self._pose = pose
@@ -244,7 +257,24 @@ class SimCamera(Node):
 
     # --------------------------------------------------------------- callbacks
     def _on_timer(self) -> None:
-        self.publish_frame()
+        if not self.follow_arm:
+            self.publish_frame()
+            return
+        with self._lock:
+            latest = self._arm_pose
+            if latest is None or latest[1] <= self._last_stamp_ns:
+                return  # no arm pose yet, or none newer than the last frame
+            self._pose = latest[0]
+        self.publish_frame(latest[1])
+
+    def _on_arm_pose(self, msg: PoseStamped) -> None:
+        try:
+            pose = self._target_pose(msg)
+        except ValueError as exc:
+            self.get_logger().warning(f"arm/camera_pose ignored: {exc}", throttle_duration_sec=2.0)
+            return
+        with self._lock:
+            self._arm_pose = (pose, message_stamp_ns(msg.header.stamp))
 
     def _on_move_to(self, request: MoveCamera.Request, response: MoveCamera.Response) -> MoveCamera.Response:
         try:
