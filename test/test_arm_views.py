@@ -105,16 +105,17 @@ def test_a_pose_inside_occupied_space_is_unreachable(setup, rng):
 
 def test_arm_polyline_is_rigid_and_ends_at_the_camera(setup, rng):
     robot = setup.robot
-    lines = [arm_polyline(robot, q) for q in [robot.reference_q, *random_free_configurations(setup, 2, rng)]]
+    configurations = [robot.reference_q, *random_free_configurations(setup, 2, rng)]
+    lines = [arm_polyline(robot, q) for q in configurations]
     lengths = [np.linalg.norm(np.diff(line, axis=0), axis=1) for line in lines]
     # Panda: base -> joint1 0.333 m, joint3 -> joint4 0.0825 m (the DH parameters), links are rigid
     np.testing.assert_allclose(lengths[0][0], 0.333, atol=1e-6)
     assert np.any(np.isclose(lengths[0], 0.0825, atol=1e-6))
-    for q, line, length in zip([robot.reference_q], lines, lengths, strict=False):
+    for q, line, length in zip(configurations, lines, lengths, strict=True):
         np.testing.assert_allclose(line[-1], robot.camera_pose(q)[:3, 3], atol=1e-12)
         np.testing.assert_allclose(line[0], robot.config.world_from_base[:3, 3], atol=1e-12)
-    for length in lengths[1:]:
         np.testing.assert_allclose(length, lengths[0], atol=1e-9)
+    assert not np.allclose(lines[1], lines[0])  # the joints moved
 
 
 rclpy = pytest.importorskip("rclpy")
