@@ -30,6 +30,11 @@ from nbv_prob_cnn.ros.graph import NodeGraph, ros_environment, run_graph
 #: e.g. ``"render_arm": True`` / ``"self_filter": True`` once those nodes declare them).
 SIM_CAMERA_WITH_ARM = {"follow_arm": True}
 INTEGRATOR_WITH_ARM: dict = {}
+#: The arm's start: the Panda's camera 0.90 m above the floor at x = 0.25 m, y = 0.742 m, looking at
+#: the table centre (0.74, 0.742, 0) (solved with ``arm.ik.solve_camera_pose`` from the ready pose).
+#: From the ready pose the camera looks straight down from 0.54 m and sees too little empty space
+#: for the arm to move into (every candidate view puts links into unknown cells).
+LOOK_OVER_TABLE = [-0.514, -0.296, 0.444, -1.001, 0.161, 1.239, 2.393, 0.04, 0.04]
 
 
 def parse_args(argv=None) -> argparse.Namespace:
@@ -41,6 +46,10 @@ def parse_args(argv=None) -> argparse.Namespace:
     parser.add_argument("--in-process", action="store_true", help="planner completes and ray-casts itself")
     parser.add_argument("--no-arm", action="store_true", help="free-flying camera (no arm_sim, no reachability)")
     parser.add_argument("--motion-weight", type=float, default=0.0, help="λ of gain − λ·joint path (arm only)")
+    parser.add_argument(
+        "--initial-joints", type=float, nargs="+", default=LOOK_OVER_TABLE,
+        help="arm start configuration, URDF joint order (default: the camera looking over the table; 0 = ready pose)",
+    )  # fmt: skip
     parser.add_argument("--stop-unknown", type=float, default=0.0, help="stop at this unknown fraction")
     parser.add_argument("--out", default="out/explore_sim", help="output directory")
     parser.add_argument("--domain-id", type=int, help="ROS_DOMAIN_ID (default: derived from the pid)")
@@ -60,7 +69,7 @@ def main(argv=None) -> int:
 
     def start_nodes(graph: NodeGraph) -> None:
         if arm:
-            graph.start_node("arm_sim", "arm_sim", {})
+            graph.start_node("arm_sim", "arm_sim", {"initial_positions": [float(v) for v in args.initial_joints]})
         camera = {**common, "seed": args.seed, **(SIM_CAMERA_WITH_ARM if arm else {})}
         graph.start_node("sim_camera", "sim_camera", camera)
         box = {"origin": [0.0, 0.0, 0.0], "shape": list(defaults.shape), "voxel_size": defaults.resolution_m}

@@ -176,3 +176,15 @@ def test_joint_state_tracker_reports_bad_states_and_waits_for_the_goal(setup):
     later.start()
     assert tracker.wait_until(goal, 1e-3, 2_500_000_000, 5.0) == 3_000_000_000
     later.join()
+
+
+def test_allowed_origins_travel_as_flat_indices_x_fastest():
+    from nbv_prob_cnn.planners.requests import allowed_origins_filter, flat_cells
+
+    shape = (4, 3, 2)
+    cells = np.array([[1, 0, 0], [0, 1, 0], [3, 2, 1], [2, 1, 1]])
+    np.testing.assert_array_equal(flat_cells(cells, shape), [1, 4, 3 + 4 * 2 + 12, 2 + 4 * 1 + 12])
+    keep = allowed_origins_filter(np.array([4, 23], dtype=np.uint32), shape)
+    np.testing.assert_array_equal(keep(cells), cells[[1, 2]])
+    with pytest.raises(ValueError, match="allowed_origins"):
+        allowed_origins_filter(np.array([24]), shape)

@@ -270,3 +270,28 @@ def test_explore_drives_the_arm_through_arm_sim(ros):
         matrix(*pose_to_arrays(bench.latest["pose"].pose)), *pose_to_arrays(feedback[-1].feedback.pose.pose)
     )
     assert (bench.state == -1).sum() < (scene() == -1).sum()  # the views saw something
+
+
+def test_plan_with_arm_through_the_servers_ranks_only_origins_the_arm_reaches(ros):
+    """Over /nbv/rank_views the capability map travels as allowed origins: every ranked view lies
+    where the map says the arm may reach, and the chosen view is reachable."""
+    from nbv_prob_cnn.arm.capability import load_or_build_capability_map
+
+    node, bench, graph = ros
+    robot = RobotModel()
+    graph.start_node("gain_server", "gain_server", {"dataset": "3dt", "method": "prob_ig"})
+    planner = {**ARM_PLANNER, "in_process": False, "capability_stride": 4, "arm_max_checks": 30}
+    graph.start_node("nbv_planner", "nbv_planner", planner)
+    bench.publish_grid()
+    bench.joints = (robot.joint_names, robot.reference_q)
+    request = PlanNextBestView.Request(top_k=1000)
+    _, reply = call_when_ready(node, PlanNextBestView, "/nbv/plan", request, "no grid received yet", 240.0)
+    assert reply.success and reply.reachable, reply.message
+    position, quaternion = pose_to_arrays(reply.best_pose.pose)
+    assert_pose_close(robot.camera_pose(np.array(reply.joint_goal.position)), position, quaternion)
+    capability = load_or_build_capability_map(robot, GEOMETRY, 4, progress=False)  # the map the planner cached
+    cells = GEOMETRY.containing_cell(np.array([pose_to_arrays(v.pose.pose)[0] for v in reply.ranked]))[0]
+    assert len(reply.ranked) > 10
+    assert capability.origin_filter(cells).shape[0] == cells.shape[0]  # all of them allowed
+    everywhere = GEOMETRY.containing_cell(GEOMETRY.cell_centre(np.argwhere(bench.state == 0)))[0]
+    assert capability.origin_filter(everywhere).shape[0] < everywhere.shape[0]  # the map does exclude cells

@@ -30,7 +30,14 @@ from nbv_prob_cnn.geometry import GridGeometry
 from nbv_prob_cnn.modes import BACKEND_NAMES, Backend
 from nbv_prob_cnn.planners import PlanningContext, check_ros_method
 from nbv_prob_cnn.planners.methods import cnn_completion, probability_map
-from nbv_prob_cnn.planners.requests import gain_method, origin_filter, planning_context, rank_for_request, view_pose
+from nbv_prob_cnn.planners.requests import (
+    allowed_origins_filter,
+    gain_method,
+    origin_filter,
+    planning_context,
+    rank_for_request,
+    view_pose,
+)
 from nbv_prob_cnn.pose_scoring import INVALID_POSE, score_poses
 from nbv_prob_cnn.ros import names
 from nbv_prob_cnn.ros.common import GRID_QOS, call_service, declare_config, param, positive_seconds, run_node
@@ -187,10 +194,14 @@ class GainServer(Node):
                 np.array([request.workspace_max.x, request.workspace_max.y, request.workspace_max.z]),
                 int(request.max_origins), self._rng,
             )  # fmt: skip
+            if len(request.allowed_origins):
+                allowed = allowed_origins_filter(np.frombuffer(request.allowed_origins, dtype=np.uint32), state.shape)
+            else:
+                allowed = None
             evaluated = []
 
             def counting(origins):
-                kept = keep(origins)
+                kept = keep(origins if allowed is None else allowed(origins))
                 evaluated.append(kept.shape[0])
                 return kept
 

@@ -17,6 +17,7 @@ the response carries its joint goal.
 
 from __future__ import annotations
 
+import array
 import threading
 import time
 from dataclasses import dataclass
@@ -39,7 +40,7 @@ from nbv_prob_cnn.grid import unknown_fraction_all
 from nbv_prob_cnn.modes import BACKEND_NAMES, MOVE_MODES, Backend, MoveMode
 from nbv_prob_cnn.perception.messages import stamp_ns
 from nbv_prob_cnn.planners import check_ros_method, make_planner, ros_method
-from nbv_prob_cnn.planners.requests import choice_from_pose, origin_filter, planning_context, view_pose
+from nbv_prob_cnn.planners.requests import choice_from_pose, flat_cells, origin_filter, planning_context, view_pose
 from nbv_prob_cnn.ros import names
 from nbv_prob_cnn.ros.common import GRID_QOS, call_service, declare_config, param, positive_seconds, run_node
 from nbv_prob_cnn.ros.conversions import (
@@ -60,13 +61,15 @@ NO_REACHABLE_VIEW = "no view the arm reaches collision-free"
 
 class RecordingPlanner:
     """A planner whose ``rank`` also applies the request's origin filter (after the arm's
-    capability filter) and keeps the ranked list (markers, ``ranked`` of the response)."""
+    capability filter, kept as ``arm_filter`` for the ranking server) and keeps the ranked list
+    (markers, ``ranked`` of the response)."""
 
     def __init__(self, planner, request_filter) -> None:
-        self.planner, self.request_filter, self.ranked = planner, request_filter, []
+        self.planner, self.request_filter, self.ranked, self.arm_filter = planner, request_filter, [], None
 
     def rank(self, state, context, top_k=1, origin_filter=None):
         keep = self.request_filter
+        self.arm_filter = origin_filter
         both = keep if origin_filter is None else (lambda origins: keep(origin_filter(origins)))
         self.ranked = self.planner.rank(state, context, top_k, both)
         return self.ranked
@@ -197,9 +200,9 @@ class NbvPlanner(Node):
             box_max = np.array([request.workspace_max.x, request.workspace_max.y, request.workspace_max.z])
             top_k = max(1, int(request.top_k), self.markers_top_k)
             keep = origin_filter(geometry, request.use_workspace, box_min, box_max, int(request.max_origins), self._rng)
-            if not self.in_process:
-                context.completion, context.ranker = self._server_hooks(grid, geometry, request, context)
             planner = RecordingPlanner(make_planner(method.name), keep)
+            if not self.in_process:
+                context.completion, context.ranker = self._server_hooks(grid, geometry, request, context, planner)
             report = None
             if self._arm is None:
                 planner.rank(state, context, top_k)
@@ -246,8 +249,9 @@ class NbvPlanner(Node):
         response.time_total_s = time.perf_counter() - start
         return response
 
-    def _server_hooks(self, grid: VoxelGrid, geometry, request: PlanNextBestView.Request, context):
-        """Completion (``/nbv/complete``) and ranking (``/nbv/rank_views``) hooks of the core planner."""
+    def _server_hooks(self, grid: VoxelGrid, geometry, request: PlanNextBestView.Request, context, planner):
+        """Completion (``/nbv/complete``) and ranking (``/nbv/rank_views``) hooks of the core
+        planner; the arm's capability filter (``planner.arm_filter``) travels as allowed origins."""
         completed = {}
 
         def complete(state: np.ndarray, context) -> np.ndarray:
@@ -263,6 +267,9 @@ class NbvPlanner(Node):
             call = RankViews.Request(grid=grid, method=method, top_k=top_k, use_workspace=request.use_workspace)
             call.workspace_min, call.workspace_max = request.workspace_min, request.workspace_max
             call.max_origins = request.max_origins
+            if planner.arm_filter is not None and self.capability_stride:
+                allowed = flat_cells(planner.arm_filter(context.candidate_origins(state)), state.shape)
+                call.allowed_origins = array.array("I", allowed.astype(np.uint32).tobytes())
             if prob is not None:
                 call.probability = (
                     completed["msg"]
