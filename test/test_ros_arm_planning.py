@@ -295,3 +295,54 @@ def test_plan_with_arm_through_the_servers_ranks_only_origins_the_arm_reaches(ro
     assert capability.origin_filter(cells).shape[0] == cells.shape[0]  # all of them allowed
     everywhere = GEOMETRY.containing_cell(GEOMETRY.cell_centre(np.argwhere(bench.state == 0)))[0]
     assert capability.origin_filter(everywhere).shape[0] < everywhere.shape[0]  # the map does exclude cells
+
+
+def test_sim_camera_follows_the_arm(ros):
+    """With follow_arm the camera's frames are taken at arm_sim's camera pose, stamped with that
+    pose's stamp; moving the camera by request is refused while it rides on the arm."""
+    from geometry_msgs.msg import TransformStamped
+    from nbv_prob_cnn_msgs.srv import MoveCamera, MoveToJoints
+
+    node, bench, graph = ros
+    robot = RobotModel()
+    graph.start_node("arm_sim", "arm_sim", {"velocity_scale": 1.0, "rate_hz": 50.0})
+    graph.start_node("sim_camera", "sim_camera", {"follow_arm": True, "rate_hz": 5.0, "width": 64, "height": 48})
+    arm_poses: dict[int, PoseStamped] = {}
+    frames: list[TransformStamped] = []
+
+    def on_arm_pose(msg: PoseStamped) -> None:
+        arm_poses[msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec] = msg
+
+    node.create_subscription(PoseStamped, "/arm/camera_pose", on_arm_pose, 100)
+    node.create_subscription(TransformStamped, "/camera/pose", frames.append, 10)
+    deadline = time.monotonic() + 120
+    while len(frames) < 2 and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert len(frames) >= 2, "sim_camera published no frames"
+    goal = robot.reference_q.copy()
+    goal[0] += 0.5  # panda_joint1: the camera swings around the base
+    move = node.create_client(MoveToJoints, "/arm_sim/move_to_joints")
+    assert move.wait_for_service(timeout_sec=30)
+    assert wait(move.call_async(MoveToJoints.Request(name=robot.joint_names, position=list(goal)))).success
+    target = robot.camera_pose(goal)
+    deadline = time.monotonic() + 30
+
+    def last_position() -> np.ndarray:
+        t = frames[-1].transform.translation
+        return np.array([t.x, t.y, t.z])
+
+    while np.linalg.norm(last_position() - target[:3, 3]) > 1e-6 and time.monotonic() < deadline:
+        time.sleep(0.05)
+    np.testing.assert_allclose(last_position(), target[:3, 3], atol=1e-6)  # the frame at the arm's new pose
+    seen = len(frames)
+    while len(frames) < seen + 3 and time.monotonic() < deadline + 10:
+        time.sleep(0.05)
+    for frame in frames[seen : seen + 3]:  # frames long after both subscriptions matched
+        stamp = frame.header.stamp.sec * 1_000_000_000 + frame.header.stamp.nanosec
+        assert stamp in arm_poses, "a frame's stamp is not the stamp of an arm camera pose"
+        p, t = arm_poses[stamp].pose.position, frame.transform.translation
+        np.testing.assert_allclose([t.x, t.y, t.z], [p.x, p.y, p.z], atol=1e-9)
+    camera = node.create_client(MoveCamera, "/sim_camera/move_to")
+    assert camera.wait_for_service(timeout_sec=30)
+    refused = wait(camera.call_async(MoveCamera.Request()), 30)
+    assert not refused.success and "follow_arm" in refused.message

@@ -64,11 +64,14 @@ class RecordingPlanner:
     capability filter, kept as ``arm_filter`` for the ranking server) and keeps the ranked list
     (markers, ``ranked`` of the response)."""
 
-    def __init__(self, planner, request_filter) -> None:
-        self.planner, self.request_filter, self.ranked, self.arm_filter = planner, request_filter, [], None
+    def __init__(self, planner, request_filter, arm_limit=None) -> None:
+        self.planner, self.request_filter, self.arm_limit = planner, request_filter, arm_limit
+        self.ranked, self.arm_filter = [], None
 
     def rank(self, state, context, top_k=1, origin_filter=None):
-        keep = self.request_filter
+        keep, limit = self.request_filter, self.arm_limit
+        if origin_filter is not None and limit is not None:
+            origin_filter = (lambda inner: lambda origins: inner(limit(origins)))(origin_filter)
         self.arm_filter = origin_filter
         both = keep if origin_filter is None else (lambda origins: keep(origin_filter(origins)))
         self.ranked = self.planner.rank(state, context, top_k, both)
@@ -105,6 +108,10 @@ class PlannerConfig(ArmViewParams):
                                 max_value=100000)  # fmt: skip
     capability_stride: int = param(8, "use_arm: capability-map lattice stride in cells (0 = no map)", min_value=0,
                                    max_value=64)  # fmt: skip
+    arm_min_view_height_m: float = param(
+        0.0, "use_arm: only views with the camera at least this high (grid frame z, m; 0 = no limit)", min_value=0.0,
+        max_value=100.0,
+    )  # fmt: skip
     joint_tolerance: float = param(1e-3, "move_mode arm: joint arrival tolerance (rad or m)", min_value=1e-6,
                                    max_value=1.0)  # fmt: skip
 
@@ -200,7 +207,7 @@ class NbvPlanner(Node):
             box_max = np.array([request.workspace_max.x, request.workspace_max.y, request.workspace_max.z])
             top_k = max(1, int(request.top_k), self.markers_top_k)
             keep = origin_filter(geometry, request.use_workspace, box_min, box_max, int(request.max_origins), self._rng)
-            planner = RecordingPlanner(make_planner(method.name), keep)
+            planner = RecordingPlanner(make_planner(method.name), keep, self._height_limit(geometry))
             if not self.in_process:
                 context.completion, context.ranker = self._server_hooks(grid, geometry, request, context, planner)
             report = None
@@ -249,6 +256,13 @@ class NbvPlanner(Node):
         response.time_total_s = time.perf_counter() - start
         return response
 
+    def _height_limit(self, geometry):
+        """use_arm: the origin filter of ``arm_min_view_height_m`` (None when off)."""
+        low = self.arm_min_view_height_m
+        if self._arm is None or low <= 0:
+            return None
+        return lambda origins: origins[geometry.cell_centre(origins)[:, 2] >= low]
+
     def _server_hooks(self, grid: VoxelGrid, geometry, request: PlanNextBestView.Request, context, planner):
         """Completion (``/nbv/complete``) and ranking (``/nbv/rank_views``) hooks of the core
         planner; the arm's capability filter (``planner.arm_filter``) travels as allowed origins."""
@@ -267,7 +281,7 @@ class NbvPlanner(Node):
             call = RankViews.Request(grid=grid, method=method, top_k=top_k, use_workspace=request.use_workspace)
             call.workspace_min, call.workspace_max = request.workspace_min, request.workspace_max
             call.max_origins = request.max_origins
-            if planner.arm_filter is not None and self.capability_stride:
+            if planner.arm_filter is not None and (self.capability_stride or self.arm_min_view_height_m > 0):
                 allowed = flat_cells(planner.arm_filter(context.candidate_origins(state)), state.shape)
                 call.allowed_origins = array.array("I", allowed.astype(np.uint32).tobytes())
             if prob is not None:
