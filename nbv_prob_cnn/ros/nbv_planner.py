@@ -69,11 +69,15 @@ class RecordingPlanner:
         self.ranked, self.arm_filter = [], None
 
     def rank(self, state, context, top_k=1, origin_filter=None):
-        keep, limit = self.request_filter, self.arm_limit
-        if origin_filter is not None and limit is not None:
-            origin_filter = (lambda inner: lambda origins: inner(limit(origins)))(origin_filter)
-        self.arm_filter = origin_filter
-        both = keep if origin_filter is None else (lambda origins: keep(origin_filter(origins)))
+        keep, capability, limit = self.request_filter, origin_filter, self.arm_limit
+
+        def arm_filter(origins):
+            return capability(origins if limit is None else limit(origins))
+
+        def both(origins):
+            return keep(origins if capability is None else arm_filter(origins))
+
+        self.arm_filter = None if capability is None else arm_filter
         self.ranked = self.planner.rank(state, context, top_k, both)
         return self.ranked
 
