@@ -85,7 +85,7 @@ def origin_filter(
 def flat_cells(cells: np.ndarray, shape: tuple[int, ...]) -> np.ndarray:
     """Flat indices (x fastest, the order grids travel in) of cells ``(N, dims)``."""
     cells = np.asarray(cells, dtype=np.int64).reshape(-1, len(shape))
-    return np.ravel_multi_index(tuple(cells.T), shape, order="F").astype(np.int64)
+    return np.asarray(np.ravel_multi_index(tuple(cells.T), shape, order="F"), dtype=np.int64)
 
 
 def allowed_origins_filter(allowed_flat: np.ndarray, shape: tuple[int, ...]) -> Callable[[np.ndarray], np.ndarray]:
