@@ -1,15 +1,20 @@
 #!/usr/bin/env python3
 """Start the simulated node graph and explore a scene through the Explore action.
 
-    sim_camera -> integrator -> nbv_planner <-> completion_server, gain_server
-                                     ^-- explore_client (sends the Explore goal, records the run)
+    arm_sim -> sim_camera -> integrator -> nbv_planner <-> completion_server, gain_server
+       ^------------- joint goals (move_to_joints) ---'  ^-- explore_client (Explore goal, records the run)
+
+By default the camera rides on the simulated arm (``arm_sim``; ``sim_camera`` with ``follow_arm``)
+and ``nbv_planner`` plans only views the arm reaches collision-free (``use_arm``) and drives the
+arm there (``move_mode:=arm``). ``--no-arm`` runs the free-flying camera (teleported by
+``sim_camera/move_to``) as before.
 
 Every process gets localhost discovery, its own ROS_DOMAIN_ID and the Fast DDS shared-memory
 profile. Ctrl-C cancels the exploration and stops every process (no orphans), then removes the
 shared-memory files the graph left behind. Outputs: <out>/views.csv, <out>/explored.png,
 <out>/grid.npz and one log per node in <out>/logs/.
 
-Example:  .venv/bin/python launch_scripts/explore_sim.py --views 10 --method cnn_prob
+Example:  .venv/bin/python launch_scripts/explore_sim.py --views 10 --method cnn_prob [--no-arm]
 """
 
 from __future__ import annotations
@@ -21,6 +26,20 @@ from pathlib import Path
 from nbv_prob_cnn.camera import dataset_defaults
 from nbv_prob_cnn.ros.graph import NodeGraph, ros_environment, run_graph
 
+#: Arm parameters of sim_camera and integrator in the arm graph (one line each to add a parameter,
+#: e.g. ``"render_arm": True`` / ``"self_filter": True`` once those nodes declare them).
+SIM_CAMERA_WITH_ARM = {"follow_arm": True, "render_arm": True}
+INTEGRATOR_WITH_ARM = {"self_filter": True}
+#: The arm's start: the Panda's camera 0.90 m above the floor at x = 0.25 m, y = 0.742 m, looking at
+#: the table centre (0.74, 0.742, 0) (solved with ``arm.ik.solve_camera_pose`` from the ready pose).
+#: From the ready pose the camera looks straight down from 0.54 m and sees too little empty space
+#: for the arm to move into (every candidate view puts links into unknown cells).
+#: Views lower than this (m) are left out with the arm: the CNN's best views lie 2-10 cm above the
+#: table top (at 6-8 cm), where the hand around the camera touches the table or unknown space, and
+#: checking them spends the planner's check budget before a view the arm can take comes up.
+ARM_MIN_VIEW_HEIGHT_M = 0.2
+LOOK_OVER_TABLE = [-0.514, -0.296, 0.444, -1.001, 0.161, 1.239, 2.393, 0.04, 0.04]
+
 
 def parse_args(argv=None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -29,6 +48,17 @@ def parse_args(argv=None) -> argparse.Namespace:
     parser.add_argument("--views", type=int, default=10, help="views to plan (default 10)")
     parser.add_argument("--method", default="cnn_prob", help="cnn_prob, cnn_prob_d, prob_ig or ig")
     parser.add_argument("--in-process", action="store_true", help="planner completes and ray-casts itself")
+    parser.add_argument("--no-arm", action="store_true", help="free-flying camera (no arm_sim, no reachability)")
+    parser.add_argument("--motion-weight", type=float, default=0.0, help="λ of gain − λ·joint path (arm only)")
+    parser.add_argument(
+        "--free-above", type=float, default=0.15,
+        help="tabletop prior (arm): unknown cells at or above this height (m) do not block the arm; < 0 = all block "
+        "(default 0.15: 7-9 cm above the table top; with 0.25 the arm stalls after 2 views on seed 1000)",
+    )  # fmt: skip
+    parser.add_argument(
+        "--initial-joints", type=float, nargs="+", default=LOOK_OVER_TABLE,
+        help="arm start configuration, URDF joint order (default: the camera looking over the table; 0 = ready pose)",
+    )  # fmt: skip
     parser.add_argument("--stop-unknown", type=float, default=0.0, help="stop at this unknown fraction")
     parser.add_argument("--out", default="out/explore_sim", help="output directory")
     parser.add_argument("--domain-id", type=int, help="ROS_DOMAIN_ID (default: derived from the pid)")
@@ -42,19 +72,31 @@ def main(argv=None) -> int:
     defaults = dataset_defaults(args.dataset)
     common = {"dataset": args.dataset}
 
+    arm = not args.no_arm
+    if arm and args.dataset != "3dt":
+        raise SystemExit("the arm stands beside the 3DT table: use --dataset 3dt or --no-arm")
+
     def start_nodes(graph: NodeGraph) -> None:
-        graph.start_node("sim_camera", "sim_camera", {**common, "seed": args.seed})
+        if arm:
+            graph.start_node("arm_sim", "arm_sim", {"initial_positions": [float(v) for v in args.initial_joints]})
+        camera = {**common, "seed": args.seed, **(SIM_CAMERA_WITH_ARM if arm else {})}
+        graph.start_node("sim_camera", "sim_camera", camera)
         box = {"origin": [0.0, 0.0, 0.0], "shape": list(defaults.shape), "voxel_size": defaults.resolution_m}
-        graph.start_node("integrator", "integrator", box)
+        graph.start_node("integrator", "integrator", {**box, **(INTEGRATOR_WITH_ARM if arm else {})})
         graph.start_node("completion_server", "completion_server", common)
-        graph.start_node("gain_server", "gain_server", {**common, "completion": "service"})
+        arm_prior = {"use_arm": True, "free_above_m": args.free_above} if arm else {}
+        graph.start_node("gain_server", "gain_server", {**common, "completion": "service", **arm_prior})
         planner = {**common, "method": args.method, "in_process": args.in_process}
+        if arm:
+            planner.update(arm_prior, move_mode="arm", motion_weight=args.motion_weight)
+            planner.update(arm_min_view_height_m=ARM_MIN_VIEW_HEIGHT_M, arm_top_k=20000, arm_max_checks=300)
         graph.start_node("nbv_planner", "nbv_planner", planner)
 
     client = [
         sys.executable, "-m", "nbv_prob_cnn.ros.explore_client", "--views", str(args.views),
         "--method", args.method, "--stop-unknown", str(args.stop_unknown), "--out", str(out),
-        "--title", f"{args.dataset} seed {args.seed}, {args.method}", "--timeout", str(args.timeout),
+        "--title", f"{args.dataset} seed {args.seed}, {args.method}" + (", arm" if arm else ", free-flying camera"),
+        "--timeout", str(args.timeout),
     ]  # fmt: skip
     return run_graph(start_nodes, client, ros_environment(args.domain_id), out / "logs", "explore_sim")
 

@@ -1,8 +1,10 @@
 #!/usr/bin/env bash
-# Set up (idempotent) and run the main job: the full simulated ROS 2 graph
-# (sim_camera -> integrator -> nbv_planner + completion_server + gain_server) explores the
-# held-out tabletop scene of seed 1000 through the Explore action with the paper's method
-# (cnn_prob), 10 views. Results: out/main_job/views.csv, explored.png, grid.npz, logs/.
+# Set up (idempotent) and run the main job: the full simulated ROS 2 graph with the arm in the loop
+# (arm_sim -> sim_camera following the arm -> integrator -> nbv_planner planning reachable views and
+# driving the arm + completion_server + gain_server) explores the held-out tabletop scene of seed
+# 1000 through the Explore action with the paper's method (cnn_prob), up to 10 views.
+# Results: out/main_job/views.csv (incl. joint travel and goal), explored.png, grid.npz, logs/.
+# Add --no-arm for the free-flying camera.
 set -euo pipefail
 repo="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 bash "$repo/launch_scripts/setup.sh"

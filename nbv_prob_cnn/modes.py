@@ -11,8 +11,9 @@ GainMode = Literal["prob", "ig"]
 ProbabilitySource = Literal["constant", "cnn", "oracle"]
 #: Ray-casting backend.
 Backend = Literal["auto", "opencl", "numpy"]
-#: How ``nbv_planner`` moves the camera: the sim_camera/move_to service or a goal-pose topic.
-MoveMode = Literal["service", "topic"]
+#: How ``nbv_planner`` moves the camera: the sim_camera/move_to service, a goal-pose topic, or
+#: the arm (arm_sim/move_to_joints with the planned joint goal).
+MoveMode = Literal["service", "topic", "arm"]
 
 GAIN_MODES: tuple[GainMode, ...] = get_args(GainMode)
 PROBABILITY_SOURCES: tuple[ProbabilitySource, ...] = get_args(ProbabilitySource)

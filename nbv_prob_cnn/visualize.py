@@ -51,9 +51,12 @@ def plot_views(
     title: str = "",
     truth: np.ndarray | None = None,
     curve: tuple[list[int], list[float]] | None = None,
+    arms: list[np.ndarray] | None = None,
 ) -> None:
     """Save a PNG of a grid with camera views (cell indices + quaternions) and, optionally, the
-    unknown-fraction curve ``(view indices, fractions)``."""
+    unknown-fraction curve ``(view indices, fractions)`` and, in 3D, the arm at each view
+    (``arms``: one polyline ``(n, 3)`` per view in continuous index coordinates, e.g.
+    ``geometry.to_index(arm_polyline(robot, q))``; the last view drawn strongest)."""
     cells = np.asarray(cells, dtype=float).reshape(-1, state.ndim)
     quats = np.asarray(quats, dtype=float).reshape(-1, 4)
     panels = (1 if state.ndim == 2 else 3) + (curve is not None)
@@ -73,6 +76,10 @@ def plot_views(
         for ax, (a, b) in zip(axes[:3], ((0, 1), (0, 2), (1, 2)), strict=True):
             hidden = 3 - a - b
             ax.imshow(np.transpose(_projection_image(state, hidden), (1, 0, 2)), origin="lower")
+            for index, line in enumerate(arms or []):
+                strong = index == len(arms or []) - 1
+                ax.plot(line[:, a], line[:, b], "-o", color="tab:cyan" if strong else "lightskyblue",
+                        lw=2.0 if strong else 0.8, ms=2.5 if strong else 1.2, alpha=1.0 if strong else 0.6)  # fmt: skip
             ax.quiver(cells[:, a], cells[:, b], forward[:, a], forward[:, b], color="gold", scale=20, width=0.006)
             ax.plot(cells[:, a], cells[:, b], "o", color="gold", ms=3)
             ax.set_xlabel(f"{_AXES[a]} (cells)")

@@ -50,7 +50,7 @@ def _domain(offset: int) -> str:  # 200..219, away from the other tests' domains
 
 def test_simulated_graph_explores_a_small_scene(tmp_path):
     out = tmp_path / "run"
-    cmd = [sys.executable, str(SCRIPT), "--dataset", "3du", "--seed", "1001", "--views", "5",
+    cmd = [sys.executable, str(SCRIPT), "--dataset", "3du", "--seed", "1001", "--views", "5", "--no-arm",
            "--method", "cnn_prob", "--out", str(out), "--domain-id", _domain(0)]  # fmt: skip
     run = subprocess.run(cmd, capture_output=True, text=True, timeout=600)
     assert run.returncode == 0, run.stdout[-3000:] + run.stderr[-3000:]
@@ -69,9 +69,36 @@ def test_simulated_graph_explores_a_small_scene(tmp_path):
     assert (out / "explored.png").stat().st_size > 10_000
 
 
+def test_simulated_graph_with_the_arm_explores_the_table(tmp_path):
+    """The main job's graph (arm_sim, sim_camera following the arm, planner driving the arm),
+    2 views with prob_ig: the CSV's joint goals put the camera at the logged views."""
+    from nbv_prob_cnn.arm.robot import RobotModel
+
+    out = tmp_path / "arm"
+    domain = str(140 + (os.getpid() + 7) % 10)  # the arm tests' range (test_ros_arm_planning)
+    cmd = [sys.executable, str(SCRIPT), "--dataset", "3dt", "--seed", "1000", "--views", "2", "--method", "prob_ig",
+           "--out", str(out), "--domain-id", domain]  # fmt: skip
+    run = subprocess.run(cmd, capture_output=True, text=True, timeout=600)
+    assert run.returncode == 0, run.stdout[-3000:] + run.stderr[-3000:]
+    assert "done: 2 views" in run.stdout and "stopped 6 processes" in run.stdout
+    with open(out / "views.csv") as handle:
+        rows = list(csv.DictReader(handle))
+    robot = RobotModel()
+    assert len(rows) == 2 and list(rows[0])[-10:] == ["joint_travel", *robot.joint_names]
+    previous = None
+    for r in rows:
+        q = np.array([float(r[name]) for name in robot.joint_names])
+        camera = robot.camera_pose(q)
+        np.testing.assert_allclose(camera[:3, 3], [float(r["x"]), float(r["y"]), float(r["z"])], atol=2e-3)
+        if previous is not None:
+            assert float(r["joint_travel"]) == pytest.approx(np.linalg.norm(q[:7] - previous[:7]), abs=1e-5)
+        previous = q
+    assert float(rows[-1]["unknown_fraction"]) < float(rows[0]["unknown_fraction"])
+
+
 def test_ctrl_c_stops_the_whole_graph(tmp_path):
     before = shm_segments()
-    cmd = [sys.executable, str(SCRIPT), "--dataset", "3du", "--views", "50", "--method", "prob_ig",
+    cmd = [sys.executable, str(SCRIPT), "--dataset", "3du", "--views", "50", "--method", "prob_ig", "--no-arm",
            "--out", str(tmp_path / "run"), "--domain-id", _domain(1)]  # fmt: skip
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     lines = []

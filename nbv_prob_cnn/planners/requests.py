@@ -82,6 +82,28 @@ def origin_filter(
     return apply
 
 
+def flat_cells(cells: np.ndarray, shape: tuple[int, ...]) -> np.ndarray:
+    """Flat indices (x fastest, the order grids travel in) of cells ``(N, dims)``."""
+    cells = np.asarray(cells, dtype=np.int64).reshape(-1, len(shape))
+    return np.asarray(np.ravel_multi_index(tuple(cells.T), shape, order="F"), dtype=np.int64)
+
+
+def allowed_origins_filter(allowed_flat: np.ndarray, shape: tuple[int, ...]) -> Callable[[np.ndarray], np.ndarray]:
+    """Keep the origins whose flat index (:func:`flat_cells`) is in ``allowed_flat``.
+
+    Raises:
+        ValueError: an index outside the grid.
+    """
+    allowed = np.asarray(allowed_flat, dtype=np.int64)
+    if allowed.size and (allowed.min() < 0 or allowed.max() >= int(np.prod(shape))):
+        raise ValueError(f"allowed_origins: flat cell indices must lie in [0, {int(np.prod(shape))})")
+
+    def apply(origins: np.ndarray) -> np.ndarray:
+        return origins[np.isin(flat_cells(origins, shape), allowed)]
+
+    return apply
+
+
 def view_pose(choice: ViewChoice, context: PlanningContext, geometry: GridGeometry) -> tuple[np.ndarray, np.ndarray]:
     """Camera position (metres, cell centre) and optical-frame quaternion of a chosen view."""
     return geometry.cell_centre(choice.cell), context.view_quaternion(choice.view_index)

@@ -102,19 +102,24 @@ class ExploreClient:
 
 
 def write_outputs(client: ExploreClient, result: Explore.Result, out_dir: Path, title: str) -> list[Path]:
-    """Per-view CSV and a PNG of the last grid with the chosen views."""
+    """Per-view CSV and a PNG of the last grid with the chosen views; when the planner drove the
+    arm (feedback with joint goals) the CSV adds the joint travel and goal of each view and the
+    PNG the arm at each view (default robot description)."""
     from nbv_prob_cnn.visualize import plot_views
 
     out_dir.mkdir(parents=True, exist_ok=True)
     csv_path = out_dir / "views.csv"
+    joint_names = next((list(fb.joint_goal.name) for _, fb in client.feedback if fb.joint_goal.name), [])
     with open(csv_path, "w", newline="") as handle:
         writer = csv.writer(handle)
-        writer.writerow(["view", "elapsed_s", "gain", "unknown_fraction", "x", "y", "z", "qx", "qy", "qz", "qw"])
+        header = ["view", "elapsed_s", "gain", "unknown_fraction", "x", "y", "z", "qx", "qy", "qz", "qw"]
+        writer.writerow(header + (["joint_travel", *joint_names] if joint_names else []))
         for elapsed, fb in client.feedback:
             position, quat = pose_to_arrays(fb.pose.pose)
+            arm = [f"{fb.joint_travel:.6f}", *(f"{v:.6f}" for v in fb.joint_goal.position)] if joint_names else []
             writer.writerow(
                 [fb.view_index, f"{elapsed:.3f}", f"{fb.gain:.6g}", f"{fb.unknown_fraction:.6f}",
-                 *(f"{v:.5f}" for v in position), *(f"{v:.6f}" for v in quat)]
+                 *(f"{v:.5f}" for v in position), *(f"{v:.6f}" for v in quat), *arm]
             )  # fmt: skip
     written = [csv_path]
     grid = client.latest_grid()
@@ -125,12 +130,27 @@ def write_outputs(client: ExploreClient, result: Explore.Result, out_dir: Path, 
         quats = np.array([q for _, q in poses]).reshape(-1, 4)
         curve = ([fb.view_index for _, fb in client.feedback], [fb.unknown_fraction for _, fb in client.feedback])
         png = out_dir / "explored.png"
-        plot_views(state, cells, quats, png, f"{title} (unknown {unknown_fraction_all(state):.3f})", curve=curve)
+        arms = arm_polylines([fb.joint_goal for _, fb in client.feedback], geometry) if joint_names else None
+        plot_views(
+            state, cells, quats, png, f"{title} (unknown {unknown_fraction_all(state):.3f})", curve=curve, arms=arms
+        )
         np.savez_compressed(
             out_dir / "grid.npz", grid=state, origin=np.array(geometry.origin), resolution=geometry.resolution
         )
         written += [png, out_dir / "grid.npz"]
     return written
+
+
+def arm_polylines(joint_goals: list, geometry) -> list[np.ndarray]:
+    """The default robot drawn at each joint goal, in continuous index coordinates of the grid."""
+    from nbv_prob_cnn.arm.robot import RobotModel
+    from nbv_prob_cnn.arm.views import arm_polyline
+
+    robot = RobotModel()
+    return [
+        geometry.to_index(arm_polyline(robot, robot.joint_state_configuration(goal.name, goal.position)))
+        for goal in joint_goals
+    ]
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -156,9 +176,10 @@ def main(argv: list[str] | None = None) -> int:
         def progress(fb, elapsed):
             rate = (fb.view_index + 1) / elapsed if elapsed > 0 else 0.0
             eta = (args.views - fb.view_index - 1) / rate if rate > 0 else float("nan")
+            travel = f", joint travel {fb.joint_travel:.3f} rad" if fb.joint_goal.name else ""
             print(
                 f"[explore] view {fb.view_index + 1}/{args.views}: gain {fb.gain:.4f}, unknown "
-                f"{fb.unknown_fraction:.4f}, {elapsed:.1f} s elapsed, {rate:.2f} views/s, ETA {eta:.0f} s",
+                f"{fb.unknown_fraction:.4f}{travel}, {elapsed:.1f} s elapsed, {rate:.2f} views/s, ETA {eta:.0f} s",
                 flush=True,
             )
 

@@ -3,6 +3,11 @@ views over candidate origins (``/nbv/rank_views``) with the OpenCL ray-casting k
 
 The CNN methods get their probability map from the completion server (``/nbv/complete``) or,
 with ``completion:=in_process``, from the CNN loaded in this process.
+
+With ``use_arm:=true`` (robot description parameters of :class:`RobotParams`) ``/nbv/evaluate_views``
+also reports per pose whether the arm reaches it: an IK solution (seeded from the latest
+``/joint_states``, or the reference configuration before any) free of self-collision and of the
+grid's occupied and unknown cells (:func:`~nbv_prob_cnn.arm.views.reachable_poses`; no path check).
 """
 
 from __future__ import annotations
@@ -17,13 +22,22 @@ from nbv_prob_cnn_msgs.msg import ViewScore, VoxelGrid
 from nbv_prob_cnn_msgs.srv import CompleteGrid, EvaluateViews, RankViews
 from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.node import Node
+from sensor_msgs.msg import JointState
 
+from nbv_prob_cnn.arm.views import ArmPlanningSetup, reachable_poses
 from nbv_prob_cnn.camera import DATASETS
 from nbv_prob_cnn.geometry import GridGeometry
 from nbv_prob_cnn.modes import BACKEND_NAMES, Backend
 from nbv_prob_cnn.planners import PlanningContext, check_ros_method
 from nbv_prob_cnn.planners.methods import cnn_completion, probability_map
-from nbv_prob_cnn.planners.requests import gain_method, origin_filter, planning_context, rank_for_request, view_pose
+from nbv_prob_cnn.planners.requests import (
+    allowed_origins_filter,
+    gain_method,
+    origin_filter,
+    planning_context,
+    rank_for_request,
+    view_pose,
+)
 from nbv_prob_cnn.pose_scoring import INVALID_POSE, score_poses
 from nbv_prob_cnn.ros import names
 from nbv_prob_cnn.ros.common import GRID_QOS, call_service, declare_config, param, positive_seconds, run_node
@@ -33,13 +47,15 @@ from nbv_prob_cnn.ros.conversions import (
     msg_to_grid,
     msg_to_probability,
 )
+from nbv_prob_cnn.ros.robot_params import ArmViewParams, JointStateTracker, joint_state_msg
 
 MAX_POSES = 100_000
 
 
 @dataclass
-class GainServerConfig:
-    """Parameters of ``gain_server`` (``method`` and ``completion_timeout_s`` may change at run time)."""
+class GainServerConfig(ArmViewParams):
+    """Parameters of ``gain_server`` (``method`` and ``completion_timeout_s`` may change at run time):
+    the robot description and ``use_arm`` (:class:`ArmViewParams`), then these."""
 
     dataset: str = param("3dt", "sensor/ray defaults and CNN weights", choices=tuple(sorted(DATASETS)))
     method: str = param("prob_ig", "method when a request names none", dynamic=True, check=check_ros_method)
@@ -65,6 +81,14 @@ class GainServer(Node):
         self._lock = threading.Lock()
         self._grid: VoxelGrid | None = None
         group = ReentrantCallbackGroup()
+        self._arm: ArmPlanningSetup | None = None
+        self._joints: JointStateTracker | None = None
+        if self.use_arm:
+            # no capability map: every pose gets the exact check
+            self._arm = ArmPlanningSetup(self.config.robot_config(), free_above_m=self.config.free_above(),
+                                         capability_stride=0)  # fmt: skip
+            self._joints = JointStateTracker(self._arm.robot)
+            self.create_subscription(JointState, names.JOINT_STATES, self._on_joint_state, 10, callback_group=group)
         self.create_subscription(VoxelGrid, names.GRID, self._on_grid, GRID_QOS, callback_group=group)
         self._complete_client = self.create_client(CompleteGrid, names.COMPLETE, callback_group=group)
         self.create_service(EvaluateViews, names.EVALUATE_VIEWS, self._evaluate_views, callback_group=group)
@@ -74,6 +98,17 @@ class GainServer(Node):
     def _on_grid(self, msg: VoxelGrid) -> None:
         with self._lock:
             self._grid = msg
+
+    def _on_joint_state(self, msg: JointState) -> None:
+        error = self._joints.on_joint_state(msg)
+        if error:
+            self.get_logger().error(error, throttle_duration_sec=5.0)
+
+    def _arm_solutions(self, state, geometry, positions: np.ndarray, quats: np.ndarray) -> list[JointState]:
+        """Per pose the IK solution as a JointState (empty when the arm cannot take the pose)."""
+        seed = self._joints.current_or(self._arm.robot.reference_q)  # raises on wrong names
+        solutions = reachable_poses(self._arm.feasibility(geometry), positions, quats, state, geometry, seed)
+        return [joint_state_msg(self._arm.robot, q) for q in solutions]
 
     def _latest_grid(self) -> VoxelGrid:
         with self._lock:
@@ -130,6 +165,10 @@ class GainServer(Node):
             response.reasons = reasons
             response.success = True
             response.message = f"{int(np.count_nonzero(scores.validity == 0))} of {len(reasons)} poses valid"
+            if self._arm is not None:
+                response.ik_solutions = self._arm_solutions(state, geometry, positions, quats)
+                response.reachable = [bool(s.name) for s in response.ik_solutions]
+                response.message += f", {sum(response.reachable)} reachable by the arm"
         except (ValueError, TimeoutError, RuntimeError) as exc:
             response.success = False
             response.message = str(exc)
@@ -155,10 +194,14 @@ class GainServer(Node):
                 np.array([request.workspace_max.x, request.workspace_max.y, request.workspace_max.z]),
                 int(request.max_origins), self._rng,
             )  # fmt: skip
+            if len(request.allowed_origins):
+                allowed = allowed_origins_filter(np.frombuffer(request.allowed_origins, dtype=np.uint32), state.shape)
+            else:
+                allowed = None
             evaluated = []
 
             def counting(origins):
-                kept = keep(origins)
+                kept = keep(origins if allowed is None else allowed(origins))
                 evaluated.append(kept.shape[0])
                 return kept
 

@@ -4,12 +4,20 @@
   (``/nbv/rank_views``) through the servers, or everything in this process with
   ``in_process:=true``. Publishes ``/nbv/next_best_view`` and ``/nbv/markers``.
 * ``/nbv/explore`` (Explore action): plan, move the camera (``/sim_camera/move_to``, or publish
-  ``/camera/goal_pose`` and wait for ``/camera/pose`` to arrive there), wait for a grid that
-  includes the new frame, repeat until a stop condition.
+  ``/camera/goal_pose`` and wait for ``/camera/pose`` to arrive there, or with ``move_mode:=arm``
+  send the joint goal to ``/arm_sim/move_to_joints`` and wait for ``/joint_states`` to reach it),
+  wait for a grid that includes a frame from the new pose, repeat until a stop condition.
+
+With ``use_arm:=true`` (robot description parameters of :class:`RobotParams`) a plan is the best
+view the arm reaches collision-free from the configuration of the latest ``/joint_states``
+(:func:`~nbv_prob_cnn.arm.feasibility.plan_with_arm`: views ranked by gain, capability map, IK,
+self/grid collision and the straight joint path, utility ``gain − motion_weight · path length``);
+the response carries its joint goal.
 """
 
 from __future__ import annotations
 
+import array
 import threading
 import time
 from dataclasses import dataclass
@@ -18,18 +26,21 @@ import numpy as np
 from geometry_msgs.msg import PoseStamped, TransformStamped
 from nbv_prob_cnn_msgs.action import Explore
 from nbv_prob_cnn_msgs.msg import ViewScore, VoxelGrid
-from nbv_prob_cnn_msgs.srv import CompleteGrid, MoveCamera, PlanNextBestView, RankViews
+from nbv_prob_cnn_msgs.srv import CompleteGrid, MoveCamera, MoveToJoints, PlanNextBestView, RankViews
 from rclpy.action import ActionServer, CancelResponse, GoalResponse
 from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.node import Node
+from sensor_msgs.msg import JointState
 from visualization_msgs.msg import MarkerArray
 
+from nbv_prob_cnn.arm.feasibility import FeasibilityReport, plan_with_arm
+from nbv_prob_cnn.arm.views import ArmPlanningSetup
 from nbv_prob_cnn.camera import DATASETS
 from nbv_prob_cnn.grid import unknown_fraction_all
 from nbv_prob_cnn.modes import BACKEND_NAMES, MOVE_MODES, Backend, MoveMode
 from nbv_prob_cnn.perception.messages import stamp_ns
 from nbv_prob_cnn.planners import check_ros_method, make_planner, ros_method
-from nbv_prob_cnn.planners.requests import choice_from_pose, origin_filter, planning_context, view_pose
+from nbv_prob_cnn.planners.requests import choice_from_pose, flat_cells, origin_filter, planning_context, view_pose
 from nbv_prob_cnn.ros import names
 from nbv_prob_cnn.ros.common import GRID_QOS, call_service, declare_config, param, positive_seconds, run_node
 from nbv_prob_cnn.ros.conversions import (
@@ -40,14 +51,41 @@ from nbv_prob_cnn.ros.conversions import (
     probability_to_msg,
 )
 from nbv_prob_cnn.ros.markers import planning_markers
+from nbv_prob_cnn.ros.robot_params import ArmViewParams, JointStateTracker, joint_state_msg
 
 #: Planning's message when every candidate view has zero gain (a normal end of an exploration).
 NO_POSITIVE_GAIN = "no view with positive gain"
+#: Planning's message (prefix) when ``use_arm`` finds no view the arm can take (also an end of an exploration).
+NO_REACHABLE_VIEW = "no view the arm reaches collision-free"
+
+
+class RecordingPlanner:
+    """A planner whose ``rank`` also applies the request's origin filter (after the arm's
+    capability filter, kept as ``arm_filter`` for the ranking server) and keeps the ranked list
+    (markers, ``ranked`` of the response)."""
+
+    def __init__(self, planner, request_filter, arm_limit=None) -> None:
+        self.planner, self.request_filter, self.arm_limit = planner, request_filter, arm_limit
+        self.ranked, self.arm_filter = [], None
+
+    def rank(self, state, context, top_k=1, origin_filter=None):
+        keep, capability, limit = self.request_filter, origin_filter, self.arm_limit
+
+        def arm_filter(origins):
+            return capability(origins if limit is None else limit(origins))
+
+        def both(origins):
+            return keep(origins if capability is None else arm_filter(origins))
+
+        self.arm_filter = None if capability is None else arm_filter
+        self.ranked = self.planner.rank(state, context, top_k, both)
+        return self.ranked
 
 
 @dataclass
-class PlannerConfig:
-    """Parameters of ``nbv_planner`` (``method`` and ``service_timeout_s`` may change at run time)."""
+class PlannerConfig(ArmViewParams):
+    """Parameters of ``nbv_planner`` (``method`` and ``service_timeout_s`` may change at run time):
+    the robot description and ``use_arm`` (:class:`ArmViewParams`), then these."""
 
     dataset: str = param("3dt", "sensor/ray defaults and CNN weights", choices=tuple(sorted(DATASETS)))
     method: str = param("cnn_prob", "method when a request names none", dynamic=True, check=check_ros_method)
@@ -58,11 +96,28 @@ class PlannerConfig:
     service_timeout_s: float = param(
         60.0, "completion/ranking wait", min_value=0.1, max_value=600.0, dynamic=True, check=positive_seconds
     )
-    move_mode: MoveMode = param("service", "'service' (sim_camera/move_to) or 'topic' (goal pose)", choices=MOVE_MODES)
+    move_mode: MoveMode = param(
+        "service",
+        "'service' (sim_camera/move_to), 'topic' (goal pose) or 'arm' (arm_sim/move_to_joints; needs use_arm)",
+        choices=MOVE_MODES,
+    )  # fmt: skip
     move_timeout_s: float = param(30.0, "wait for the camera to arrive", min_value=0.1, max_value=600.0)
     grid_timeout_s: float = param(30.0, "wait for the grid with the new frame", min_value=0.1, max_value=600.0)
     arrival_tolerance_m: float = param(0.01, "topic mode: position tolerance", min_value=0.0, max_value=1.0)
     markers_top_k: int = param(20, "candidate views shown as markers", min_value=1, max_value=1000)
+    motion_weight: float = param(0.0, "use_arm: λ of the utility gain − λ·joint path length", min_value=0.0,
+                                 max_value=1000.0)  # fmt: skip
+    arm_top_k: int = param(1000, "use_arm: views ranked by gain before the arm's check", min_value=1, max_value=100000)
+    arm_max_checks: int = param(30, "use_arm: exact IK + collision checks per plan (0 = all)", min_value=0,
+                                max_value=100000)  # fmt: skip
+    capability_stride: int = param(8, "use_arm: capability-map lattice stride in cells (0 = no map)", min_value=0,
+                                   max_value=64)  # fmt: skip
+    arm_min_view_height_m: float = param(
+        0.0, "use_arm: only views with the camera at least this high (grid frame z, m; 0 = no limit)", min_value=0.0,
+        max_value=100.0,
+    )  # fmt: skip
+    joint_tolerance: float = param(1e-3, "move_mode arm: joint arrival tolerance (rad or m)", min_value=1e-6,
+                                   max_value=1.0)  # fmt: skip
 
 
 class NbvPlanner(Node):
@@ -79,7 +134,18 @@ class NbvPlanner(Node):
         self._explore_lock = threading.Lock()  # guards the two fields below
         self._active_goal = None  # the running exploration's goal handle
         self._refused_goals: set[bytes] = set()  # accepted while another ran: aborted on execution
+        if self.move_mode == "arm" and not self.use_arm:
+            raise ValueError("move_mode 'arm' needs use_arm:=true (the joint goal comes from planning with the arm)")
+        self._arm: ArmPlanningSetup | None = None
+        self._joints: JointStateTracker | None = None
         group = ReentrantCallbackGroup()
+        if self.use_arm:
+            cfg = self.config
+            self._arm = ArmPlanningSetup(
+                cfg.robot_config(), cfg.motion_weight, cfg.free_above(), cfg.arm_max_checks, cfg.capability_stride
+            )
+            self._joints = JointStateTracker(self._arm.robot)
+            self.create_subscription(JointState, names.JOINT_STATES, self._on_joint_state, 10, callback_group=group)
         self.create_subscription(VoxelGrid, names.GRID, self._on_grid, GRID_QOS, callback_group=group)
         self.create_subscription(TransformStamped, names.CAMERA_POSE, self._on_camera_pose, 10, callback_group=group)
         self._nbv_pub = self.create_publisher(PoseStamped, names.NEXT_BEST_VIEW, 10)
@@ -88,6 +154,7 @@ class NbvPlanner(Node):
         self._complete_client = self.create_client(CompleteGrid, names.COMPLETE, callback_group=group)
         self._rank_client = self.create_client(RankViews, names.RANK_VIEWS, callback_group=group)
         self._move_client = self.create_client(MoveCamera, names.MOVE_TO, callback_group=group)
+        self._joints_client = self.create_client(MoveToJoints, names.MOVE_TO_JOINTS, callback_group=group)
         self.create_service(PlanNextBestView, names.PLAN, self._plan_service, callback_group=group)
         self._action = ActionServer(
             self, Explore, names.EXPLORE, execute_callback=self._explore,
@@ -95,6 +162,7 @@ class NbvPlanner(Node):
             cancel_callback=lambda _: CancelResponse.ACCEPT, callback_group=group,
         )  # fmt: skip
         mode = "in-process" if self.in_process else "via /nbv/complete and /nbv/rank_views"
+        mode += f", arm {self._arm.robot.joint_names} (λ = {self.motion_weight:g})" if self._arm else ""
         self.get_logger().info(f"nbv_planner ready: dataset {self.dataset}, method {self.method}, {mode}")
 
     # -- inputs -------------------------------------------------------------------------------
@@ -107,6 +175,11 @@ class NbvPlanner(Node):
         with self._camera_lock:
             self._camera_pose = msg
             self._camera_lock.notify_all()
+
+    def _on_joint_state(self, msg: JointState) -> None:
+        error = self._joints.on_joint_state(msg)
+        if error:
+            self.get_logger().error(f"{error}", throttle_duration_sec=5.0)
 
     def _latest_grid(self) -> VoxelGrid:
         with self._grid_lock:
@@ -138,9 +211,17 @@ class NbvPlanner(Node):
             box_max = np.array([request.workspace_max.x, request.workspace_max.y, request.workspace_max.z])
             top_k = max(1, int(request.top_k), self.markers_top_k)
             keep = origin_filter(geometry, request.use_workspace, box_min, box_max, int(request.max_origins), self._rng)
+            planner = RecordingPlanner(make_planner(method.name), keep, self._height_limit(geometry))
             if not self.in_process:
-                context.completion, context.ranker = self._server_hooks(grid, geometry, request, context)
-            ranked = make_planner(method.name).rank(state, context, top_k, keep)
+                context.completion, context.ranker = self._server_hooks(grid, geometry, request, context, planner)
+            report = None
+            if self._arm is None:
+                planner.rank(state, context, top_k)
+            else:
+                current_q, _ = self._joints.current()  # raises on missing / wrong joint states
+                arm = self._arm.feasibility(geometry)
+                report = plan_with_arm(planner, state, context, geometry, arm, current_q, max(top_k, self.arm_top_k))
+            ranked = planner.ranked
             views = [(*view_pose(c, context, geometry), c.gain) for c in ranked]
             if ranked:
                 t = ranked[0].times
@@ -152,6 +233,17 @@ class NbvPlanner(Node):
                 for p, q, g in views
             ]
             response.best_pose, response.best_gain = ranked_msgs[0].pose, ranked_msgs[0].gain
+            if report is not None:
+                if report.view is None:
+                    raise ValueError(unreachable_message(report))
+                chosen = report.view.choice
+                pose = arrays_to_pose_stamped(*view_pose(chosen, context, geometry), frame, grid.header.stamp)
+                response.best_pose, response.best_gain = pose, float(chosen.gain)
+                response.reachable = True
+                response.joint_goal = joint_state_msg(self._arm.robot, report.view.q)
+                response.joint_goal.header.stamp = grid.header.stamp
+                response.joint_goal.header.frame_id = frame
+                response.joint_path_length = report.view.path_length
             response.ranked = ranked_msgs[: max(1, int(request.top_k))]
             response.success = True
             self._nbv_pub.publish(response.best_pose)
@@ -168,8 +260,16 @@ class NbvPlanner(Node):
         response.time_total_s = time.perf_counter() - start
         return response
 
-    def _server_hooks(self, grid: VoxelGrid, geometry, request: PlanNextBestView.Request, context):
-        """Completion (``/nbv/complete``) and ranking (``/nbv/rank_views``) hooks of the core planner."""
+    def _height_limit(self, geometry):
+        """use_arm: the origin filter of ``arm_min_view_height_m`` (None when off)."""
+        low = self.arm_min_view_height_m
+        if self._arm is None or low <= 0:
+            return None
+        return lambda origins: origins[geometry.cell_centre(origins)[:, 2] >= low]
+
+    def _server_hooks(self, grid: VoxelGrid, geometry, request: PlanNextBestView.Request, context, planner):
+        """Completion (``/nbv/complete``) and ranking (``/nbv/rank_views``) hooks of the core
+        planner; the arm's capability filter (``planner.arm_filter``) travels as allowed origins."""
         completed = {}
 
         def complete(state: np.ndarray, context) -> np.ndarray:
@@ -185,6 +285,9 @@ class NbvPlanner(Node):
             call = RankViews.Request(grid=grid, method=method, top_k=top_k, use_workspace=request.use_workspace)
             call.workspace_min, call.workspace_max = request.workspace_min, request.workspace_max
             call.max_origins = request.max_origins
+            if planner.arm_filter is not None and (self.capability_stride or self.arm_min_view_height_m > 0):
+                allowed = flat_cells(planner.arm_filter(context.candidate_origins(state)), state.shape)
+                call.allowed_origins = array.array("I", allowed.astype(np.uint32).tobytes())
             if prob is not None:
                 call.probability = (
                     completed["msg"]
@@ -226,6 +329,18 @@ class NbvPlanner(Node):
             else:
                 self._active_goal = goal_handle
         goal_handle.execute()
+
+    def _move_arm(self, goal: JointState) -> int:
+        """Send the joint goal to ``arm_sim/move_to_joints``; wait until ``joint_states`` reach it
+        and return the stamp (ns) of the first joint state there (frames stamped at or after it
+        are taken at the goal)."""
+        goal_q = np.asarray(goal.position, dtype=np.float64)
+        sent = self.get_clock().now().nanoseconds
+        request = MoveToJoints.Request(name=list(goal.name), position=list(goal.position))
+        reply = call_service(self, self._joints_client, request, self.move_timeout_s)
+        if not reply.success:
+            raise ValueError(f"arm move failed: {reply.message}")
+        return self._joints.wait_until(goal_q, self.joint_tolerance, sent, self.move_timeout_s + reply.duration_s)
 
     def _move_camera(self, target: PoseStamped) -> int:
         """Move the camera; returns the stamp (ns) of the first frame taken at the target."""
@@ -288,18 +403,23 @@ class NbvPlanner(Node):
                     return "succeeded", f"unknown fraction {fraction:.4f} <= {goal.stop_unknown_fraction}", fraction
                 planned = self.plan(PlanNextBestView.Request(method=goal.method))
                 if not planned.success:
-                    if planned.message == NO_POSITIVE_GAIN:
-                        return "succeeded", NO_POSITIVE_GAIN, fraction
+                    if planned.message == NO_POSITIVE_GAIN or planned.message.startswith(NO_REACHABLE_VIEW):
+                        return "succeeded", planned.message, fraction
                     return "aborted", f"error: planning failed: {planned.message}", fraction
                 if planned.best_gain <= goal.stop_gain:
                     return "succeeded", f"best gain {planned.best_gain:.4f} <= {goal.stop_gain}", fraction
-                frame_ns = self._move_camera(planned.best_pose)
+                if self.move_mode == "arm":
+                    frame_ns = self._move_arm(planned.joint_goal)
+                else:
+                    frame_ns = self._move_camera(planned.best_pose)
                 grid = self._wait_for_grid(frame_ns, self.grid_timeout_s)
                 fraction = unknown_fraction_all(msg_to_grid(grid)[0])
                 result.poses.append(planned.best_pose)
                 feedback = Explore.Feedback(
                     view_index=index, pose=planned.best_pose, gain=planned.best_gain, unknown_fraction=fraction
                 )
+                if self.move_mode == "arm":
+                    feedback.joint_goal, feedback.joint_travel = planned.joint_goal, planned.joint_path_length
                 goal_handle.publish_feedback(feedback)
                 self.get_logger().info(f"view {index}: gain {planned.best_gain:.4f}, unknown fraction {fraction:.4f}")
         except (ValueError, TimeoutError, RuntimeError) as exc:
@@ -308,6 +428,15 @@ class NbvPlanner(Node):
         if goal_handle.is_cancel_requested:
             return "canceled", f"canceled after {goal.max_views} views", fraction
         return "succeeded", f"reached {goal.max_views} views", fraction
+
+
+def unreachable_message(report: FeasibilityReport) -> str:
+    """Why ``use_arm`` planning found nothing, with the counts of the exact stage."""
+    budget = ", check budget spent" if report.budget_exhausted else ""
+    return (
+        f"{NO_REACHABLE_VIEW}: {report.checked} ranked views checked ({report.unreachable} without IK solution, "
+        f"{report.in_collision} in collision, {report.path_blocked} with a blocked path{budget})"
+    )
 
 
 def main(args: list[str] | None = None) -> int:

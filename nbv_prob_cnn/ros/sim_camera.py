@@ -10,6 +10,9 @@ Moves with the service ``/sim_camera/move_to`` (``nbv_prob_cnn_msgs/MoveCamera``
 target is rendered and published inside the service call, the reply carries its stamp) or the
 topic ``/camera/goal_pose`` (``geometry_msgs/PoseStamped``; a frame is published immediately).
 Target poses are ``camera_optical`` poses (REP-103: z forward, x right, y down) in ``frame_id``.
+With ``follow_arm:=true`` the camera rides on the simulated arm instead: it takes its pose from
+``arm/camera_pose`` (``arm_sim``'s forward kinematics) and stamps each frame with the stamp of
+the arm pose it was rendered at (the move requests are refused).
 
 With ``render_arm:=true`` the arm (the robot of the robot description parameters ``urdf_path``,
 ``base_xyz``, ..., its visual meshes) is rendered into every frame at the latest ``joint_states``
@@ -53,6 +56,7 @@ from nbv_prob_cnn.perception.messages import (
     pose_to_transform_msg,
     typestore,
 )
+from nbv_prob_cnn.perception.messages import stamp_ns as message_stamp_ns
 from nbv_prob_cnn.ros import names
 from nbv_prob_cnn.ros.common import declare_config, param, run_node
 from nbv_prob_cnn.ros.conversions import pose_to_arrays, time_msg
@@ -63,6 +67,7 @@ TOPIC_GOAL_POSE = names.GOAL_POSE
 SERVICE_MOVE_TO = names.MOVE_TO
 #: ``render_arm``: a frame carries the stamp of the joint state it shows when that is at most this old.
 ARM_STATE_MAX_AGE_NS = 500_000_000
+ARM_STATES_KEPT = 100  # joint states kept by stamp for follow_arm + render_arm (2 s at arm_sim's 50 Hz)
 
 
 def look_at_pose(position, target) -> list[float]:
@@ -167,6 +172,7 @@ class SimCameraConfig(RobotParams):
         False, "render the arm's visual meshes into every frame at the latest joint_states (robot description "
         "parameters); no frame before the first joint state",
     )  # fmt: skip
+    follow_arm: bool = param(False, "take the pose from arm/camera_pose (arm_sim) instead of move_to/goal_pose")
 
 
 class SimCamera(Node):
@@ -192,6 +198,8 @@ class SimCamera(Node):
 
         if not self.frame_id or not self.camera_frame:
             raise ValueError("frame_id and camera_frame must not be empty")
+        if self.follow_arm and not rate > 0:
+            raise ValueError("follow_arm: needs rate_hz > 0 (the timer renders frames at the arm's latest pose)")
         if not depth_max > depth_min:
             raise ValueError(f"depth_max_m ({depth_max}) must be greater than depth_min_m ({depth_min})")
         if not isinstance(initial, list | tuple) or not all(isinstance(v, int | float) for v in initial):
@@ -207,18 +215,22 @@ class SimCamera(Node):
         self._camera = DepthCamera(meshes, self.intrinsics, noise=noise, depth_min=depth_min, depth_max=depth_max)
         self._lock = threading.Lock()
         self._last_stamp_ns = 0
+        self._arm_pose: tuple[np.ndarray, int] | None = None  # follow_arm: latest pose and its stamp (ns)
         self.frames = 0
         self.bad_joint_states = 0
         self._arm_q: np.ndarray | None = None
         self._arm_stamp_ns = 0
+        self._arm_qs: dict[int, np.ndarray] = {}  # recent joint states by stamp (follow_arm pairs them with poses)
         self._arm = None
         if cfg.render_arm:
             from nbv_prob_cnn.arm.robot import RobotModel
             from nbv_prob_cnn.arm.robot_scene import RobotScene
 
             self._arm = RobotScene(RobotModel(cfg.robot_config()), "visual")
-            # only the newest joint state matters: a backlog would render the arm where it was
-            self.create_subscription(JointState, names.JOINT_STATES, self._on_joint_states, 1)
+            # without follow_arm only the newest joint state matters (a backlog would render the arm
+            # where it was); with it every one is kept by stamp, to pair with the arm pose of that stamp
+            depth = ARM_STATES_KEPT if cfg.follow_arm else 1
+            self.create_subscription(JointState, names.JOINT_STATES, self._on_joint_states, depth)
 
         qos = QoSProfile(
             history=HistoryPolicy.KEEP_LAST,
@@ -231,6 +243,8 @@ class SimCamera(Node):
         self._pose_pub = self.create_publisher(TransformStamped, names.CAMERA_POSE, qos)
         self.create_service(MoveCamera, SERVICE_MOVE_TO, self._on_move_to)
         self.create_subscription(PoseStamped, TOPIC_GOAL_POSE, self._on_goal_pose, 10)
+        if self.follow_arm:
+            self.create_subscription(PoseStamped, names.ARM_CAMERA_POSE, self._on_arm_pose, 10)
         self._timer = self.create_timer(1.0 / rate, self._on_timer) if rate > 0 else None
         self.get_logger().info(
             f"{source}: {self._camera.n_meshes} mesh(es), {width}x{height} px, hfov {hfov:g} deg, "
@@ -239,24 +253,34 @@ class SimCamera(Node):
         )
 
     # ------------------------------------------------------------------ frames
-    def publish_frame(self) -> int:
+    def publish_frame(self, at_ns: int | None = None) -> int:
         """Render and publish one frame from the current pose; returns its stamp (ns).
 
+        The stamp is ``at_ns`` (``follow_arm``: the stamp of the arm pose), else the time now. With
+        ``render_arm`` the arm is drawn at the joint state of stamp ``at_ns`` when given (``arm_sim``
+        stamps its joint state and camera pose alike), else at the latest joint state, whose stamp
+        the frame then carries when it is at most 0.5 s old: the moment the arm was where the frame
+        shows it, so a self-filter pairing by stamp sees the same joint state.
+
         Raises:
-            ValueError: ``render_arm`` and no joint state received yet.
+            ValueError: ``render_arm`` and no joint state received yet (or none of stamp ``at_ns``).
         """
         with self._lock:
             occluders = []
-            stamp_ns = self.get_clock().now().nanoseconds
+            stamp_ns = self.get_clock().now().nanoseconds if at_ns is None else at_ns
             if self._arm is not None:
-                if self._arm_q is None:
-                    raise ValueError(f"render_arm: no {names.JOINT_STATES} received yet, no frame rendered")
-                occluders.append(self._arm.scene(self._arm_q))  # rebuilt only when the joints moved
+                q = self._arm_q
+                if at_ns is not None:
+                    q = self._arm_qs.get(at_ns)
+                if q is None:
+                    raise ValueError(f"render_arm: no {names.JOINT_STATES} of that stamp received yet, no frame")
+                occluders.append(self._arm.scene(q))  # rebuilt only when the joints moved
                 # the frame shows the arm as it was at that joint state: it carries its stamp (unless
                 # the joint states stopped: then the frame is stamped now and shows the last known arm)
-                if 0 <= stamp_ns - self._arm_stamp_ns <= ARM_STATE_MAX_AGE_NS:
+                if at_ns is None and 0 <= stamp_ns - self._arm_stamp_ns <= ARM_STATE_MAX_AGE_NS:
                     stamp_ns = self._arm_stamp_ns
-            stamp_ns = max(stamp_ns, self._last_stamp_ns + 1)
+            if at_ns is None:
+                stamp_ns = max(stamp_ns, self._last_stamp_ns + 1)
             self._last_stamp_ns = stamp_ns
             depth = self._camera.render(self._pose, occluders)
             store = typestore()
@@ -280,6 +304,8 @@ class SimCamera(Node):
         return pose
 
     def _move(self, msg: PoseStamped) -> int:
+        if self.follow_arm:
+            raise ValueError("follow_arm is set: the camera moves with the arm (arm_sim/move_to_joints)")
         pose = self._target_pose(msg)
         with self._lock:
             self._pose = pose
@@ -288,9 +314,22 @@ class SimCamera(Node):
     # --------------------------------------------------------------- callbacks
     def _on_timer(self) -> None:
         try:
-            self.publish_frame()
+            self._publish_timer_frame()
         except ValueError as exc:
             self.get_logger().warning(str(exc), throttle_duration_sec=5.0)
+
+    def _publish_timer_frame(self) -> None:
+        if not self.follow_arm:
+            self.publish_frame()
+            return
+        with self._lock:
+            latest = self._arm_pose
+            if latest is None or latest[1] <= self._last_stamp_ns:
+                return  # no arm pose yet, or none newer than the last frame
+            if self._arm is not None and latest[1] not in self._arm_qs:
+                return  # the joint state of that instant has not arrived yet: next tick
+            self._pose = latest[0]
+        self.publish_frame(latest[1])
 
     def _on_joint_states(self, msg: JointState) -> None:
         if self._arm is None:
@@ -306,7 +345,19 @@ class SimCamera(Node):
             return
         with self._lock:
             self._arm_q = q
-            self._arm_stamp_ns = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+            self._arm_stamp_ns = message_stamp_ns(msg.header.stamp)
+            self._arm_qs[self._arm_stamp_ns] = q
+            while len(self._arm_qs) > ARM_STATES_KEPT:
+                self._arm_qs.pop(next(iter(self._arm_qs)))
+
+    def _on_arm_pose(self, msg: PoseStamped) -> None:
+        try:
+            pose = self._target_pose(msg)
+        except ValueError as exc:
+            self.get_logger().warning(f"arm/camera_pose ignored: {exc}", throttle_duration_sec=2.0)
+            return
+        with self._lock:
+            self._arm_pose = (pose, message_stamp_ns(msg.header.stamp))
 
     def _on_move_to(self, request: MoveCamera.Request, response: MoveCamera.Response) -> MoveCamera.Response:
         try:

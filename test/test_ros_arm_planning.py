@@ -1,0 +1,348 @@
+"""``nbv_planner`` and ``gain_server`` with the arm (``use_arm``), and ``Explore`` driving
+``arm_sim`` (``move_mode:=arm``), each node in its own process; the test process publishes the
+grid (and, where no arm_sim runs, the joint states) and checks the answers against pinocchio's
+forward kinematics and the collision checker."""
+
+from __future__ import annotations
+
+import os
+import threading
+import time
+
+import numpy as np
+import pytest
+
+rclpy = pytest.importorskip("rclpy")
+pytest.importorskip("nbv_prob_cnn_msgs")
+pytest.importorskip("pinocchio")
+
+from action_msgs.msg import GoalStatus  # noqa: E402
+from geometry_msgs.msg import PoseStamped  # noqa: E402
+from nbv_prob_cnn_msgs.action import Explore  # noqa: E402
+from nbv_prob_cnn_msgs.msg import VoxelGrid  # noqa: E402
+from nbv_prob_cnn_msgs.srv import EvaluateViews, PlanNextBestView  # noqa: E402
+from rclpy.action import ActionClient  # noqa: E402
+from rclpy.executors import MultiThreadedExecutor  # noqa: E402
+from sensor_msgs.msg import JointState  # noqa: E402
+
+from nbv_prob_cnn.arm.collision import CollisionChecker, GridObstacles  # noqa: E402
+from nbv_prob_cnn.arm.robot import RobotModel  # noqa: E402
+from nbv_prob_cnn.camera import matrix_from_quaternion, quaternion_from_matrix  # noqa: E402
+from nbv_prob_cnn.geometry import GridGeometry  # noqa: E402
+from nbv_prob_cnn.ros.common import GRID_QOS  # noqa: E402
+from nbv_prob_cnn.ros.conversions import grid_to_msg, pose_to_arrays  # noqa: E402
+from nbv_prob_cnn.ros.graph import NodeGraph  # noqa: E402
+
+pytestmark = pytest.mark.slow  # multi-process ROS graphs
+
+#: 0.96 × 1.28 × 0.96 m in front of the Panda's default base (x = -0.1, y = 0.742).
+GEOMETRY = GridGeometry((0.0, 0.102, 0.0), 0.04, (24, 32, 24))
+#: Planner settings that keep a plan short on this small grid: no capability map (every ranked
+#: view gets the exact check), every unknown cell blocks the arm.
+ARM_PLANNER = {
+    "dataset": "3dt", "method": "prob_ig", "in_process": True, "use_arm": True, "capability_stride": 0,
+    "arm_top_k": 300, "arm_max_checks": 0, "free_above_m": -1.0, "markers_top_k": 1,
+}  # fmt: skip
+_counter = iter(range(1000))
+
+
+def scene() -> np.ndarray:
+    """Floor, one unknown box on it, unknown strips along both y ends; the rest known empty."""
+    state = np.zeros(GEOMETRY.shape, dtype=np.int8)
+    state[:, :, 0] = 1
+    state[10:16, 12:20, 1:6] = -1
+    state[14:, :3, 1:10] = -1
+    state[14:, -3:, 1:10] = -1
+    return state
+
+
+class GraphBench:
+    """The test process's node: publishes the grid (stamped on request) and joint states, keeps
+    the latest joint state and arm camera pose."""
+
+    def __init__(self, node) -> None:
+        self.node = node
+        self.state = scene()
+        self.joints: list | None = None  # (names, positions) published at 20 Hz when set
+        self.latest: dict[str, object] = {}
+        self.grid_pub = node.create_publisher(VoxelGrid, "/nbv/grid", GRID_QOS)
+        self.joint_pub = node.create_publisher(JointState, "/joint_states", 10)
+        node.create_subscription(JointState, "/joint_states", lambda m: self.latest.__setitem__("joints", m), 10)
+        node.create_subscription(PoseStamped, "/arm/camera_pose", self.on_arm_pose, 10)
+        node.create_timer(0.05, self.publish_joints)
+
+    def publish_grid(self, stamp=None) -> None:
+        msg = grid_to_msg(self.state, GEOMETRY)
+        msg.header.stamp = stamp if stamp is not None else self.node.get_clock().now().to_msg()
+        self.grid_pub.publish(msg)
+
+    def publish_joints(self) -> None:
+        if self.joints is not None:
+            msg = JointState(name=self.joints[0], position=[float(v) for v in self.joints[1]])
+            msg.header.stamp = self.node.get_clock().now().to_msg()
+            self.joint_pub.publish(msg)
+
+    def on_arm_pose(self, msg: PoseStamped) -> None:
+        self.latest["pose"] = msg
+
+
+@pytest.fixture
+def ros(tmp_path, ros_domain):
+    """Domains 140..149 (this module only); a client node spun in a background thread."""
+    env = ros_domain(140 + (os.getpid() + next(_counter)) % 10)
+    context = rclpy.Context()
+    rclpy.init(context=context)
+    node = rclpy.create_node("arm_planning_test", context=context)
+    bench = GraphBench(node)
+    executor = MultiThreadedExecutor(num_threads=4, context=context)
+    executor.add_node(node)
+    spinner = threading.Thread(target=executor.spin, daemon=True)
+    spinner.start()
+    graph = NodeGraph(env, log_dir=tmp_path / "logs")
+    yield node, bench, graph
+    graph.stop()
+    executor.shutdown()
+    node.destroy_node()
+    rclpy.shutdown(context=context)
+    spinner.join(timeout=5)
+
+
+def wait(future, timeout_s: float = 120.0):
+    deadline = time.monotonic() + timeout_s
+    while not future.done() and time.monotonic() < deadline:
+        time.sleep(0.02)
+    assert future.done(), "no answer in time"
+    return future.result()
+
+
+def call_when_ready(node, srv_type, name: str, request, not_ready: str, timeout_s: float = 120.0):
+    """Call until the answer no longer says ``not_ready`` (the node has not got the grid yet)."""
+    client = node.create_client(srv_type, name)
+    assert client.wait_for_service(timeout_sec=timeout_s), f"{name} did not come up"
+    deadline = time.monotonic() + timeout_s
+    while True:
+        reply = wait(client.call_async(request))
+        if not_ready not in reply.message or time.monotonic() > deadline:
+            return client, reply
+        time.sleep(0.2)
+
+
+def matrix(position, quaternion) -> np.ndarray:
+    pose = np.eye(4)
+    pose[:3, :3], pose[:3, 3] = matrix_from_quaternion(quaternion), position
+    return pose
+
+
+def assert_pose_close(actual: np.ndarray, position, quaternion, atol_m: float = 2e-3) -> None:
+    np.testing.assert_allclose(actual[:3, 3], position, atol=atol_m)
+    q = quaternion_from_matrix(actual[:3, :3])
+    assert abs(float(np.dot(q, np.asarray(quaternion) / np.linalg.norm(quaternion)))) > np.cos(0.01)
+
+
+def test_plan_with_arm_answers_a_reachable_view_with_its_joint_goal(ros):
+    node, bench, graph = ros
+    robot = RobotModel()
+    graph.start_node("nbv_planner", "nbv_planner", ARM_PLANNER)
+    bench.publish_grid()
+    request = PlanNextBestView.Request(top_k=5)
+    client, reply = call_when_ready(node, PlanNextBestView, "/nbv/plan", request, "no grid received yet")
+    # no joint state yet: a clear error, not a plan from a guessed configuration
+    assert not reply.success and "no joint state received yet on joint_states" in reply.message
+
+    def plan_with(names, positions):
+        bench.joints = (names, positions)
+        time.sleep(0.5)
+        return wait(client.call_async(request))
+
+    wrong = plan_with(["elbow", *robot.joint_names[1:]], robot.reference_q)
+    assert not wrong.success and not wrong.reachable
+    assert "unknown joint names ['elbow']" in wrong.message and "panda_joint1" in wrong.message
+    missing = plan_with(robot.joint_names[:7], robot.reference_q[:7])
+    assert not missing.success and "missing joints ['panda_finger_joint1', 'panda_finger_joint2']" in missing.message
+
+    start = robot.reference_q
+    ok = plan_with(robot.joint_names, start)  # the node kept serving
+    assert ok.success, ok.message
+    assert ok.reachable and list(ok.joint_goal.name) == robot.joint_names
+    goal = np.array(ok.joint_goal.position)
+    position, quaternion = pose_to_arrays(ok.best_pose.pose)
+    assert_pose_close(robot.camera_pose(goal), position, quaternion)  # FK of the joint goal = the pose
+    assert robot.within_limits(goal, tol=1e-9)
+    checker = CollisionChecker(robot, spacing=0.75 * GEOMETRY.resolution)
+    obstacles = GridObstacles.from_state(bench.state, GEOMETRY).cleared(checker.body_points(start))
+    assert checker.is_free(goal, obstacles) and checker.path_is_free(start, goal, obstacles, 0.1)
+    chain = np.arange(7)  # the Panda's arm joints move the camera, the fingers do not
+    assert ok.joint_path_length == pytest.approx(np.linalg.norm(goal[chain] - start[chain]), abs=1e-9)
+    assert 0 < ok.best_gain <= ok.ranked[0].gain + 1e-6  # the best reachable view, not above the best view
+    cell = GEOMETRY.containing_cell(np.asarray(position)[None])[0][0]
+    assert bench.state[tuple(cell)] == 0  # a known-empty cell
+    assert graph.alive()["nbv_planner"]
+
+
+def test_evaluate_views_reports_reachability_and_ik_solutions(ros):
+    node, bench, graph = ros
+    robot = RobotModel()
+    graph.start_node("gain_server", "gain_server", {"dataset": "3dt", "use_arm": True, "free_above_m": -1.0})
+    bench.publish_grid()
+    at_reference = robot.camera_pose(robot.reference_q)
+    poses = []
+    for position, quaternion in (
+        (at_reference[:3, 3], quaternion_from_matrix(at_reference[:3, :3])),  # where the camera is
+        ((3.0, 3.0, 0.5), (0.0, 0.0, 0.0, 1.0)),  # 3 m away: out of reach (and outside the grid)
+        ((np.nan, 0.5, 0.5), (0.0, 0.0, 0.0, 1.0)),
+    ):
+        pose = PoseStamped()
+        pose.pose.position.x, pose.pose.position.y, pose.pose.position.z = (float(v) for v in position)
+        o = pose.pose.orientation
+        o.x, o.y, o.z, o.w = (float(v) for v in quaternion)
+        poses.append(pose)
+    request = EvaluateViews.Request(poses=poses, method="prob_ig")
+    client, reply = call_when_ready(node, EvaluateViews, "/nbv/evaluate_views", request, "no grid received yet")
+    assert reply.success, reply.message
+    assert list(reply.reachable) == [True, False, False]
+    assert "1 reachable by the arm" in reply.message
+    solution = reply.ik_solutions[0]
+    assert list(solution.name) == robot.joint_names
+    assert_pose_close(robot.camera_pose(np.array(solution.position)), *pose_to_arrays(poses[0].pose))
+    assert [list(s.name) for s in reply.ik_solutions[1:]] == [[], []]
+    assert list(reply.validity)[1:] == [EvaluateViews.Request.OUTSIDE_GRID, EvaluateViews.Request.INVALID_POSE]
+
+    bench.joints = (["panda_joint1", "shoulder"], [0.0, 0.0])  # wrong names: a clear error ...
+    time.sleep(0.5)
+    wrong = wait(client.call_async(request))
+    assert not wrong.success and "unknown joint names ['shoulder']" in wrong.message
+    bench.joints = (robot.joint_names, robot.reference_q)  # ... and the server keeps serving
+    time.sleep(0.5)
+    again = wait(client.call_async(request))
+    assert again.success and list(again.reachable) == [True, False, False]
+
+
+class SeeingIntegrator:
+    """Stands in for sim_camera + integrator: at 5 Hz it marks the unknown cells within 12° of the
+    arm camera's optical axis as seen empty and publishes the grid stamped with that pose's stamp."""
+
+    def __init__(self, node, bench: GraphBench) -> None:
+        self.bench = bench
+        node.create_timer(0.2, self.tick)
+
+    def tick(self) -> None:
+        msg = self.bench.latest.get("pose")
+        if msg is None:
+            return
+        position, quaternion = pose_to_arrays(msg.pose)
+        axis = matrix_from_quaternion(quaternion)[:, 2]
+        unknown = np.argwhere(self.bench.state == -1)
+        if unknown.size:
+            rays = GEOMETRY.cell_centre(unknown) - position
+            cosine = rays @ axis / np.linalg.norm(rays, axis=1)
+            seen = unknown[cosine > np.cos(np.radians(12.0))]
+            self.bench.state[seen[:, 0], seen[:, 1], seen[:, 2]] = 0
+        self.bench.publish_grid(msg.header.stamp)
+
+
+def test_explore_drives_the_arm_through_arm_sim(ros):
+    node, bench, graph = ros
+    robot = RobotModel()
+    graph.start_node("arm_sim", "arm_sim", {"velocity_scale": 1.0, "rate_hz": 50.0})
+    graph.start_node("nbv_planner", "nbv_planner", {**ARM_PLANNER, "move_mode": "arm"})
+    SeeingIntegrator(node, bench)
+    client = ActionClient(node, Explore, "/nbv/explore")
+    assert client.wait_for_server(timeout_sec=120.0), "the Explore server did not come up"
+    feedback: list = []
+    handle = wait(client.send_goal_async(Explore.Goal(max_views=3), feedback_callback=feedback.append))
+    assert handle.accepted
+    done = wait(handle.get_result_async(), 300.0)
+    assert done.status == GoalStatus.STATUS_SUCCEEDED, done.result.reason_stopped
+    assert done.result.views == 3 == len(feedback), done.result.reason_stopped
+    previous = robot.reference_q
+    for message in feedback:
+        fb = message.feedback
+        assert list(fb.joint_goal.name) == robot.joint_names
+        goal = np.array(fb.joint_goal.position)
+        assert_pose_close(robot.camera_pose(goal), *pose_to_arrays(fb.pose.pose))
+        assert fb.joint_travel == pytest.approx(np.linalg.norm(goal[:7] - previous[:7]), abs=1e-9)
+        previous = goal
+    assert sum(m.feedback.joint_travel for m in feedback) > 0.1  # the arm really moved
+    # arm_sim is at the last goal and its camera at the last view
+    time.sleep(0.5)
+    np.testing.assert_allclose(bench.latest["joints"].position, previous, atol=1e-3)
+    assert_pose_close(
+        matrix(*pose_to_arrays(bench.latest["pose"].pose)), *pose_to_arrays(feedback[-1].feedback.pose.pose)
+    )
+    assert (bench.state == -1).sum() < (scene() == -1).sum()  # the views saw something
+
+
+def test_plan_with_arm_through_the_servers_ranks_only_origins_the_arm_reaches(ros):
+    """Over /nbv/rank_views the capability map travels as allowed origins: every ranked view lies
+    where the map says the arm may reach, and the chosen view is reachable."""
+    from nbv_prob_cnn.arm.capability import load_or_build_capability_map
+
+    node, bench, graph = ros
+    robot = RobotModel()
+    graph.start_node("gain_server", "gain_server", {"dataset": "3dt", "method": "prob_ig"})
+    planner = {**ARM_PLANNER, "in_process": False, "capability_stride": 4, "arm_max_checks": 30}
+    graph.start_node("nbv_planner", "nbv_planner", planner)
+    bench.publish_grid()
+    bench.joints = (robot.joint_names, robot.reference_q)
+    request = PlanNextBestView.Request(top_k=1000)
+    _, reply = call_when_ready(node, PlanNextBestView, "/nbv/plan", request, "no grid received yet", 240.0)
+    assert reply.success and reply.reachable, reply.message
+    position, quaternion = pose_to_arrays(reply.best_pose.pose)
+    assert_pose_close(robot.camera_pose(np.array(reply.joint_goal.position)), position, quaternion)
+    capability = load_or_build_capability_map(robot, GEOMETRY, 4, progress=False)  # the map the planner cached
+    cells = GEOMETRY.containing_cell(np.array([pose_to_arrays(v.pose.pose)[0] for v in reply.ranked]))[0]
+    assert len(reply.ranked) > 10
+    assert capability.origin_filter(cells).shape[0] == cells.shape[0]  # all of them allowed
+    everywhere = GEOMETRY.containing_cell(GEOMETRY.cell_centre(np.argwhere(bench.state == 0)))[0]
+    assert capability.origin_filter(everywhere).shape[0] < everywhere.shape[0]  # the map does exclude cells
+
+
+def test_sim_camera_follows_the_arm(ros):
+    """With follow_arm the camera's frames are taken at arm_sim's camera pose, stamped with that
+    pose's stamp; moving the camera by request is refused while it rides on the arm."""
+    from geometry_msgs.msg import TransformStamped
+    from nbv_prob_cnn_msgs.srv import MoveCamera, MoveToJoints
+
+    node, bench, graph = ros
+    robot = RobotModel()
+    graph.start_node("arm_sim", "arm_sim", {"velocity_scale": 1.0, "rate_hz": 50.0})
+    graph.start_node("sim_camera", "sim_camera", {"follow_arm": True, "rate_hz": 5.0, "width": 64, "height": 48})
+    arm_poses: dict[int, PoseStamped] = {}
+    frames: list[TransformStamped] = []
+
+    def on_arm_pose(msg: PoseStamped) -> None:
+        arm_poses[msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec] = msg
+
+    node.create_subscription(PoseStamped, "/arm/camera_pose", on_arm_pose, 100)
+    node.create_subscription(TransformStamped, "/camera/pose", frames.append, 10)
+    deadline = time.monotonic() + 120
+    while len(frames) < 2 and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert len(frames) >= 2, "sim_camera published no frames"
+    goal = robot.reference_q.copy()
+    goal[0] += 0.5  # panda_joint1: the camera swings around the base
+    move = node.create_client(MoveToJoints, "/arm_sim/move_to_joints")
+    assert move.wait_for_service(timeout_sec=30)
+    assert wait(move.call_async(MoveToJoints.Request(name=robot.joint_names, position=list(goal)))).success
+    target = robot.camera_pose(goal)
+    deadline = time.monotonic() + 30
+
+    def last_position() -> np.ndarray:
+        t = frames[-1].transform.translation
+        return np.array([t.x, t.y, t.z])
+
+    while np.linalg.norm(last_position() - target[:3, 3]) > 1e-6 and time.monotonic() < deadline:
+        time.sleep(0.05)
+    np.testing.assert_allclose(last_position(), target[:3, 3], atol=1e-6)  # the frame at the arm's new pose
+    seen = len(frames)
+    while len(frames) < seen + 3 and time.monotonic() < deadline + 10:
+        time.sleep(0.05)
+    for frame in frames[seen : seen + 3]:  # frames long after both subscriptions matched
+        stamp = frame.header.stamp.sec * 1_000_000_000 + frame.header.stamp.nanosec
+        assert stamp in arm_poses, "a frame's stamp is not the stamp of an arm camera pose"
+        p, t = arm_poses[stamp].pose.position, frame.transform.translation
+        np.testing.assert_allclose([t.x, t.y, t.z], [p.x, p.y, p.z], atol=1e-9)
+    camera = node.create_client(MoveCamera, "/sim_camera/move_to")
+    assert camera.wait_for_service(timeout_sec=30)
+    refused = wait(camera.call_async(MoveCamera.Request()), 30)
+    assert not refused.success and "follow_arm" in refused.message
