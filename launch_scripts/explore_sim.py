@@ -26,8 +26,8 @@ from pathlib import Path
 from nbv_prob_cnn.camera import dataset_defaults
 from nbv_prob_cnn.ros.graph import NodeGraph, ros_environment, run_graph
 
-#: Arm parameters of sim_camera and integrator in the arm graph (one line each to add a parameter,
-#: e.g. ``"render_arm": True`` / ``"self_filter": True`` once those nodes declare them).
+#: Arm parameters of sim_camera and integrator in the arm graph: the camera rides on the arm and
+#: sees it, the integrator removes it from the depth before integration.
 SIM_CAMERA_WITH_ARM = {"follow_arm": True, "render_arm": True}
 INTEGRATOR_WITH_ARM = {"self_filter": True}
 #: The arm's start: the Panda's camera 0.90 m above the floor at x = 0.25 m, y = 0.742 m, looking at
