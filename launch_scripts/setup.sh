@@ -12,6 +12,19 @@ want="$(cat requirements.txt setup.py launch_scripts/setup.sh | sha256sum | cut 
 
 if [ -f "$stamp" ] && [ "$(cat "$stamp")" = "$want" ]; then
   VIRTUAL_ENV="$venv" bash "$repo/launch_scripts/build_interfaces.sh"
+
+# The OpenCL kernels need a device that compiles them. pip's pocl (pyopencl[pocl]) fails on CPUs
+# its LLVM does not know ("unknown target CPU 'generic'", e.g. some virtualised AMD EPYC); then the
+# Debian build of pocl (pocl-opencl-icd), which the bundled ICD loader also finds, is installed.
+probe_opencl() { "$venv/bin/python" -c "from nbv_prob_cnn.cl_device import cl_runtime; cl_runtime()" 2>"$venv/.nbv_opencl.log"; }
+if ! probe_opencl; then
+  echo "[setup] no OpenCL device compiles kernels with pip's pocl; installing Debian's pocl-opencl-icd"
+  SUDO=""
+  [ "$(id -u)" -ne 0 ] && SUDO="sudo"
+  $SUDO apt-get update -qq
+  DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq pocl-opencl-icd >/dev/null
+  probe_opencl || { tail -5 "$venv/.nbv_opencl.log"; echo "[setup] no usable OpenCL device"; exit 1; }
+fi
   exit 0
 fi
 
@@ -33,5 +46,18 @@ echo "[setup] installing pinned dependencies (requirements.txt)"
 "$venv/bin/python" -m pip install -q --disable-pip-version-check --no-deps -e . 2>"$venv/.nbv_install.log" \
   || { cat "$venv/.nbv_install.log"; exit 1; }
 VIRTUAL_ENV="$venv" bash "$repo/launch_scripts/build_interfaces.sh"
+
+# The OpenCL kernels need a device that compiles them. pip's pocl (pyopencl[pocl]) fails on CPUs
+# its LLVM does not know ("unknown target CPU 'generic'", e.g. some virtualised AMD EPYC); then the
+# Debian build of pocl (pocl-opencl-icd), which the bundled ICD loader also finds, is installed.
+probe_opencl() { "$venv/bin/python" -c "from nbv_prob_cnn.cl_device import cl_runtime; cl_runtime()" 2>"$venv/.nbv_opencl.log"; }
+if ! probe_opencl; then
+  echo "[setup] no OpenCL device compiles kernels with pip's pocl; installing Debian's pocl-opencl-icd"
+  SUDO=""
+  [ "$(id -u)" -ne 0 ] && SUDO="sudo"
+  $SUDO apt-get update -qq
+  DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq pocl-opencl-icd >/dev/null
+  probe_opencl || { tail -5 "$venv/.nbv_opencl.log"; echo "[setup] no usable OpenCL device"; exit 1; }
+fi
 echo "$want" > "$stamp"
 echo "[setup] done"
