@@ -98,6 +98,22 @@ def group_first_samples(padded: np.ndarray, origin_index: np.ndarray, group: int
     return np.ascontiguousarray(distance.reshape(-1, group).min(axis=1), dtype=np.int32)
 
 
+def ray_bits(rays: np.ndarray) -> np.ndarray:
+    """``(N, R)`` booleans as the kernel's ray bit sets: ``(N, ceil(R / 32))`` uint32, ray ``h``
+    in bit ``h % 32`` of word ``h // 32``."""
+    rays = np.asarray(rays, dtype=bool)
+    padded = np.zeros((rays.shape[0], -(-rays.shape[1] // 32) * 32), dtype=bool)
+    padded[:, : rays.shape[1]] = rays
+    return np.ascontiguousarray(np.packbits(padded, axis=1, bitorder="little")).view("<u4").astype(np.uint32)
+
+
+def group_ray_masks(ray_masks: np.ndarray, group: int) -> np.ndarray:
+    """Per block of ``group`` consecutive origins the union of their ray bit sets."""
+    padding = -ray_masks.shape[0] % group
+    rows = np.concatenate([ray_masks, np.zeros((padding, ray_masks.shape[1]), ray_masks.dtype)])
+    return np.ascontiguousarray(np.bitwise_or.reduce(rows.reshape(-1, group, rows.shape[1]), axis=1))
+
+
 def block_corners(cells: np.ndarray, dims: int, size: int) -> np.ndarray:
     """Per padded cell coordinate ``(N, 3)``, the corner ``c`` of its block ``c - {0 .. size-1}``
     per marched axis (padded coordinates ``1 .. size``, ``size + 1 .. 2 size``, ...)."""
@@ -218,18 +234,24 @@ class OpenCLRayCaster:
         eps: float,
         min_range: float,
         local_size: int = VIEW_GAIN_LOCAL_SIZE,
+        ray_masks: np.ndarray | None = None,
     ) -> np.ndarray:
         """View gains ``(N, V)`` float32: the ray gains of each origin summed over the rays of
-        each view (``membership`` is the ``(R, V)`` 0/1 ray-in-view matrix)."""
+        each view (``membership`` is the ``(R, V)`` 0/1 ray-in-view matrix). ``ray_masks``: see
+        :meth:`_views` (None: every ray)."""
         code_buf, padded, origin_index, offset_buf = self._common(code, origins, offsets)
         return self._views(
             code_buf, padded, origin_index, offset_buf, offsets.shape, membership, code.ndim - 1, total_weight,
-            mode, eps, min_range, local_size,
+            mode, eps, min_range, local_size, ray_masks,
         )  # fmt: skip
 
     def _views(self, code_buf, padded, origin_index, offset_buf, offsets_shape, membership, nu, total_weight,
-               mode, eps, min_range, local_size=VIEW_GAIN_LOCAL_SIZE) -> np.ndarray:  # fmt: skip
-        """``view_gain`` on a device grid ``code_buf`` (host copy ``padded``) at linear origins."""
+               mode, eps, min_range, local_size=VIEW_GAIN_LOCAL_SIZE, ray_masks=None) -> np.ndarray:  # fmt: skip
+        """``view_gain`` on a device grid ``code_buf`` (host copy ``padded``) at linear origins.
+
+        ``ray_masks``: None (march every ray) or per origin the rays to march, ``(N, words)``
+        uint32 from :func:`ray_bits`; a work-group marches the union of its origins' rays, and
+        the sums of views with a masked-out ray are lower bounds of their gains."""
         cl, mf = self._cl, self._cl.mem_flags
         n, (r, n_samples), v = origin_index.shape[0], offsets_shape[:2], membership.shape[1]
         out = np.empty((n, v), dtype=np.float32)
@@ -241,23 +263,32 @@ class OpenCLRayCaster:
         local_size = int(min(local_size, self.device.max_work_group_size))
         local_size = max(1, min(local_size, self.device.local_mem_size // (4 * r)))
         first_sample = group_first_samples(padded, origin_index, local_size)
+        group_masks = all_rays = ray_bits(np.ones((1, r), dtype=bool))
+        if ray_masks is not None:
+            group_masks = group_ray_masks(ray_masks, local_size)
+        mask_stride = 0 if ray_masks is None else group_masks.shape[1]
         block = min(n, VIEW_GAIN_ORIGINS_PER_LAUNCH // local_size * local_size)
         origin_buf = cl.Buffer(self.context, mf.READ_ONLY, block * 4)
         first_buf = cl.Buffer(self.context, mf.READ_ONLY, -(-block // local_size) * 4)
+        mask_bytes = max(all_rays.nbytes, -(-block // local_size) * 4 * mask_stride)
+        mask_buf = cl.Buffer(self.context, mf.READ_ONLY, mask_bytes)
+        if ray_masks is None:
+            cl.enqueue_copy(self.queue, mask_buf, all_rays)
         out_buf = cl.Buffer(self.context, mf.WRITE_ONLY, block * v * 4)
         kernel = self._view_kernel
         for begin in range(0, n, block):
             count = min(block, n - begin)
             cl.enqueue_copy(self.queue, origin_buf, np.ascontiguousarray(origin_index[begin : begin + count]))
-            group = begin // local_size
-            cl.enqueue_copy(self.queue, first_buf, first_sample[group : group + -(-count // local_size)])
+            group, groups = begin // local_size, -(-count // local_size)
+            cl.enqueue_copy(self.queue, first_buf, first_sample[group : group + groups])
+            if ray_masks is not None:
+                cl.enqueue_copy(self.queue, mask_buf, np.ascontiguousarray(group_masks[group : group + groups]))
             kernel.set_args(
                 code_buf, origin_buf, np.int32(count), offset_buf, np.int32(r), np.int32(n_samples),
                 np.int32(nu), np.float32(1.0 / total_weight), np.float32(eps), np.int32(MODES[mode]),
-                np.float32(min_range), start_buf, rays_buf, np.int32(v), first_buf,
+                np.float32(min_range), start_buf, rays_buf, np.int32(v), first_buf, mask_buf, np.int32(mask_stride),
                 cl.LocalMemory(4 * r * local_size), out_buf,
             )  # fmt: skip
-            groups = -(-count // local_size)
             cl.enqueue_nd_range_kernel(self.queue, kernel, (groups * local_size,), (local_size,))
             cl.enqueue_copy(self.queue, out[begin : begin + count], out_buf)
         self.queue.finish()
@@ -328,11 +359,12 @@ class OpenCLRayCaster:
         code_buf, padded, origin_index, offset_buf = self._common(code, origins, offsets)
         block_of, view_bound = self._block_bounds(padded, origins, offsets, membership, total_weight, mode,
                                                   block_size, MIN_ORIGINS_PER_BLOCK)  # fmt: skip
+        sparse = view_bound is None
         if view_bound is None:  # sparse origins: evaluate them all at once
             block_of, view_bound, first_batch = np.zeros(n, dtype=np.int64), np.ones((1, 1), np.float32), n
-        block_bound = view_bound.max(axis=1)
         # float32 sums in a different order: a margin far above their rounding error
-        block_bound = block_bound * np.float32(1.0 + BOUND_MARGIN) + np.float32(BOUND_MARGIN)
+        view_bound = view_bound * np.float32(1.0 + BOUND_MARGIN) + np.float32(BOUND_MARGIN)
+        block_bound = view_bound.max(axis=1)
         rank = np.empty(block_bound.size, dtype=np.int64)
         rank[np.argsort(-block_bound, kind="stable")] = np.arange(block_bound.size)
         order = np.argsort(rank[block_of], kind="stable")
@@ -342,10 +374,14 @@ class OpenCLRayCaster:
         while done < n and origin_bound[done] >= best[0]:
             stop = min(n, done + batch)
             stop = done + int(np.count_nonzero(origin_bound[done:stop] >= best[0]))
-            chosen = order[done:stop]
+            chosen, masks = order[done:stop], None
+            if best[0] >= 0.0 and not sparse:
+                pattern, pattern_rays = needed_rays(view_bound, block_of[chosen], best[0], membership)
+                by_pattern = np.argsort(pattern, kind="stable")  # work-groups of one ray set
+                chosen, masks = chosen[by_pattern], pattern_rays[pattern[by_pattern]]
             gains = self._views(
                 code_buf, padded, origin_index[chosen], offset_buf, offsets.shape, membership, dims - 1,
-                total_weight, mode, eps, min_range,
+                total_weight, mode, eps, min_range, ray_masks=masks,
             )  # fmt: skip
             top = float(gains.max())
             rows, cols = np.nonzero(gains == gains.max())
@@ -355,6 +391,20 @@ class OpenCLRayCaster:
                 best = candidate
             done, batch = stop, batch * 2
         return best[1], best[2], best[0], done
+
+def needed_rays(
+    view_bound: np.ndarray, block_of: np.ndarray, best: float, membership: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """The rays worth marching from origins of blocks ``block_of``: those of the views whose
+    block bound reaches ``best`` (no other view can reach or beat the best gain found; their
+    sums become lower bounds, below ``best``). Returns per origin a ray-set index and the ray
+    sets as :func:`ray_bits` rows."""
+    blocks, block_row = np.unique(block_of, return_inverse=True)
+    reach = view_bound[blocks] >= np.float32(best)
+    _, first, pattern_row = np.unique(np.packbits(reach, axis=1), axis=0, return_index=True, return_inverse=True)
+    rays = reach[first].astype(np.float32) @ (np.asarray(membership).T != 0).astype(np.float32) > 0.0
+    return pattern_row.ravel()[block_row.ravel()], ray_bits(rays)
+
 
 @functools.lru_cache(maxsize=1)
 def get_ray_caster() -> OpenCLRayCaster:

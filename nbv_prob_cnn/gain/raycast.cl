@@ -75,12 +75,18 @@ __kernel void ray_gain(__global const float *code, __global const int *origins, 
 // work-items march the same ray from neighbouring cells (coherent loops and memory reads), into
 // local memory; then the group sums the rays of each (origin, view) pair (view_start/view_rays:
 // the view -> rays membership as compressed rows, rays ascending). out is (n_origins, n_views).
+// ray_mask: per work-group a bit set of the rays to march (bit h & 31 of word h >> 5; the next
+// group's row starts mask_stride words later, mask_stride = 0: one row for every group). A
+// masked-out ray counts 0, so a view's sum is exact when all its rays are marched and a lower
+// bound otherwise (the coarse-to-fine search masks only rays of views that cannot win). The
+// test is the same for every work-item of the group: the marching loop stays in lock step.
 __kernel void view_gain(__global const float *code, __global const int *origins, const int n_origins,
                         __global const int *offsets, const int n_rays, const int n_samples,
                         const int nu, const float inv_total, const float eps,
                         const int mode, const float min_range,
                         __global const int *view_start, __global const int *view_rays, const int n_views,
-                        __global const int *group_first_sample, __local float *ray_gains, __global float *out)
+                        __global const int *group_first_sample, __global const uint *ray_mask, const int mask_stride,
+                        __local float *ray_gains, __global float *out)
 {
     const int lid = get_local_id(0);
     const int size = get_local_size(0);
@@ -88,7 +94,12 @@ __kernel void view_gain(__global const float *code, __global const int *origins,
     const int first_sample = group_first_sample[get_group_id(0)];
     const int origin = origins[min(first + lid, n_origins - 1)];
     __local float *mine = ray_gains + (size_t)lid * n_rays;
+    __global const uint *mask = ray_mask + (size_t)get_group_id(0) * mask_stride;
     for (int h = 0; h < n_rays; ++h) {
+        if (((mask[h >> 5] >> (h & 31)) & 1u) == 0u) {
+            mine[h] = 0.0f;
+            continue;
+        }
         mine[h] = march_ray(code, origin, offsets + (size_t)h * n_samples, first_sample, n_samples, nu,
                             inv_total, eps, mode, min_range);
     }
