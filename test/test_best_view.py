@@ -6,7 +6,7 @@ import pytest
 from nbv_prob_cnn.camera import orientations
 from nbv_prob_cnn.gain import best_origin_view, origin_view_gains, ray_directions, view_membership
 from nbv_prob_cnn.gain.directions import distance_weights, sample_offsets
-from nbv_prob_cnn.gain.opencl import encode_grid, get_ray_caster, ray_bits
+from nbv_prob_cnn.gain.opencl import encode_grid, get_ray_caster
 
 E, O, U = 0, 1, -1  # noqa: E741
 
@@ -154,43 +154,35 @@ def test_best_view_sparse_origins_evaluated_exhaustively():
 
 @pytest.mark.parametrize("shape,n_rays,r_max", [((19, 17, 15), 16, 8), ((40, 36), 16, 24)])
 @pytest.mark.parametrize("mode", ["prob", "ig"])
-def test_masked_view_gains_sum_the_marched_rays(shape, n_rays, r_max, mode):
-    """Ray masks: one ray set for every origin gives exactly the reference gains of the rays in
-    the set summed per view; per-origin sets march the union of a work-group's sets, so each
-    origin's sums lie between its own set's sums and the full gains, equal to the full gains
-    for views whose rays are all in its set."""
+def test_view_sets_give_exact_gains_of_their_views(shape, n_rays, r_max, mode):
+    """View sets: one set for every origin gives the reference gains of its views and 0 for the
+    others (their rays are not marched); per-origin sets sum a work-group's union of views, so
+    every origin's own views are exact and every other view is exact or 0."""
     state, prob = _explored_world(np.random.default_rng(5), shape)
     d, member = _setup(shape, n_rays)
     p = prob if mode == "prob" else None
     origins = np.argwhere(state == E)
-    rays = get_reference_rays(state, p, d, r_max, origins, mode)
+    reference = origin_view_gains(state, p, d, r_max, member, origins, "numpy", mode=mode, min_range=2)
     code, offsets = encode_grid(state, p), sample_offsets(d, r_max)
     total = float(distance_weights(r_max, len(shape)).sum())
     rng = np.random.default_rng(6)
-    keep = rng.random(d.shape[0]) < 0.3
-    shared = np.repeat(ray_bits(keep[None]), origins.shape[0], axis=0)
-    masked = get_ray_caster().run_views(code, origins, offsets, member, total, mode, 0.0, 2.0, ray_masks=shared)
-    assert np.abs(masked - (rays * keep) @ member).max() <= 1e-4
-    assert masked.max() > 0 and np.abs(masked - rays @ member).max() > 0.01  # masked rays really count 0
-    own = rng.random((origins.shape[0], d.shape[0])) < 0.3
-    own[:, member[:, 0] != 0] = True  # view 0 complete for every origin
-    mixed = get_ray_caster().run_views(code, origins, offsets, member, total, mode, 0.0, 2.0, ray_masks=ray_bits(own))
-    assert np.all(mixed >= (rays * own) @ member - 1e-4) and np.all(mixed <= rays @ member + 1e-4)
-    assert np.abs(mixed[:, 0] - (rays @ member)[:, 0]).max() <= 1e-4
-
-
-def get_reference_rays(state, prob, directions, r_max, origins, mode):
-    """The numpy reference's ``(N, R)`` ray gains."""
-    from nbv_prob_cnn.gain import ray_gains
-
-    return ray_gains(state, prob, directions, r_max, origins, "numpy", mode=mode, min_range=2)
+    keep = rng.random(member.shape[1]) < 0.3
+    shared = np.repeat(keep[None], origins.shape[0], axis=0)
+    got = get_ray_caster().run_views(code, origins, offsets, member, total, mode, 0.0, 2.0, view_sets=shared)
+    assert np.abs(got - reference * keep).max() <= 1e-4
+    assert (reference * keep).max() > 0.05 and (reference * ~keep).max() > 0.05  # both parts meaningful
+    own = rng.random((origins.shape[0], member.shape[1])) < 0.2
+    mixed = get_ray_caster().run_views(code, origins, offsets, member, total, mode, 0.0, 2.0, view_sets=own)
+    exact = np.abs(mixed - reference) <= 1e-4
+    assert np.all(exact[own]) and np.all(exact | (mixed == 0.0))
+    assert np.count_nonzero(~exact & (reference > 0)) > 0  # some views really left out
 
 
 @pytest.mark.parametrize("mode", ["prob", "ig"])
-def test_best_view_marches_only_rays_of_views_that_can_win(monkeypatch, mode):
-    """After the first batch, origins march only the rays of views whose block bound reaches
-    the best gain: far fewer rays, the same (origin, view, gain) as the exhaustive search and
-    the numpy reference."""
+def test_best_view_evaluates_only_views_that_can_win(monkeypatch, mode):
+    """After the first batch, origins evaluate (and march the rays of) only the views whose
+    block bound reaches the best gain: the same (origin, view, gain) as the exhaustive search
+    and the numpy reference."""
     import nbv_prob_cnn.gain.opencl as opencl
 
     shape, n_rays, r_max = (20, 18, 16), 16, 10
@@ -198,23 +190,23 @@ def test_best_view_marches_only_rays_of_views_that_can_win(monkeypatch, mode):
     d, member = _setup(shape, n_rays)
     p = prob if mode == "prob" else None
     origins = np.argwhere(state == E)
-    marched: list[float] = []
+    evaluated: list[float] = []
 
     def spy(*args):
-        pattern, bits = needed_rays(*args)
-        marched.append(float(np.unpackbits(bits.view(np.uint8), axis=1)[pattern].mean()))
-        return pattern, bits
+        row, sets = reaching_views(*args)
+        evaluated.append(float(sets[row].mean()))
+        return row, sets
 
-    needed_rays = opencl.needed_rays
-    monkeypatch.setattr(opencl, "needed_rays", spy)
+    reaching_views = opencl.reaching_views
+    monkeypatch.setattr(opencl, "reaching_views", spy)
     code, total = encode_grid(state, p), float(distance_weights(r_max, 3).sum())
-    index, view, gain, evaluated = get_ray_caster().best_view(
+    index, view, gain, _ = get_ray_caster().best_view(
         code, origins, sample_offsets(d, r_max), member, total, mode, 0.0, 2.0, first_batch=8
     )
     reference = origin_view_gains(state, p, d, r_max, member, origins, "numpy", mode=mode, min_range=2)
     exhaustive = origin_view_gains(state, p, d, r_max, member, origins, "opencl", mode=mode, min_range=2)
-    assert marched and max(marched) < 1.0 and min(marched) < 0.75  # ray sets really shrink
+    assert evaluated and max(evaluated) < 1.0 and min(evaluated) < 0.75  # view sets really shrink
     assert (index, view) == divmod(int(np.argmax(exhaustive)), exhaustive.shape[1])
     assert gain == exhaustive.max()
-    assert reference.flat[index * reference.shape[1] + view] >= reference.max() - 1e-6  # a reference maximum
+    assert reference[index, view] >= reference.max() - 1e-6  # a reference maximum
     assert abs(gain - reference.max()) <= 1e-4

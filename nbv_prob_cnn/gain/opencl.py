@@ -98,20 +98,25 @@ def group_first_samples(padded: np.ndarray, origin_index: np.ndarray, group: int
     return np.ascontiguousarray(distance.reshape(-1, group).min(axis=1), dtype=np.int32)
 
 
-def ray_bits(rays: np.ndarray) -> np.ndarray:
-    """``(N, R)`` booleans as the kernel's ray bit sets: ``(N, ceil(R / 32))`` uint32, ray ``h``
-    in bit ``h % 32`` of word ``h // 32``."""
-    rays = np.asarray(rays, dtype=bool)
-    padded = np.zeros((rays.shape[0], -(-rays.shape[1] // 32) * 32), dtype=bool)
-    padded[:, : rays.shape[1]] = rays
+def bit_words(flags: np.ndarray) -> np.ndarray:
+    """``(N, K)`` booleans as the kernel's bit sets: ``(N, ceil(K / 32))`` uint32, item ``k``
+    in bit ``k % 32`` of word ``k // 32``."""
+    flags = np.asarray(flags, dtype=bool)
+    padded = np.zeros((flags.shape[0], -(-flags.shape[1] // 32) * 32), dtype=bool)
+    padded[:, : flags.shape[1]] = flags
     return np.ascontiguousarray(np.packbits(padded, axis=1, bitorder="little")).view("<u4").astype(np.uint32)
 
 
-def group_ray_masks(ray_masks: np.ndarray, group: int) -> np.ndarray:
-    """Per block of ``group`` consecutive origins the union of their ray bit sets."""
-    padding = -ray_masks.shape[0] % group
-    rows = np.concatenate([ray_masks, np.zeros((padding, ray_masks.shape[1]), ray_masks.dtype)])
-    return np.ascontiguousarray(np.bitwise_or.reduce(rows.reshape(-1, group, rows.shape[1]), axis=1))
+def group_sets(view_sets: np.ndarray, membership: np.ndarray, group: int = 1) -> np.ndarray:
+    """The kernel's per-work-group rows for ``(N, V)`` per-origin view sets: per block of
+    ``group`` consecutive origins the union of their views, then the union of those views'
+    rays (``membership``), each as :func:`bit_words` words."""
+    padding = -view_sets.shape[0] % group
+    views = np.concatenate([view_sets, np.zeros((padding, view_sets.shape[1]), dtype=bool)]).astype(bool)
+    views = views.reshape(-1, group, views.shape[1]).any(axis=1)
+    unique, row = np.unique(views, axis=0, return_inverse=True)
+    rays = unique.astype(np.float32) @ (np.asarray(membership).T != 0).astype(np.float32) > 0.0
+    return np.ascontiguousarray(np.concatenate([bit_words(unique), bit_words(rays)], axis=1)[row.ravel()])
 
 
 def block_corners(cells: np.ndarray, dims: int, size: int) -> np.ndarray:
@@ -234,24 +239,24 @@ class OpenCLRayCaster:
         eps: float,
         min_range: float,
         local_size: int = VIEW_GAIN_LOCAL_SIZE,
-        ray_masks: np.ndarray | None = None,
+        view_sets: np.ndarray | None = None,
     ) -> np.ndarray:
         """View gains ``(N, V)`` float32: the ray gains of each origin summed over the rays of
-        each view (``membership`` is the ``(R, V)`` 0/1 ray-in-view matrix). ``ray_masks``: see
-        :meth:`_views` (None: every ray)."""
+        each view (``membership`` is the ``(R, V)`` 0/1 ray-in-view matrix). ``view_sets``: see
+        :meth:`_views` (None: every view)."""
         code_buf, padded, origin_index, offset_buf = self._common(code, origins, offsets)
         return self._views(
             code_buf, padded, origin_index, offset_buf, offsets.shape, membership, code.ndim - 1, total_weight,
-            mode, eps, min_range, local_size, ray_masks,
+            mode, eps, min_range, local_size, view_sets,
         )  # fmt: skip
 
     def _views(self, code_buf, padded, origin_index, offset_buf, offsets_shape, membership, nu, total_weight,
-               mode, eps, min_range, local_size=VIEW_GAIN_LOCAL_SIZE, ray_masks=None) -> np.ndarray:  # fmt: skip
+               mode, eps, min_range, local_size=VIEW_GAIN_LOCAL_SIZE, view_sets=None) -> np.ndarray:  # fmt: skip
         """``view_gain`` on a device grid ``code_buf`` (host copy ``padded``) at linear origins.
 
-        ``ray_masks``: None (march every ray) or per origin the rays to march, ``(N, words)``
-        uint32 from :func:`ray_bits`; a work-group marches the union of its origins' rays, and
-        the sums of views with a masked-out ray are lower bounds of their gains."""
+        ``view_sets``: None (every view exact) or per origin the views wanted exactly, ``(N, V)``
+        booleans: a work-group sums the union of its origins' views and marches only their rays;
+        other views get 0 (a lower bound of their gains)."""
         cl, mf = self._cl, self._cl.mem_flags
         n, (r, n_samples), v = origin_index.shape[0], offsets_shape[:2], membership.shape[1]
         out = np.empty((n, v), dtype=np.float32)
@@ -263,17 +268,15 @@ class OpenCLRayCaster:
         local_size = int(min(local_size, self.device.max_work_group_size))
         local_size = max(1, min(local_size, self.device.local_mem_size // (4 * r)))
         first_sample = group_first_samples(padded, origin_index, local_size)
-        group_masks = all_rays = ray_bits(np.ones((1, r), dtype=bool))
-        if ray_masks is not None:
-            group_masks = group_ray_masks(ray_masks, local_size)
-        mask_stride = 0 if ray_masks is None else group_masks.shape[1]
+        every = group_sets(np.ones((1, v), dtype=bool), membership)
+        sets = every if view_sets is None else group_sets(view_sets, membership, local_size)
+        set_stride = 0 if view_sets is None else sets.shape[1]
         block = min(n, VIEW_GAIN_ORIGINS_PER_LAUNCH // local_size * local_size)
         origin_buf = cl.Buffer(self.context, mf.READ_ONLY, block * 4)
         first_buf = cl.Buffer(self.context, mf.READ_ONLY, -(-block // local_size) * 4)
-        mask_bytes = max(all_rays.nbytes, -(-block // local_size) * 4 * mask_stride)
-        mask_buf = cl.Buffer(self.context, mf.READ_ONLY, mask_bytes)
-        if ray_masks is None:
-            cl.enqueue_copy(self.queue, mask_buf, all_rays)
+        set_buf = cl.Buffer(self.context, mf.READ_ONLY, max(every.nbytes, -(-block // local_size) * 4 * set_stride))
+        if view_sets is None:
+            cl.enqueue_copy(self.queue, set_buf, every)
         out_buf = cl.Buffer(self.context, mf.WRITE_ONLY, block * v * 4)
         kernel = self._view_kernel
         for begin in range(0, n, block):
@@ -281,12 +284,13 @@ class OpenCLRayCaster:
             cl.enqueue_copy(self.queue, origin_buf, np.ascontiguousarray(origin_index[begin : begin + count]))
             group, groups = begin // local_size, -(-count // local_size)
             cl.enqueue_copy(self.queue, first_buf, first_sample[group : group + groups])
-            if ray_masks is not None:
-                cl.enqueue_copy(self.queue, mask_buf, np.ascontiguousarray(group_masks[group : group + groups]))
+            if view_sets is not None:
+                cl.enqueue_copy(self.queue, set_buf, np.ascontiguousarray(sets[group : group + groups]))
             kernel.set_args(
                 code_buf, origin_buf, np.int32(count), offset_buf, np.int32(r), np.int32(n_samples),
                 np.int32(nu), np.float32(1.0 / total_weight), np.float32(eps), np.int32(MODES[mode]),
-                np.float32(min_range), start_buf, rays_buf, np.int32(v), first_buf, mask_buf, np.int32(mask_stride),
+                np.float32(min_range), start_buf, rays_buf, np.int32(v), first_buf, set_buf, np.int32(set_stride),
+                np.int32(-(-v // 32)),
                 cl.LocalMemory(4 * r * local_size), out_buf,
             )  # fmt: skip
             cl.enqueue_nd_range_kernel(self.queue, kernel, (groups * local_size,), (local_size,))
@@ -338,6 +342,7 @@ class OpenCLRayCaster:
         min_range: float,
         first_batch: int = BEST_VIEW_FIRST_BATCH,
         block_size: int = BOUND_BLOCK,
+        prune_views: bool = True,
     ) -> tuple[int, int, float, int]:
         """The first ``(origin, view)`` of largest ``G_W`` in origin-major order, exactly as the
         exhaustive ``run_views(...)`` argmax, without computing every origin's gains.
@@ -350,7 +355,9 @@ class OpenCLRayCaster:
         stopped; ``Pr <= 1`` and ``t >= min_range`` only lower the true gain, also for ``ig``).
         Origins are then evaluated exactly in order of decreasing block bound, in growing
         batches, until the next bound is below the best exact gain (with a float32 rounding
-        margin): no pruned origin can beat or tie it.
+        margin): no pruned origin can beat or tie it. With ``prune_views``, after the first batch
+        each origin evaluates only the views whose block bound reaches the best gain so far and
+        marches only their rays (see :func:`reaching_views`; the others cannot beat or tie it).
 
         Returns:
             ``(origin position, view, gain, origins evaluated exactly)``.
@@ -374,14 +381,14 @@ class OpenCLRayCaster:
         while done < n and origin_bound[done] >= best[0]:
             stop = min(n, done + batch)
             stop = done + int(np.count_nonzero(origin_bound[done:stop] >= best[0]))
-            chosen, masks = order[done:stop], None
-            if best[0] >= 0.0 and not sparse:
-                pattern, pattern_rays = needed_rays(view_bound, block_of[chosen], best[0], membership)
-                by_pattern = np.argsort(pattern, kind="stable")  # work-groups of one ray set
-                chosen, masks = chosen[by_pattern], pattern_rays[pattern[by_pattern]]
+            chosen, view_sets = order[done:stop], None
+            if prune_views and best[0] >= 0.0 and not sparse:
+                pattern, reach = reaching_views(view_bound, block_of[chosen], best[0])
+                by_pattern = np.argsort(pattern, kind="stable")  # work-groups of one view set
+                chosen, view_sets = chosen[by_pattern], reach[pattern[by_pattern]]
             gains = self._views(
                 code_buf, padded, origin_index[chosen], offset_buf, offsets.shape, membership, dims - 1,
-                total_weight, mode, eps, min_range, ray_masks=masks,
+                total_weight, mode, eps, min_range, view_sets=view_sets,
             )  # fmt: skip
             top = float(gains.max())
             rows, cols = np.nonzero(gains == gains.max())
@@ -392,18 +399,14 @@ class OpenCLRayCaster:
             done, batch = stop, batch * 2
         return best[1], best[2], best[0], done
 
-def needed_rays(
-    view_bound: np.ndarray, block_of: np.ndarray, best: float, membership: np.ndarray
-) -> tuple[np.ndarray, np.ndarray]:
-    """The rays worth marching from origins of blocks ``block_of``: those of the views whose
-    block bound reaches ``best`` (no other view can reach or beat the best gain found; their
-    sums become lower bounds, below ``best``). Returns per origin a ray-set index and the ray
-    sets as :func:`ray_bits` rows."""
+def reaching_views(view_bound: np.ndarray, block_of: np.ndarray, best: float) -> tuple[np.ndarray, np.ndarray]:
+    """The views worth evaluating from origins of blocks ``block_of``: those whose block bound
+    reaches ``best`` (no other view can reach or beat the best gain found). Returns per origin a
+    view-set index and the distinct view sets ``(P, V)`` bool."""
     blocks, block_row = np.unique(block_of, return_inverse=True)
     reach = view_bound[blocks] >= np.float32(best)
-    _, first, pattern_row = np.unique(np.packbits(reach, axis=1), axis=0, return_index=True, return_inverse=True)
-    rays = reach[first].astype(np.float32) @ (np.asarray(membership).T != 0).astype(np.float32) > 0.0
-    return pattern_row.ravel()[block_row.ravel()], ray_bits(rays)
+    sets, set_row = np.unique(reach, axis=0, return_inverse=True)
+    return set_row.ravel()[block_row.ravel()], sets
 
 
 @functools.lru_cache(maxsize=1)
