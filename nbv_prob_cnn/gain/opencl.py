@@ -112,9 +112,8 @@ def group_sets(view_sets: np.ndarray, membership: np.ndarray, group: int = 1) ->
     ``group`` consecutive origins the union of their views, then the union of those views'
     rays (``membership``), each as :func:`bit_words` words."""
     padding = -view_sets.shape[0] % group
-    views = np.concatenate([view_sets, np.zeros((padding, view_sets.shape[1]), dtype=bool)]).astype(bool)
-    views = views.reshape(-1, group, views.shape[1]).any(axis=1)
-    unique, row = np.unique(views, axis=0, return_inverse=True)
+    rows = np.concatenate([view_sets, np.zeros((padding, view_sets.shape[1]), dtype=bool)]).astype(bool)
+    unique, row = np.unique(rows.reshape(-1, group, rows.shape[1]).any(axis=1), axis=0, return_inverse=True)
     rays = unique.astype(np.float32) @ (np.asarray(membership).T != 0).astype(np.float32) > 0.0
     return np.ascontiguousarray(np.concatenate([bit_words(unique), bit_words(rays)], axis=1)[row.ravel()])
 
