@@ -11,7 +11,7 @@ HELP = (
     "Benchmarks: planning iterations on half-explored grids (OpenCL vs numpy), CNN inference, TSDF "
     "integration, the transport overhead of the ROS node split, and the arm (capability map, IK, added cost)."
 )
-SUITES = ("planning", "cnn", "integrator", "ros", "arm")
+SUITES = ("planning", "sweep", "cnn", "integrator", "ros", "arm")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -19,6 +19,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seed", type=int, default=1000, help="world seed of every case")
     parser.add_argument("--repeats", type=int, default=3, help="OpenCL repetitions (best is reported)")
     parser.add_argument("--numpy-origins", type=int, default=3000, help="origins timed on the numpy reference")
+    parser.add_argument("--views", type=int, default=20, help="sweep: views of the timed exploration")
+    parser.add_argument("--out", default="docs", help="sweep: folder of the CSV and PNG")
     parser.add_argument(
         "--cases",
         nargs="*",
@@ -32,6 +34,7 @@ def run(args: argparse.Namespace) -> int:
         print(f"## {suite}", flush=True)
         runners = {
             "planning": run_planning,
+            "sweep": run_sweep,
             "cnn": run_cnn,
             "integrator": run_integrator,
             "ros": run_ros,
@@ -40,6 +43,20 @@ def run(args: argparse.Namespace) -> int:
         runners[suite](args)
         print(flush=True)
     return 0
+
+
+def run_sweep(args: argparse.Namespace) -> None:
+    """View search time against explored fraction, per case of ``--cases`` (default 3du:16)."""
+    from pathlib import Path
+
+    from nbv_prob_cnn.benchmark import planning_time_sweep, write_sweep
+
+    for case in (_parse_case(c) for c in (args.cases or ["3du:16"])):
+        rows = planning_time_sweep(case.dataset, case.n_rays, args.views, args.seed)
+        label = f"{case.dataset}_n{case.n_rays}"
+        csv_path, png = write_sweep(rows, label, Path(args.out))
+        same = all(r[-1] for r in rows)
+        print(f"{label}: {len(rows)} iterations, same best view in all: {'yes' if same else 'NO'}; {csv_path}, {png}")
 
 
 def run_integrator(args: argparse.Namespace) -> None:
@@ -95,7 +112,8 @@ def run_planning(args: argparse.Namespace) -> None:
     print()
     print(
         "iteration = the planner's full iteration (CNN included for cnn_prob); pruned = its view search alone "
-        "(exact coarse-to-fine argmax); fused = the exhaustive fused view search; "
+        "(exact coarse-to-fine argmax); pruned, all views = the same without pruning views "
+        "(prune_views=False); fused = the exhaustive fused view search; "
         "two-step = the previous kernel + "
         "(origins × rays) @ (rays × views); naive = float marching to the first occupied cell + the same "
         "product. Effective samples/s = origins × rays × (R_max + 1) / time. Peak memory = tracemalloc peak "
