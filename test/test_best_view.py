@@ -210,3 +210,18 @@ def test_best_view_evaluates_only_views_that_can_win(monkeypatch, mode):
     assert gain == exhaustive.max()
     assert reference[index, view] >= reference.max() - 1e-6  # a reference maximum
     assert abs(gain - reference.max()) <= 1e-4
+
+
+@pytest.mark.parametrize("width", [5, 33, 52, 64, 65, 130])
+def test_unique_rows_matches_numpy_unique(width):
+    """The 64-bit-key fast path (width <= 64) and the word path give numpy's distinct rows and
+    an inverse that rebuilds the input."""
+    from nbv_prob_cnn.gain.opencl import unique_rows
+
+    rng = np.random.default_rng(width)
+    flags = rng.random((400, width)) < 0.5
+    flags[200:] = flags[:200]  # repeated rows
+    flags[0, -1], flags[1, -1] = True, False  # the last bit matters
+    rows, inverse = unique_rows(flags)
+    assert np.array_equal(rows[inverse], flags)
+    assert rows.shape[0] == np.unique(flags, axis=0).shape[0]

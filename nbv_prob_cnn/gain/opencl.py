@@ -113,9 +113,23 @@ def group_sets(view_sets: np.ndarray, membership: np.ndarray, group: int = 1) ->
     rays (``membership``), each as :func:`bit_words` words."""
     padding = -view_sets.shape[0] % group
     rows = np.concatenate([view_sets, np.zeros((padding, view_sets.shape[1]), dtype=bool)]).astype(bool)
-    unique, row = np.unique(rows.reshape(-1, group, rows.shape[1]).any(axis=1), axis=0, return_inverse=True)
+    unique, row = unique_rows(np.asarray(rows.reshape(-1, group, rows.shape[1]).any(axis=1)))
     rays = unique.astype(np.float32) @ (np.asarray(membership).T != 0).astype(np.float32) > 0.0
-    return np.ascontiguousarray(np.concatenate([bit_words(unique), bit_words(rays)], axis=1)[row.ravel()])
+    return np.ascontiguousarray(np.concatenate([bit_words(unique), bit_words(rays)], axis=1)[row])
+
+
+def unique_rows(flags: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The distinct rows of an ``(N, K)`` boolean array and per row its index among them (a
+    1-D sort of 64-bit keys when ``K <= 64``, much faster than ``np.unique(axis=0)``)."""
+    words = bit_words(flags)
+    if words.shape[1] <= 2:
+        key = words[:, 0].astype(np.uint64)
+        if words.shape[1] == 2:
+            key |= words[:, 1].astype(np.uint64) << np.uint64(32)
+        _, first, row = np.unique(key, return_index=True, return_inverse=True)
+    else:
+        _, first, row = np.unique(words, axis=0, return_index=True, return_inverse=True)
+    return np.asarray(flags, dtype=bool)[first], row.ravel()
 
 
 def block_corners(cells: np.ndarray, dims: int, size: int) -> np.ndarray:
@@ -404,8 +418,8 @@ def reaching_views(view_bound: np.ndarray, block_of: np.ndarray, best: float) ->
     view-set index and the distinct view sets ``(P, V)`` bool."""
     blocks, block_row = np.unique(block_of, return_inverse=True)
     reach = view_bound[blocks] >= np.float32(best)
-    sets, set_row = np.unique(reach, axis=0, return_inverse=True)
-    return set_row.ravel()[block_row.ravel()], sets
+    sets, set_row = unique_rows(reach)
+    return set_row[block_row.ravel()], sets
 
 
 @functools.lru_cache(maxsize=1)
