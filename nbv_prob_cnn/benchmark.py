@@ -339,12 +339,15 @@ def cnn_table(seed: int = 1000, repeats: int = 3) -> str:
 SWEEP_VARIANTS = ("pruned", "all_views", "fused")
 
 
-def planning_time_sweep(dataset: str, n_rays: int | None, views: int, seed: int = 1000, progress: bool = True):
+def planning_time_sweep(
+    dataset: str, n_rays: int | None, views: int, seed: int = 1000, progress: bool = True, every: int = 1
+):
     """Planning time against explored fraction (the analogue of the paper's Fig. 6): an
-    exploration with ``prob_ig`` from a random first view; before each view the view search is
-    timed side by side as ``pruned`` (the planners' search), ``all_views`` (the same without
-    pruning views) and ``fused`` (exhaustive). Returns rows of (view, explored fraction of all
-    cells before planning, origins, then wall and CPU seconds per variant, same best view)."""
+    exploration with ``prob_ig`` from a random first view; before every ``every``-th view the
+    view search is timed side by side as ``pruned`` (the planners' search), ``all_views`` (the
+    same without pruning views) and ``fused`` (exhaustive); the other views are planned by the
+    pruned search alone. Returns rows of (view, explored fraction of all cells before planning,
+    origins, then wall and CPU seconds per variant, same best view)."""
     from tqdm import tqdm
 
     from nbv_prob_cnn.explore import first_view
@@ -361,6 +364,8 @@ def planning_time_sweep(dataset: str, n_rays: int | None, views: int, seed: int 
             prob = probability_with_constant(state, context.defaults.p0)
             origins = context.candidate_origins(state)
             options = {"pruned": (True, True), "all_views": (True, False), "fused": (False, False)}  # prune, views
+            if (view - 1) % every:
+                options = {"pruned": (True, True)}
             if view == 1:  # warm-up: kernel builds
                 for prune, views_too in options.values():
                     search_views(state, prob, origins, context, prune=prune, prune_views=views_too)
@@ -371,19 +376,21 @@ def planning_time_sweep(dataset: str, n_rays: int | None, views: int, seed: int 
                 times += [time.perf_counter() - start, time.process_time() - cpu]
             if not found["pruned"]:
                 break
-            best = found["pruned"][0]
-            same = all(
-                found[n] and np.array_equal(found[n][0].cell, best.cell) and found[n][0].view_index == best.view_index
-                for n in SWEEP_VARIANTS
-            )
-            rows.append((view, 1.0 - unknown_fraction_all(state), origins.shape[0], *times, same))
-            choice = best
+            choice = found["pruned"][0]
+            if len(found) == len(SWEEP_VARIANTS):
+                same = all(
+                    found[n] and np.array_equal(found[n][0].cell, choice.cell)
+                    and found[n][0].view_index == choice.view_index
+                    for n in SWEEP_VARIANTS
+                )  # fmt: skip
+                rows.append((view, 1.0 - unknown_fraction_all(state), origins.shape[0], *times, same))
         observe(state, world.ground_truth, choice.cell, context.orientations[choice.view_index], context.active_sensor)
     return rows
 
 
-def write_sweep(rows, label: str, out: Path) -> tuple[Path, Path]:
-    """CSV and PNG (planning time per view against explored fraction) of a sweep."""
+def write_sweep(rows, label: str, out: Path, note: str = "") -> tuple[Path, Path]:
+    """CSV and PNG (planning time per view against explored fraction) of a sweep; ``note`` goes
+    under the title (e.g. the load average)."""
     from matplotlib.figure import Figure
 
     out.mkdir(parents=True, exist_ok=True)
@@ -398,11 +405,11 @@ def write_sweep(rows, label: str, out: Path) -> tuple[Path, Path]:
     ax = fig.add_subplot(1, 1, 1)
     explored = np.array([100 * r[1] for r in rows])
     for i, name in enumerate(SWEEP_VARIANTS):
-        ax.plot(explored, [r[3 + 2 * i] for r in rows], "o-", ms=3, label=f"{name} (wall)")
-        ax.plot(explored, [r[4 + 2 * i] / 2 for r in rows], "x:", ms=3, label=f"{name} (CPU-s / 2)")
+        ax.plot(explored, [r[3 + 2 * i] for r in rows], "o-", color=f"C{i}", ms=3, label=f"{name} (wall)")
+        ax.plot(explored, [r[4 + 2 * i] / 2 for r in rows], "x:", color=f"C{i}", ms=3, label=f"{name} (CPU-s / 2)")
     ax.set_xlabel("explored cells before planning (%)")
     ax.set_ylabel("view search time per iteration (s)")
-    ax.set_title(f"{label}: view search time during an exploration")
+    ax.set_title(f"{label}: view search time during an exploration" + (f"\n{note}" if note else ""), fontsize=10)
     ax.grid(alpha=0.3)
     ax.legend(fontsize=7)
     fig.tight_layout()

@@ -41,3 +41,5 @@ def test_planning_time_sweep_writes_csv_and_png(tmp_path):
     lines = csv_path.read_text().splitlines()
     assert lines[0].startswith("view,explored_fraction,origins,pruned_wall_s") and len(lines) == 3
     assert png.stat().st_size > 1000
+    sparse = planning_time_sweep("3du", 4, 5, progress=False, every=2)  # views 2 and 4 planned untimed
+    assert [r[0] for r in sparse] == [1, 3] and all(r[-1] for r in sparse)

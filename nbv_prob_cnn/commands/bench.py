@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import os
 
 from nbv_prob_cnn.benchmark import DEFAULT_CASES, format_table, run_case
 
@@ -21,6 +22,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--numpy-origins", type=int, default=3000, help="origins timed on the numpy reference")
     parser.add_argument("--views", type=int, default=20, help="sweep: views of the timed exploration")
     parser.add_argument("--out", default="docs", help="sweep: folder of the CSV and PNG")
+    parser.add_argument("--every", type=int, default=1, help="sweep: time every N-th planned view")
     parser.add_argument(
         "--cases",
         nargs="*",
@@ -52,9 +54,10 @@ def run_sweep(args: argparse.Namespace) -> None:
     from nbv_prob_cnn.benchmark import planning_time_sweep, write_sweep
 
     for case in (_parse_case(c) for c in (args.cases or ["3du:16"])):
-        rows = planning_time_sweep(case.dataset, case.n_rays, args.views, args.seed)
+        rows = planning_time_sweep(case.dataset, case.n_rays, args.views, args.seed, every=args.every)
         label = f"{case.dataset}_n{case.n_rays}"
-        csv_path, png = write_sweep(rows, label, Path(args.out))
+        load = ", ".join(f"{x:.1f}" for x in os.getloadavg())
+        csv_path, png = write_sweep(rows, label, Path(args.out), note=f"load average at the end {load}")
         same = all(r[-1] for r in rows)
         print(f"{label}: {len(rows)} iterations, same best view in all: {'yes' if same else 'NO'}; {csv_path}, {png}")
 
