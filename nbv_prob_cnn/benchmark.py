@@ -289,7 +289,7 @@ def format_table(results: list[BenchResult]) -> str:
     lines = [
         ("| case | unknown | origins | rays | iteration (s) | CNN (s) | pruned search (s) | "
         "pruned, all views (s) | fused search (s) | two-step (s) | naive (s) | numpy (s, extrap.) | "
-        "pruned / all views / fused / two-step / naive CPU-s | pruned vs all views | pruned vs fused | "
+        "iteration / pruned / all views / fused / two-step / naive CPU-s | pruned vs all views | pruned vs fused | "
         "fused vs two-step | fused vs naive | pruned samples/s | fused samples/s | naive samples/s | "
         "peak MB iteration / fused / two-step / naive | same best view |"),
         "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
@@ -297,7 +297,7 @@ def format_table(results: list[BenchResult]) -> str:
     for r in results:
         t = r.timings
         mb = " / ".join(f"{t[v].peak_bytes / 2**20:.0f}" for v in ("iteration", "fused", "two_step", "naive"))
-        cpu = " / ".join(f"{t[v].cpu_seconds:.2f}" for v in ("pruned", "all_views", "fused", "two_step", "naive"))
+        cpu = " / ".join(f"{t[v].cpu_seconds:.2f}" for v in VARIANTS[:-1])
         lines.append(
             f"| {r.case.label} | {r.unknown_fraction:.2f} | {r.origins} | {r.rays} | {t['iteration'].seconds:.3f} | "
             f"{r.cnn_s:.3f} | {t['pruned'].seconds:.3f} | {t['all_views'].seconds:.3f} | {t['fused'].seconds:.3f} | "
