@@ -287,11 +287,13 @@ def _defaults(dataset: str):
 def format_table(results: list[BenchResult]) -> str:
     """Markdown table: seconds per iteration, effective samples/s and peak memory per variant."""
     lines = [
-        ("| case | unknown | origins | rays | iteration (s) | CNN (s) | pruned search (s) | "
-        "pruned, all views (s) | fused search (s) | two-step (s) | naive (s) | numpy (s, extrap.) | "
-        "iteration / pruned / all views / fused / two-step / naive CPU-s | pruned vs all views | pruned vs fused | "
-        "fused vs two-step | fused vs naive | pruned samples/s | fused samples/s | naive samples/s | "
-        "peak MB iteration / fused / two-step / naive | same best view |"),
+        (
+            "| case | unknown | origins | rays | iteration (s) | CNN (s) | pruned search (s) | "
+            "pruned, all views (s) | fused search (s) | two-step (s) | naive (s) | numpy (s, extrap.) | "
+            "iteration / pruned / all views / fused / two-step / naive CPU-s | pruned vs all views | pruned vs fused | "
+            "fused vs two-step | fused vs naive | pruned samples/s | fused samples/s | naive samples/s | "
+            "peak MB iteration / fused / two-step / naive | same best view |"
+        ),
         "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in results:

@@ -412,6 +412,7 @@ class OpenCLRayCaster:
             done, batch = stop, batch * 2
         return best[1], best[2], best[0], done
 
+
 def reaching_views(view_bound: np.ndarray, block_of: np.ndarray, best: float) -> tuple[np.ndarray, np.ndarray]:
     """The views worth evaluating from origins of blocks ``block_of``: those whose block bound
     reaches ``best`` (no other view can reach or beat the best gain found). Returns per origin a
