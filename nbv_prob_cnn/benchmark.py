@@ -5,7 +5,9 @@ the default worlds, measured side by side in one run for
   ``cnn_prob``, origins, view search);
 * ``pruned``: its view search alone, the exact coarse-to-fine argmax
   (:func:`~nbv_prob_cnn.gain.best_origin_view`: block bounds, then exact gains only where a
-  bound reaches the best gain found);
+  bound reaches the best gain found, and only of the views whose bound reaches it);
+* ``all_views``: the same search evaluating every view of the origins it evaluates
+  (``prune_views=False``, the previous pruned search);
 * ``fused``: the exhaustive view search (``view_gain`` kernel on every origin, rays summed into
   views on the device);
 * ``two_step``: the previous path, kept here only as a baseline (``baseline_ray_gain``: per-ray
@@ -42,7 +44,7 @@ from nbv_prob_cnn.worlds.world import World
 BASELINE_SOURCE = Path(__file__).with_name("benchmark_baselines.cl")
 #: Origins × rays per baseline launch (the previous planners' block size).
 BASELINE_RAYS_PER_CALL = 8_000_000
-VARIANTS = ("iteration", "pruned", "fused", "two_step", "naive", "numpy")
+VARIANTS = ("iteration", "pruned", "all_views", "fused", "two_step", "naive", "numpy")
 
 
 @dataclass(frozen=True)
@@ -239,13 +241,18 @@ def run_case(case: BenchCase, world: World, repeats: int = 3, numpy_origins: int
     result.timings["pruned"] = _measure(
         lambda: found.setdefault("pruned", search_best_view(state, prob, origins, context)), repeats, pruned_bytes
     )
+    result.timings["all_views"] = _measure(
+        lambda: found.setdefault("all_views", search_views(state, prob, origins, context, prune_views=False)),
+        repeats, pruned_bytes,
+    )  # fmt: skip
     result.timings["fused"] = _measure(
         lambda: found.setdefault("fused", search_views(state, prob, origins, context, prune=False)), repeats,
         fused_bytes,
     )  # fmt: skip
-    pruned, exhaustive = found["pruned"], found["fused"]
-    result.same_pruned_view = bool(pruned and exhaustive) and (
-        np.array_equal(pruned.cell, exhaustive[0].cell) and pruned.view_index == exhaustive[0].view_index
+    pruned, exhaustive, all_views = found["pruned"], found["fused"], found["all_views"]
+    result.same_pruned_view = bool(pruned and exhaustive and all_views) and all(
+        np.array_equal(pruned.cell, other.cell) and pruned.view_index == other.view_index
+        for other in (exhaustive[0], all_views[0])
     )
     for kernel in ("two_step", "naive"):
         baseline_found: dict[str, tuple] = {}
@@ -280,23 +287,28 @@ def _defaults(dataset: str):
 def format_table(results: list[BenchResult]) -> str:
     """Markdown table: seconds per iteration, effective samples/s and peak memory per variant."""
     lines = [
-        ("| case | unknown | origins | rays | iteration (s) | CNN (s) | pruned search (s) | fused search (s) | "
-        "two-step (s) | naive (s) | numpy (s, extrap.) | pruned / fused / two-step / naive CPU-s | "
-        "pruned vs fused | fused vs two-step | fused vs naive | fused samples/s | naive samples/s | "
-        "peak MB iteration / fused / two-step / naive | same best view |"),
-        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
+        (
+            "| case | unknown | origins | rays | iteration (s) | CNN (s) | pruned search (s) | "
+            "pruned, all views (s) | fused search (s) | two-step (s) | naive (s) | numpy (s, extrap.) | "
+            "iteration / pruned / all views / fused / two-step / naive CPU-s | pruned vs all views | pruned vs fused | "
+            "fused vs two-step | fused vs naive | pruned samples/s | fused samples/s | naive samples/s | "
+            "peak MB iteration / fused / two-step / naive | same best view |"
+        ),
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in results:
         t = r.timings
         mb = " / ".join(f"{t[v].peak_bytes / 2**20:.0f}" for v in ("iteration", "fused", "two_step", "naive"))
-        cpu = " / ".join(f"{t[v].cpu_seconds:.2f}" for v in ("pruned", "fused", "two_step", "naive"))
+        cpu = " / ".join(f"{t[v].cpu_seconds:.2f}" for v in VARIANTS[:-1])
         lines.append(
             f"| {r.case.label} | {r.unknown_fraction:.2f} | {r.origins} | {r.rays} | {t['iteration'].seconds:.3f} | "
-            f"{r.cnn_s:.3f} | {t['pruned'].seconds:.3f} | {t['fused'].seconds:.3f} | "
+            f"{r.cnn_s:.3f} | {t['pruned'].seconds:.3f} | {t['all_views'].seconds:.3f} | {t['fused'].seconds:.3f} | "
             f"{t['two_step'].seconds:.3f} | {t['naive'].seconds:.3f} | {t['numpy'].seconds:.1f} | {cpu} | "
+            f"{t['all_views'].seconds / t['pruned'].seconds:.1f}× | "
             f"{t['fused'].seconds / t['pruned'].seconds:.1f}× | "
             f"{t['two_step'].seconds / t['fused'].seconds:.1f}× | {t['naive'].seconds / t['fused'].seconds:.1f}× | "
-            f"{r.samples_per_s('fused'):.2e} | {r.samples_per_s('naive'):.2e} | {mb} | "
+            f"{r.samples_per_s('pruned'):.2e} | {r.samples_per_s('fused'):.2e} | "
+            f"{r.samples_per_s('naive'):.2e} | {mb} | "
             f"{'yes' if r.same_best_view and r.same_pruned_view else 'NO'} |"
         )
     return "\n".join(lines)
@@ -324,3 +336,84 @@ def cnn_table(seed: int = 1000, repeats: int = 3) -> str:
         shape = "×".join(map(str, world.shape))
         lines.append(f"| {dataset.upper()} | {shape} | {t_cnn:.3f} | {t_plan:.3f} | {t_constant:.3f} |")
     return "\n".join(lines)
+
+
+SWEEP_VARIANTS = ("pruned", "all_views", "fused")
+
+
+def planning_time_sweep(
+    dataset: str, n_rays: int | None, views: int, seed: int = 1000, progress: bool = True, every: int = 1
+):
+    """Planning time against explored fraction (the analogue of the paper's Fig. 6): an
+    exploration with ``prob_ig`` from a random first view; before every ``every``-th view the
+    view search is timed side by side as ``pruned`` (the planners' search), ``all_views`` (the
+    same without pruning views) and ``fused`` (exhaustive); the other views are planned by the
+    pruned search alone. Returns rows of (view, explored fraction of all cells before planning,
+    origins, then wall and CPU seconds per variant, same best view)."""
+    from tqdm import tqdm
+
+    from nbv_prob_cnn.explore import first_view
+    from nbv_prob_cnn.grid import unknown_fraction_all
+    from nbv_prob_cnn.worlds import load_or_generate
+
+    world = load_or_generate(dataset, seed)
+    context = PlanningContext(_defaults(dataset), rng=np.random.default_rng(seed), n_rays=n_rays, backend="opencl")
+    state = np.full(world.shape, -1, dtype=np.int8)
+    choice = first_view(world, context)
+    rows = []
+    for view in tqdm(range(views), desc=f"{dataset} sweep", unit="view", disable=not progress):
+        if view > 0:
+            prob = probability_with_constant(state, context.defaults.p0)
+            origins = context.candidate_origins(state)
+            options = {"pruned": (True, True), "all_views": (True, False), "fused": (False, False)}  # prune, views
+            if (view - 1) % every:
+                options = {"pruned": (True, True)}
+            if view == 1:  # warm-up: kernel builds
+                for prune, views_too in options.values():
+                    search_views(state, prob, origins, context, prune=prune, prune_views=views_too)
+            found, times = {}, []
+            for name, (prune, views_too) in options.items():
+                cpu, start = time.process_time(), time.perf_counter()
+                found[name] = search_views(state, prob, origins, context, prune=prune, prune_views=views_too)
+                times += [time.perf_counter() - start, time.process_time() - cpu]
+            if not found["pruned"]:
+                break
+            choice = found["pruned"][0]
+            if len(found) == len(SWEEP_VARIANTS):
+                same = all(
+                    found[n] and np.array_equal(found[n][0].cell, choice.cell)
+                    and found[n][0].view_index == choice.view_index
+                    for n in SWEEP_VARIANTS
+                )  # fmt: skip
+                rows.append((view, 1.0 - unknown_fraction_all(state), origins.shape[0], *times, same))
+        observe(state, world.ground_truth, choice.cell, context.orientations[choice.view_index], context.active_sensor)
+    return rows
+
+
+def write_sweep(rows, label: str, out: Path, note: str = "") -> tuple[Path, Path]:
+    """CSV and PNG (planning time per view against explored fraction) of a sweep; ``note`` goes
+    under the title (e.g. the load average)."""
+    from matplotlib.figure import Figure
+
+    out.mkdir(parents=True, exist_ok=True)
+    stem = out / f"planning_time_{label}"
+    header = ["view", "explored_fraction", "origins"]
+    header += [f"{n}_{kind}" for n in SWEEP_VARIANTS for kind in ("wall_s", "cpu_s")] + ["same_best_view"]
+    lines = [",".join(header)] + [
+        ",".join([str(r[0]), f"{r[1]:.4f}", str(r[2]), *(f"{x:.4f}" for x in r[3:-1]), str(bool(r[-1]))]) for r in rows
+    ]
+    stem.with_suffix(".csv").write_text("\n".join(lines) + "\n")
+    fig = Figure(figsize=(7, 4.5))
+    ax = fig.add_subplot(1, 1, 1)
+    explored = np.array([100 * r[1] for r in rows])
+    for i, name in enumerate(SWEEP_VARIANTS):
+        ax.plot(explored, [r[3 + 2 * i] for r in rows], "o-", color=f"C{i}", ms=3, label=f"{name} (wall)")
+        ax.plot(explored, [r[4 + 2 * i] / 2 for r in rows], "x:", color=f"C{i}", ms=3, label=f"{name} (CPU-s / 2)")
+    ax.set_xlabel("explored cells before planning (%)")
+    ax.set_ylabel("view search time per iteration (s)")
+    ax.set_title(f"{label}: view search time during an exploration" + (f"\n{note}" if note else ""), fontsize=10)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(stem.with_suffix(".png"), dpi=90)
+    return stem.with_suffix(".csv"), stem.with_suffix(".png")

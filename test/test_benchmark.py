@@ -26,3 +26,20 @@ def test_baselines_find_the_reference_best_view(rng):
     # the naive kernel rounds a float position: the same search up to rare half-way cells
     gain, index, _ = baseline_view_search(state, prob, origins, context, "naive")
     assert abs(gain - reference.max()) < 0.05 * reference.max()
+
+
+def test_planning_time_sweep_writes_csv_and_png(tmp_path):
+    """A short timed exploration: one row per planned view, the three searches agree, the
+    explored fraction grows; CSV and PNG are written."""
+    from nbv_prob_cnn.benchmark import planning_time_sweep, write_sweep
+
+    rows = planning_time_sweep("3du", 4, 3, progress=False)
+    assert len(rows) == 2 and all(r[-1] for r in rows)  # same best view in every variant
+    assert 0.0 < rows[0][1] < rows[1][1] < 1.0 and all(r[2] > 0 for r in rows)
+    assert all(t >= 0.0 for r in rows for t in r[3:-1])
+    csv_path, png = write_sweep(rows, "test", tmp_path)
+    lines = csv_path.read_text().splitlines()
+    assert lines[0].startswith("view,explored_fraction,origins,pruned_wall_s") and len(lines) == 3
+    assert png.stat().st_size > 1000
+    sparse = planning_time_sweep("3du", 4, 5, progress=False, every=2)  # views 2 and 4 planned untimed
+    assert [r[0] for r in sparse] == [1, 3] and all(r[-1] for r in sparse)

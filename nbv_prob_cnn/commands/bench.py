@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import os
 
 from nbv_prob_cnn.benchmark import DEFAULT_CASES, format_table, run_case
 
@@ -12,7 +13,7 @@ HELP = (
     "integration, the transport overhead of the ROS node split, the arm (capability map, IK, added cost) and "
     "the cost of rendering the arm into depth frames and filtering it out."
 )
-SUITES = ("planning", "cnn", "integrator", "ros", "arm", "arm_render")
+SUITES = ("planning", "sweep", "cnn", "integrator", "ros", "arm", "arm_render")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -20,6 +21,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seed", type=int, default=1000, help="world seed of every case")
     parser.add_argument("--repeats", type=int, default=3, help="OpenCL repetitions (best is reported)")
     parser.add_argument("--numpy-origins", type=int, default=3000, help="origins timed on the numpy reference")
+    parser.add_argument("--views", type=int, default=20, help="sweep: views of the timed exploration")
+    parser.add_argument("--out", default="docs", help="sweep: folder of the CSV and PNG")
+    parser.add_argument("--every", type=int, default=1, help="sweep: time every N-th planned view")
     parser.add_argument(
         "--cases",
         nargs="*",
@@ -33,6 +37,7 @@ def run(args: argparse.Namespace) -> int:
         print(f"## {suite}", flush=True)
         runners = {
             "planning": run_planning,
+            "sweep": run_sweep,
             "cnn": run_cnn,
             "integrator": run_integrator,
             "ros": run_ros,
@@ -42,6 +47,21 @@ def run(args: argparse.Namespace) -> int:
         runners[suite](args)
         print(flush=True)
     return 0
+
+
+def run_sweep(args: argparse.Namespace) -> None:
+    """View search time against explored fraction, per case of ``--cases`` (default 3du:16)."""
+    from pathlib import Path
+
+    from nbv_prob_cnn.benchmark import planning_time_sweep, write_sweep
+
+    for case in (_parse_case(c) for c in (args.cases or ["3du:16"])):
+        rows = planning_time_sweep(case.dataset, case.n_rays, args.views, args.seed, every=args.every)
+        label = f"{case.dataset}_n{case.n_rays}"
+        load = ", ".join(f"{x:.1f}" for x in os.getloadavg())
+        csv_path, png = write_sweep(rows, label, Path(args.out), note=f"load average at the end {load}")
+        same = all(r[-1] for r in rows)
+        print(f"{label}: {len(rows)} iterations, same best view in all: {'yes' if same else 'NO'}; {csv_path}, {png}")
 
 
 def run_integrator(args: argparse.Namespace) -> None:
@@ -103,7 +123,8 @@ def run_planning(args: argparse.Namespace) -> None:
     print()
     print(
         "iteration = the planner's full iteration (CNN included for cnn_prob); pruned = its view search alone "
-        "(exact coarse-to-fine argmax); fused = the exhaustive fused view search; "
+        "(exact coarse-to-fine argmax); pruned, all views = the same without pruning views "
+        "(prune_views=False); fused = the exhaustive fused view search; "
         "two-step = the previous kernel + "
         "(origins × rays) @ (rays × views); naive = float marching to the first occupied cell + the same "
         "product. Effective samples/s = origins × rays × (R_max + 1) / time. Peak memory = tracemalloc peak "

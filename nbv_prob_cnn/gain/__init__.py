@@ -159,6 +159,7 @@ def best_origin_view(
     eps: float = 0.0,
     min_range: float = 0.0,
     block_size: int | None = None,
+    prune_views: bool = True,
 ) -> tuple[int, int, float]:
     """The argmax of :func:`origin_view_gains` (the first of equal maxima, origin-major):
     ``(origin position in origins, view, gain)``; position -1 when there are no origins.
@@ -168,6 +169,8 @@ def best_origin_view(
     :meth:`~nbv_prob_cnn.gain.opencl.OpenCLRayCaster.best_view`); the numpy reference evaluates
     every origin. ``block_size``: origins per axis of a bounded block (default
     :data:`~nbv_prob_cnn.gain.opencl.BOUND_BLOCK`; origins on a stride ``s`` want ``2 s``).
+    ``prune_views``: evaluate only the views whose block bound reaches the best gain found so far
+    (False: every view of every evaluated origin; the same result, for comparison).
     """
     state, prob, directions, origins, backend = _check_gain_inputs(
         state, prob, directions, r_max, origins, backend, mode, eps
@@ -186,8 +189,9 @@ def best_origin_view(
         raise ValueError(f"block_size: expected a positive integer, got {block_size!r}")
     code, offsets, total = _kernel_inputs(state, prob, directions, r_max, mode)
     origin, view, gain, _ = get_ray_caster().best_view(
-        code, origins, offsets, member, total, mode, eps, min_range, block_size=block_size or BOUND_BLOCK
-    )
+        code, origins, offsets, member, total, mode, eps, min_range, block_size=block_size or BOUND_BLOCK,
+        prune_views=prune_views,
+    )  # fmt: skip
     return origin, view, gain
 
 

@@ -98,6 +98,40 @@ def group_first_samples(padded: np.ndarray, origin_index: np.ndarray, group: int
     return np.ascontiguousarray(distance.reshape(-1, group).min(axis=1), dtype=np.int32)
 
 
+def bit_words(flags: np.ndarray) -> np.ndarray:
+    """``(N, K)`` booleans as the kernel's bit sets: ``(N, ceil(K / 32))`` uint32, item ``k``
+    in bit ``k % 32`` of word ``k // 32``."""
+    flags = np.asarray(flags, dtype=bool)
+    padded = np.zeros((flags.shape[0], -(-flags.shape[1] // 32) * 32), dtype=bool)
+    padded[:, : flags.shape[1]] = flags
+    return np.ascontiguousarray(np.packbits(padded, axis=1, bitorder="little")).view("<u4").astype(np.uint32)
+
+
+def group_sets(view_sets: np.ndarray, membership: np.ndarray, group: int = 1) -> np.ndarray:
+    """The kernel's per-work-group rows for ``(N, V)`` per-origin view sets: per block of
+    ``group`` consecutive origins the union of their views, then the union of those views'
+    rays (``membership``), each as :func:`bit_words` words."""
+    padding = -view_sets.shape[0] % group
+    rows = np.concatenate([view_sets, np.zeros((padding, view_sets.shape[1]), dtype=bool)]).astype(bool)
+    unique, row = unique_rows(np.asarray(rows.reshape(-1, group, rows.shape[1]).any(axis=1)))
+    rays = unique.astype(np.float32) @ (np.asarray(membership).T != 0).astype(np.float32) > 0.0
+    return np.ascontiguousarray(np.concatenate([bit_words(unique), bit_words(rays)], axis=1)[row])
+
+
+def unique_rows(flags: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The distinct rows of an ``(N, K)`` boolean array and per row its index among them (a
+    1-D sort of 64-bit keys when ``K <= 64``, much faster than ``np.unique(axis=0)``)."""
+    words = bit_words(flags)
+    if words.shape[1] <= 2:
+        key = words[:, 0].astype(np.uint64)
+        if words.shape[1] == 2:
+            key |= words[:, 1].astype(np.uint64) << np.uint64(32)
+        _, first, row = np.unique(key, return_index=True, return_inverse=True)
+    else:
+        _, first, row = np.unique(words, axis=0, return_index=True, return_inverse=True)
+    return np.asarray(flags, dtype=bool)[first], row.ravel()
+
+
 def block_corners(cells: np.ndarray, dims: int, size: int) -> np.ndarray:
     """Per padded cell coordinate ``(N, 3)``, the corner ``c`` of its block ``c - {0 .. size-1}``
     per marched axis (padded coordinates ``1 .. size``, ``size + 1 .. 2 size``, ...)."""
@@ -218,18 +252,24 @@ class OpenCLRayCaster:
         eps: float,
         min_range: float,
         local_size: int = VIEW_GAIN_LOCAL_SIZE,
+        view_sets: np.ndarray | None = None,
     ) -> np.ndarray:
         """View gains ``(N, V)`` float32: the ray gains of each origin summed over the rays of
-        each view (``membership`` is the ``(R, V)`` 0/1 ray-in-view matrix)."""
+        each view (``membership`` is the ``(R, V)`` 0/1 ray-in-view matrix). ``view_sets``: see
+        :meth:`_views` (None: every view)."""
         code_buf, padded, origin_index, offset_buf = self._common(code, origins, offsets)
         return self._views(
             code_buf, padded, origin_index, offset_buf, offsets.shape, membership, code.ndim - 1, total_weight,
-            mode, eps, min_range, local_size,
+            mode, eps, min_range, local_size, view_sets,
         )  # fmt: skip
 
     def _views(self, code_buf, padded, origin_index, offset_buf, offsets_shape, membership, nu, total_weight,
-               mode, eps, min_range, local_size=VIEW_GAIN_LOCAL_SIZE) -> np.ndarray:  # fmt: skip
-        """``view_gain`` on a device grid ``code_buf`` (host copy ``padded``) at linear origins."""
+               mode, eps, min_range, local_size=VIEW_GAIN_LOCAL_SIZE, view_sets=None) -> np.ndarray:  # fmt: skip
+        """``view_gain`` on a device grid ``code_buf`` (host copy ``padded``) at linear origins.
+
+        ``view_sets``: None (every view exact) or per origin the views wanted exactly, ``(N, V)``
+        booleans: a work-group sums the union of its origins' views and marches only their rays;
+        other views get 0 (a lower bound of their gains)."""
         cl, mf = self._cl, self._cl.mem_flags
         n, (r, n_samples), v = origin_index.shape[0], offsets_shape[:2], membership.shape[1]
         out = np.empty((n, v), dtype=np.float32)
@@ -241,23 +281,31 @@ class OpenCLRayCaster:
         local_size = int(min(local_size, self.device.max_work_group_size))
         local_size = max(1, min(local_size, self.device.local_mem_size // (4 * r)))
         first_sample = group_first_samples(padded, origin_index, local_size)
+        every = group_sets(np.ones((1, v), dtype=bool), membership)
+        sets = every if view_sets is None else group_sets(view_sets, membership, local_size)
+        set_stride = 0 if view_sets is None else sets.shape[1]
         block = min(n, VIEW_GAIN_ORIGINS_PER_LAUNCH // local_size * local_size)
         origin_buf = cl.Buffer(self.context, mf.READ_ONLY, block * 4)
         first_buf = cl.Buffer(self.context, mf.READ_ONLY, -(-block // local_size) * 4)
+        set_buf = cl.Buffer(self.context, mf.READ_ONLY, max(every.nbytes, -(-block // local_size) * 4 * set_stride))
+        if view_sets is None:
+            cl.enqueue_copy(self.queue, set_buf, every)
         out_buf = cl.Buffer(self.context, mf.WRITE_ONLY, block * v * 4)
         kernel = self._view_kernel
         for begin in range(0, n, block):
             count = min(block, n - begin)
             cl.enqueue_copy(self.queue, origin_buf, np.ascontiguousarray(origin_index[begin : begin + count]))
-            group = begin // local_size
-            cl.enqueue_copy(self.queue, first_buf, first_sample[group : group + -(-count // local_size)])
+            group, groups = begin // local_size, -(-count // local_size)
+            cl.enqueue_copy(self.queue, first_buf, first_sample[group : group + groups])
+            if view_sets is not None:
+                cl.enqueue_copy(self.queue, set_buf, np.ascontiguousarray(sets[group : group + groups]))
             kernel.set_args(
                 code_buf, origin_buf, np.int32(count), offset_buf, np.int32(r), np.int32(n_samples),
                 np.int32(nu), np.float32(1.0 / total_weight), np.float32(eps), np.int32(MODES[mode]),
-                np.float32(min_range), start_buf, rays_buf, np.int32(v), first_buf,
+                np.float32(min_range), start_buf, rays_buf, np.int32(v), first_buf, set_buf, np.int32(set_stride),
+                np.int32(-(-v // 32)),
                 cl.LocalMemory(4 * r * local_size), out_buf,
             )  # fmt: skip
-            groups = -(-count // local_size)
             cl.enqueue_nd_range_kernel(self.queue, kernel, (groups * local_size,), (local_size,))
             cl.enqueue_copy(self.queue, out[begin : begin + count], out_buf)
         self.queue.finish()
@@ -307,6 +355,7 @@ class OpenCLRayCaster:
         min_range: float,
         first_batch: int = BEST_VIEW_FIRST_BATCH,
         block_size: int = BOUND_BLOCK,
+        prune_views: bool = True,
     ) -> tuple[int, int, float, int]:
         """The first ``(origin, view)`` of largest ``G_W`` in origin-major order, exactly as the
         exhaustive ``run_views(...)`` argmax, without computing every origin's gains.
@@ -319,7 +368,9 @@ class OpenCLRayCaster:
         stopped; ``Pr <= 1`` and ``t >= min_range`` only lower the true gain, also for ``ig``).
         Origins are then evaluated exactly in order of decreasing block bound, in growing
         batches, until the next bound is below the best exact gain (with a float32 rounding
-        margin): no pruned origin can beat or tie it.
+        margin): no pruned origin can beat or tie it. With ``prune_views``, after the first batch
+        each origin evaluates only the views whose block bound reaches the best gain so far and
+        marches only their rays (see :func:`reaching_views`; the others cannot beat or tie it).
 
         Returns:
             ``(origin position, view, gain, origins evaluated exactly)``.
@@ -328,11 +379,12 @@ class OpenCLRayCaster:
         code_buf, padded, origin_index, offset_buf = self._common(code, origins, offsets)
         block_of, view_bound = self._block_bounds(padded, origins, offsets, membership, total_weight, mode,
                                                   block_size, MIN_ORIGINS_PER_BLOCK)  # fmt: skip
+        sparse = view_bound is None
         if view_bound is None:  # sparse origins: evaluate them all at once
             block_of, view_bound, first_batch = np.zeros(n, dtype=np.int64), np.ones((1, 1), np.float32), n
-        block_bound = view_bound.max(axis=1)
         # float32 sums in a different order: a margin far above their rounding error
-        block_bound = block_bound * np.float32(1.0 + BOUND_MARGIN) + np.float32(BOUND_MARGIN)
+        view_bound = view_bound * np.float32(1.0 + BOUND_MARGIN) + np.float32(BOUND_MARGIN)
+        block_bound = view_bound.max(axis=1)
         rank = np.empty(block_bound.size, dtype=np.int64)
         rank[np.argsort(-block_bound, kind="stable")] = np.arange(block_bound.size)
         order = np.argsort(rank[block_of], kind="stable")
@@ -342,10 +394,14 @@ class OpenCLRayCaster:
         while done < n and origin_bound[done] >= best[0]:
             stop = min(n, done + batch)
             stop = done + int(np.count_nonzero(origin_bound[done:stop] >= best[0]))
-            chosen = order[done:stop]
+            chosen, view_sets = order[done:stop], None
+            if prune_views and best[0] >= 0.0 and not sparse:
+                pattern, reach = reaching_views(view_bound, block_of[chosen], best[0])
+                by_pattern = np.argsort(pattern, kind="stable")  # work-groups of one view set
+                chosen, view_sets = chosen[by_pattern], reach[pattern[by_pattern]]
             gains = self._views(
                 code_buf, padded, origin_index[chosen], offset_buf, offsets.shape, membership, dims - 1,
-                total_weight, mode, eps, min_range,
+                total_weight, mode, eps, min_range, view_sets=view_sets,
             )  # fmt: skip
             top = float(gains.max())
             rows, cols = np.nonzero(gains == gains.max())
@@ -355,6 +411,17 @@ class OpenCLRayCaster:
                 best = candidate
             done, batch = stop, batch * 2
         return best[1], best[2], best[0], done
+
+
+def reaching_views(view_bound: np.ndarray, block_of: np.ndarray, best: float) -> tuple[np.ndarray, np.ndarray]:
+    """The views worth evaluating from origins of blocks ``block_of``: those whose block bound
+    reaches ``best`` (no other view can reach or beat the best gain found). Returns per origin a
+    view-set index and the distinct view sets ``(P, V)`` bool."""
+    blocks, block_row = np.unique(block_of, return_inverse=True)
+    reach = view_bound[blocks] >= np.float32(best)
+    sets, set_row = unique_rows(reach)
+    return set_row[block_row.ravel()], sets
+
 
 @functools.lru_cache(maxsize=1)
 def get_ray_caster() -> OpenCLRayCaster:

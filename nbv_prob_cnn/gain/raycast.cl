@@ -75,12 +75,19 @@ __kernel void ray_gain(__global const float *code, __global const int *origins, 
 // work-items march the same ray from neighbouring cells (coherent loops and memory reads), into
 // local memory; then the group sums the rays of each (origin, view) pair (view_start/view_rays:
 // the view -> rays membership as compressed rows, rays ascending). out is (n_origins, n_views).
+// group_sets: per work-group a row of set_stride words (set_stride = 0: one row for every
+// group): first the bit set of the views to sum (view_words words; view w is bit w & 31 of word
+// w >> 5), then the bit set of the rays to march. Views outside the set get 0 and masked-out rays
+// count 0: a view is exact when it is in the set and all its rays are marched, else its value
+// is a lower bound of its gain (the coarse-to-fine search leaves out views and rays that cannot
+// win). The tests are the same for every work-item of the group: loops stay in lock step.
 __kernel void view_gain(__global const float *code, __global const int *origins, const int n_origins,
                         __global const int *offsets, const int n_rays, const int n_samples,
                         const int nu, const float inv_total, const float eps,
                         const int mode, const float min_range,
                         __global const int *view_start, __global const int *view_rays, const int n_views,
-                        __global const int *group_first_sample, __local float *ray_gains, __global float *out)
+                        __global const int *group_first_sample, __global const uint *group_sets, const int set_stride,
+                        const int view_words, __local float *ray_gains, __global float *out)
 {
     const int lid = get_local_id(0);
     const int size = get_local_size(0);
@@ -88,7 +95,13 @@ __kernel void view_gain(__global const float *code, __global const int *origins,
     const int first_sample = group_first_sample[get_group_id(0)];
     const int origin = origins[min(first + lid, n_origins - 1)];
     __local float *mine = ray_gains + (size_t)lid * n_rays;
+    __global const uint *view_set = group_sets + (size_t)get_group_id(0) * set_stride;
+    __global const uint *ray_set = view_set + view_words;
     for (int h = 0; h < n_rays; ++h) {
+        if (((ray_set[h >> 5] >> (h & 31)) & 1u) == 0u) {
+            mine[h] = 0.0f;
+            continue;
+        }
         mine[h] = march_ray(code, origin, offsets + (size_t)h * n_samples, first_sample, n_samples, nu,
                             inv_total, eps, mode, min_range);
     }
@@ -97,6 +110,10 @@ __kernel void view_gain(__global const float *code, __global const int *origins,
     for (int k = lid; k < count * n_views; k += size) {
         const int o = k / n_views;
         const int w = k - o * n_views;
+        if (((view_set[w >> 5] >> (w & 31)) & 1u) == 0u) {
+            out[(size_t)(first + o) * n_views + w] = 0.0f;
+            continue;
+        }
         __local const float *gains = ray_gains + (size_t)o * n_rays;
         float sum = 0.0f;
         for (int i = view_start[w]; i < view_start[w + 1]; ++i) {

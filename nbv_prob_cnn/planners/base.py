@@ -138,6 +138,7 @@ def search_views(
     mode: str = "prob",
     top_k: int = 1,
     prune: bool = True,
+    prune_views: bool = True,
 ) -> list[ViewChoice]:
     """The ``top_k`` (origin, orientation) pairs with the largest ``G_W``, best first (SPEC §5).
 
@@ -145,7 +146,8 @@ def search_views(
     :func:`~nbv_prob_cnn.gain.origin_view_gains`. Ties go to the first origin, then the first view.
     Views with zero gain are never returned. With ``top_k == 1`` on OpenCL (and ``prune``) the
     exact coarse-to-fine search :func:`~nbv_prob_cnn.gain.best_origin_view` finds the same view
-    without evaluating origins that provably cannot reach it.
+    without evaluating origins that provably cannot reach it (``prune_views``: nor views; False
+    evaluates every view of the origins it evaluates, for comparison).
     """
     sensor = context.active_sensor
     if top_k == 1 and prune and _uses_opencl(context.backend) and origins.shape[0] > 0:
@@ -153,7 +155,7 @@ def search_views(
         block = 2 * (context.origin_stride or context.defaults.origin_stride)  # about 2^dims origins per block
         index, view, gain = best_origin_view(
             state, prob, context.directions, sensor.r_max, context.membership, origins, "opencl",
-            mode=mode, eps=context.eps, min_range=sensor.min_range, block_size=block,
+            mode=mode, eps=context.eps, min_range=sensor.min_range, block_size=block, prune_views=prune_views,
         )  # fmt: skip
         times = {"cnn": 0.0, "raycast": time.perf_counter() - t0, "views": 0.0}
         return [ViewChoice(origins[index].copy(), int(view), float(gain), times)] if gain > 0.0 else []
