@@ -16,16 +16,23 @@ from pathlib import Path
 import numpy as np
 
 from nbv_prob_cnn.arm.feasibility import ArmFeasibility, FeasibilityReport, plan_with_arm
+from nbv_prob_cnn.arm.swept import SweptVolume
 from nbv_prob_cnn.explore import ExplorationResult
 from nbv_prob_cnn.planners import GainPlanner, PlanningContext, ViewChoice
 from nbv_prob_cnn.planners.base import OriginFilter
 
 FREE_FLYING = "free_flying"
 
+#: Per planned arm view: views ranked by gain, left by the capability map, rejected because a
+#: camera-rigid body (hand, fingers) would enter a blocked cell, exactly checked, and rejected by
+#: IK / collision at the goal / collision on the path (FeasibilityReport fields).
+STAGE_COUNTS = ("ranked", "candidates", "camera_blocked", "checked", "unreachable", "in_collision", "path_blocked")
+
+
 RUN_COLUMNS = [
     "iteration", "unknown_fraction", "unknown_fraction_all", "gain", "time_total_s", "time_gain_s",
     "time_capability_s", "time_ik_collision_s", "joint_travel", "cell_i", "cell_j", "cell_k", "view_index",
-    "x", "y", "z", "qx", "qy", "qz", "qw",
+    "x", "y", "z", "qx", "qy", "qz", "qw", *STAGE_COUNTS,
 ]  # fmt: skip
 
 
@@ -41,20 +48,36 @@ class ArmMove:
     q: np.ndarray
     joint_travel: float
     times: dict[str, float] = field(default_factory=dict)
+    counts: dict[str, int] = field(default_factory=dict)  # candidates per stage, see STAGE_COUNTS
 
 
 class ArmPlanner:
     """A :class:`GainPlanner` restricted to what the arm can take (:func:`plan_with_arm`), as a
-    ``Planner`` for :func:`explore`. It keeps the arm's configuration and logs each move."""
+    ``Planner`` for :func:`explore`. It keeps the arm's configuration and logs each move.
 
-    def __init__(self, planner: GainPlanner, arm: ArmFeasibility, geometry, start: ArmMove, top_k: int = 200) -> None:
+    With ``swept`` (a :class:`SweptVolume`), the space the arm has swept (the move from its
+    reference configuration to ``start``, then every planned move) is carved free in the grid
+    the planner and the collision check see; the camera's map is not changed."""
+
+    def __init__(
+        self,
+        planner: GainPlanner,
+        arm: ArmFeasibility,
+        geometry,
+        start: ArmMove,
+        top_k: int = 200,
+        swept: SweptVolume | None = None,
+    ) -> None:
         self.planner = planner
         self.arm = arm
         self.geometry = geometry
         self.top_k = top_k
+        self.swept = swept
         self.name = f"{planner.name} arm λ={arm.motion_weight:g}"
         self.moves: list[ArmMove] = [start]
         self.last_report: FeasibilityReport | None = None
+        if swept is not None:
+            swept.add_path(arm.robot.reference_q, start.q)
 
     @property
     def q(self) -> np.ndarray:
@@ -71,11 +94,15 @@ class ArmPlanner:
         return [] if choice is None else [choice]
 
     def plan(self, state: np.ndarray, context: PlanningContext) -> ViewChoice | None:
-        report = plan_with_arm(self.planner, state, context, self.geometry, self.arm, self.q, self.top_k)
+        known = state if self.swept is None else self.swept.carve(state)
+        report = plan_with_arm(self.planner, known, context, self.geometry, self.arm, self.q, self.top_k)
         self.last_report = report
         if report.view is None:
             return None
-        self.moves.append(ArmMove(report.view.q.copy(), report.view.path_length, dict(report.times)))
+        if self.swept is not None:
+            self.swept.add_path(self.q, report.view.q)
+        counts = {name: getattr(report, name) for name in STAGE_COUNTS}
+        self.moves.append(ArmMove(report.view.q.copy(), report.view.path_length, dict(report.times), counts))
         return report.view.choice
 
 
@@ -125,6 +152,7 @@ def run_rows(result: ExplorationResult, context: PlanningContext, moves: list[Ar
         if moves is None:
             row.update(time_gain_s=f"{record.time_total_s:.6f}", time_capability_s="", time_ik_collision_s="")
             row["joint_travel"] = ""
+            row.update(dict.fromkeys(STAGE_COUNTS, ""))
         else:
             move = moves[index]
             times = move.times if index > 0 else {}
@@ -134,6 +162,7 @@ def run_rows(result: ExplorationResult, context: PlanningContext, moves: list[Ar
                 time_ik_collision_s=f"{times.get('ik_collision', 0.0):.6f}",
                 joint_travel=f"{move.joint_travel:.6f}",
             )
+            row.update({name: move.counts.get(name, "") for name in STAGE_COUNTS})
             row.update({f"q{j}": f"{v:.8f}" for j, v in enumerate(move.q)})
         rows.append(row)
     return rows
