@@ -25,8 +25,11 @@ FREE_FLYING = "free_flying"
 
 #: Per planned arm view: views ranked by gain, left by the capability map, rejected because a
 #: camera-rigid body (hand, fingers) would enter a blocked cell, exactly checked, and rejected by
-#: IK / collision at the goal / collision on the path (FeasibilityReport fields).
-STAGE_COUNTS = ("ranked", "candidates", "camera_blocked", "checked", "unreachable", "in_collision", "path_blocked")
+#: IK / collision at the goal / collision on the path, and whether the near-camera fallback found
+#: the view (FeasibilityReport fields; counts of the pass that found it).
+STAGE_COUNTS = (
+    "ranked", "candidates", "camera_blocked", "checked", "unreachable", "in_collision", "path_blocked", "fallback",
+)  # fmt: skip
 
 
 RUN_COLUMNS = [
@@ -57,7 +60,10 @@ class ArmPlanner:
 
     With ``swept`` (a :class:`SweptVolume`), the space the arm has swept (the move from its
     reference configuration to ``start``, then every planned move) is carved free in the grid
-    the planner and the collision check see; the camera's map is not changed."""
+    the planner and the collision check see; the camera's map is not changed. With
+    ``fallback_radius_m`` > 0, an iteration in which no ranked view is feasible ranks again among
+    the origins within that distance of the camera (small moves, whose links mostly stay in
+    space already swept) before giving up."""
 
     def __init__(
         self,
@@ -67,12 +73,17 @@ class ArmPlanner:
         start: ArmMove,
         top_k: int = 200,
         swept: SweptVolume | None = None,
+        fallback_radius_m: float = 0.0,
     ) -> None:
         self.planner = planner
         self.arm = arm
         self.geometry = geometry
         self.top_k = top_k
         self.swept = swept
+        if not (np.isfinite(fallback_radius_m) and fallback_radius_m >= 0):
+            raise ValueError(f"fallback_radius_m: expected a finite radius >= 0 (0 = off), got {fallback_radius_m}")
+        self.fallback_radius_m = float(fallback_radius_m)
+        self.visited: set[tuple[int, ...]] = set()  # cells of the planned views
         self.name = f"{planner.name} arm λ={arm.motion_weight:g}"
         self.moves: list[ArmMove] = [start]
         self.last_report: FeasibilityReport | None = None
@@ -93,16 +104,36 @@ class ArmPlanner:
         choice = self.plan(state, context)
         return [] if choice is None else [choice]
 
+    def near_camera(self, origins: np.ndarray) -> np.ndarray:
+        """The origins whose cell centre lies within ``fallback_radius_m`` of the camera now,
+        except the cells views were already taken from (a static scene shows nothing new
+        from there, whatever the gain model expects)."""
+        camera = self.arm.robot.camera_pose(self.q)[:3, 3]
+        keep = np.linalg.norm(self.geometry.cell_centre(origins) - camera, axis=1) <= self.fallback_radius_m
+        if self.visited:
+            visited = np.array(sorted(self.visited))
+            keep &= ~(origins[:, None, :] == visited[None, :, :]).all(axis=2).any(axis=1)
+        return origins[keep]
+
     def plan(self, state: np.ndarray, context: PlanningContext) -> ViewChoice | None:
         known = state if self.swept is None else self.swept.carve(state)
         report = plan_with_arm(self.planner, known, context, self.geometry, self.arm, self.q, self.top_k)
+        if report.view is None and self.fallback_radius_m > 0:
+            first = report
+            report = plan_with_arm(
+                self.planner, known, context, self.geometry, self.arm, self.q, self.top_k, self.near_camera
+            )
+            report.fallback = True
+            for stage, seconds in first.times.items():  # stage times cover both passes
+                report.times[stage] = report.times.get(stage, 0.0) + seconds
         self.last_report = report
         if report.view is None:
             return None
         if self.swept is not None:
             self.swept.add_path(self.q, report.view.q)
-        counts = {name: getattr(report, name) for name in STAGE_COUNTS}
+        counts = {name: int(getattr(report, name)) for name in STAGE_COUNTS}
         self.moves.append(ArmMove(report.view.q.copy(), report.view.path_length, dict(report.times), counts))
+        self.visited.add(tuple(int(c) for c in report.view.choice.cell))
         return report.view.choice
 
 

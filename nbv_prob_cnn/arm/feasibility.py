@@ -56,6 +56,7 @@ class FeasibilityReport:
     in_collision: int = 0
     path_blocked: int = 0
     budget_exhausted: bool = False
+    fallback: bool = False  # set by callers that ranked again with a narrower origin filter
     times: dict[str, float] = field(default_factory=lambda: {"capability": 0.0, "ik_collision": 0.0})
 
 
@@ -228,12 +229,14 @@ def plan_with_arm(
     arm: ArmFeasibility,
     current_q: np.ndarray,
     top_k: int = 50,
+    origin_filter: Callable[[np.ndarray], np.ndarray] | None = None,
 ) -> FeasibilityReport:
     """Thin adapter: ``planner.rank`` (a ``GainPlanner``) on the capability-filtered origins, with
     the map's orientations as view mask (a ``GainPlanner``'s local search: only (cell, orientation)
     pairs the map keeps are ranked), then :meth:`ArmFeasibility.select`. Times: ``gain`` (the
     planner, pruning excluded), ``capability`` (origin filter, view mask and view pruning),
-    ``ik_collision`` (the exact stage)."""
+    ``ik_collision`` (the exact stage). ``origin_filter`` (optional) narrows the origins
+    further, before the capability map's filter."""
     pruning = 0.0
 
     def timed(stage: Callable[[np.ndarray], np.ndarray]) -> Callable[[np.ndarray], np.ndarray]:
@@ -246,13 +249,19 @@ def plan_with_arm(
 
         return run
 
-    origin_filter = timed(arm.origin_filter() or (lambda origins: origins))
+    reachable = arm.origin_filter() or (lambda origins: origins)
+    extra = origin_filter
+
+    def origins_kept(origins: np.ndarray) -> np.ndarray:
+        return reachable(extra(origins) if extra is not None else origins)
+
     view_mask = arm.view_mask()
     start = time.perf_counter()
+    kept = timed(origins_kept)
     if isinstance(planner, GainPlanner) and view_mask is not None:
-        ranked = planner.rank(state, context, top_k=top_k, origin_filter=origin_filter, view_mask=timed(view_mask))
+        ranked = planner.rank(state, context, top_k=top_k, origin_filter=kept, view_mask=timed(view_mask))
     else:
-        ranked = planner.rank(state, context, top_k=top_k, origin_filter=origin_filter)
+        ranked = planner.rank(state, context, top_k=top_k, origin_filter=kept)
     gain_seconds = time.perf_counter() - start - pruning
     report = arm.select(ranked, state, context, geometry, current_q)
     report.times["gain"] = gain_seconds

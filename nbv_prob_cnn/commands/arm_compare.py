@@ -35,6 +35,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="capability lookup: OR of the lattice nodes around a cell (default: AND, fewer IK failures)",
     )
     parser.add_argument(
+        "--fallback-radius",
+        type=float,
+        default=0.25,
+        help="when no ranked view is feasible, rank again within this distance (m) of the camera (0: off)",
+    )
+    parser.add_argument(
         "--no-swept",
         action="store_true",
         help="do not treat the space the arm has swept as free (the arm then sees only the camera's map)",
@@ -123,7 +129,9 @@ def run(args: argparse.Namespace) -> int:
             if weight is not None:
                 constrained = feasibility(weight, seed, capability)
                 swept = None if args.no_swept else SweptVolume(checker, geometry)
-                arm_planner = ArmPlanner(gain_planner, constrained, geometry, start, top_k=args.top_k, swept=swept)
+                arm_planner = ArmPlanner(
+                    gain_planner, constrained, geometry, start, args.top_k, swept, args.fallback_radius
+                )
                 planner, moves = arm_planner, arm_planner.moves
             ctx = context(world)
             bar.set_postfix(seed=seed, config=name)
@@ -140,7 +148,8 @@ def run(args: argparse.Namespace) -> int:
         f"λ > 0 = {args.motion_weight:g}, capability stride {args.stride}, top_k {args.top_k}, "
         f"max_checks {args.max_checks}, unknown free above {args.free_above} m, "
         f"swept space free: {'no' if args.no_swept else 'yes'}, IK alternatives {args.ik_alternatives}, "
-        f"capability lookup {'OR' if args.loose_capability else 'AND'} of the surrounding nodes"
+        f"capability lookup {'OR' if args.loose_capability else 'AND'} of the surrounding nodes, "
+        f"near-camera fallback radius {args.fallback_radius:g} m"
     )
     write_summary(summaries, out / "summary.csv", out / "summary.md", args.views, header)
     save_comparison_png(summaries, out / "comparison.png", f"3DT, {len(seeds)} scenes, {args.method}")
