@@ -109,9 +109,7 @@ def test_camera_rigid_points_follow_the_camera(robot, chain, checker):
         q = chain.full_configuration(rng.uniform(chain.lower, chain.upper), robot.reference_q)
         camera = robot.camera_pose(q)
         poses = checker.body_poses(q)  # pinocchio forward kinematics of the bodies themselves
-        expected = np.vstack(
-            [checker.points[i] @ poses[i][:3, :3].T + poses[i][:3, 3] for i in checker.camera_rigid]
-        )
+        expected = np.vstack([checker.points[i] @ poses[i][:3, :3].T + poses[i][:3, 3] for i in checker.camera_rigid])
         np.testing.assert_allclose(local @ camera[:3, :3].T + camera[:3, 3], expected, atol=1e-9)
 
 

@@ -63,7 +63,10 @@ class ArmPlanner:
     the planner and the collision check see; the camera's map is not changed. With
     ``fallback_radius_m`` > 0, an iteration in which no ranked view is feasible ranks again among
     the origins within that distance of the camera (small moves, whose links mostly stay in
-    space already swept) before giving up."""
+    space already swept) before giving up. Views already taken (``first`` and every planned one)
+    are never ranked again: in a static scene a view repeated shows nothing new, while the gain
+    model may still credit it (seen in ``arm-compare``: a view kept its ``prob_ig`` gain after
+    being taken and the arm, unable to reach the better ones, took it again and again)."""
 
     def __init__(
         self,
@@ -74,6 +77,7 @@ class ArmPlanner:
         top_k: int = 200,
         swept: SweptVolume | None = None,
         fallback_radius_m: float = 0.0,
+        first: ViewChoice | None = None,
     ) -> None:
         self.planner = planner
         self.arm = arm
@@ -83,7 +87,10 @@ class ArmPlanner:
         if not (np.isfinite(fallback_radius_m) and fallback_radius_m >= 0):
             raise ValueError(f"fallback_radius_m: expected a finite radius >= 0 (0 = off), got {fallback_radius_m}")
         self.fallback_radius_m = float(fallback_radius_m)
-        self.visited: set[tuple[int, ...]] = set()  # cells of the planned views
+        self.taken: set[tuple[tuple[int, ...], int]] = set()  # (cell, orientation) of the views taken
+        self.n_views = 0
+        if first is not None:
+            self.take(first)
         self.name = f"{planner.name} arm λ={arm.motion_weight:g}"
         self.moves: list[ArmMove] = [start]
         self.last_report: FeasibilityReport | None = None
@@ -104,25 +111,29 @@ class ArmPlanner:
         choice = self.plan(state, context)
         return [] if choice is None else [choice]
 
+    def take(self, choice: ViewChoice) -> None:
+        self.taken.add((tuple(int(c) for c in choice.cell), int(choice.view_index)))
+
     def near_camera(self, origins: np.ndarray) -> np.ndarray:
-        """The origins whose cell centre lies within ``fallback_radius_m`` of the camera now,
-        except the cells views were already taken from (a static scene shows nothing new
-        from there, whatever the gain model expects)."""
+        """The origins whose cell centre lies within ``fallback_radius_m`` of the camera now."""
         camera = self.arm.robot.camera_pose(self.q)[:3, 3]
-        keep = np.linalg.norm(self.geometry.cell_centre(origins) - camera, axis=1) <= self.fallback_radius_m
-        if self.visited:
-            visited = np.array(sorted(self.visited))
-            keep &= ~(origins[:, None, :] == visited[None, :, :]).all(axis=2).any(axis=1)
-        return origins[keep]
+        return origins[np.linalg.norm(self.geometry.cell_centre(origins) - camera, axis=1) <= self.fallback_radius_m]
+
+    def not_taken(self, origins: np.ndarray) -> np.ndarray:
+        """``(N, V)`` view mask: False for the (cell, orientation) pairs already taken."""
+        allowed = np.ones((origins.shape[0], self.n_views), dtype=bool)
+        for (i, j, k), view in self.taken:
+            allowed[(origins[:, 0] == i) & (origins[:, 1] == j) & (origins[:, 2] == k), view] = False
+        return allowed
 
     def plan(self, state: np.ndarray, context: PlanningContext) -> ViewChoice | None:
         known = state if self.swept is None else self.swept.carve(state)
-        report = plan_with_arm(self.planner, known, context, self.geometry, self.arm, self.q, self.top_k)
+        self.n_views = len(context.orientations)
+        args = (self.planner, known, context, self.geometry, self.arm, self.q, self.top_k)
+        report = plan_with_arm(*args, view_mask=self.not_taken)
         if report.view is None and self.fallback_radius_m > 0:
             first = report
-            report = plan_with_arm(
-                self.planner, known, context, self.geometry, self.arm, self.q, self.top_k, self.near_camera
-            )
+            report = plan_with_arm(*args, origin_filter=self.near_camera, view_mask=self.not_taken)
             report.fallback = True
             for stage, seconds in first.times.items():  # stage times cover both passes
                 report.times[stage] = report.times.get(stage, 0.0) + seconds
@@ -133,7 +144,7 @@ class ArmPlanner:
             self.swept.add_path(self.q, report.view.q)
         counts = {name: int(getattr(report, name)) for name in STAGE_COUNTS}
         self.moves.append(ArmMove(report.view.q.copy(), report.view.path_length, dict(report.times), counts))
-        self.visited.add(tuple(int(c) for c in report.view.choice.cell))
+        self.take(report.view.choice)
         return report.view.choice
 
 

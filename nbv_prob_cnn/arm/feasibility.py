@@ -230,13 +230,15 @@ def plan_with_arm(
     current_q: np.ndarray,
     top_k: int = 50,
     origin_filter: Callable[[np.ndarray], np.ndarray] | None = None,
+    view_mask: Callable[[np.ndarray], np.ndarray] | None = None,
 ) -> FeasibilityReport:
     """Thin adapter: ``planner.rank`` (a ``GainPlanner``) on the capability-filtered origins, with
     the map's orientations as view mask (a ``GainPlanner``'s local search: only (cell, orientation)
     pairs the map keeps are ranked), then :meth:`ArmFeasibility.select`. Times: ``gain`` (the
     planner, pruning excluded), ``capability`` (origin filter, view mask and view pruning),
     ``ik_collision`` (the exact stage). ``origin_filter`` (optional) narrows the origins
-    further, before the capability map's filter."""
+    further, before the capability map's filter; ``view_mask`` (optional) is ANDed with the
+    map's (a ``GainPlanner``'s local search only)."""
     pruning = 0.0
 
     def timed(stage: Callable[[np.ndarray], np.ndarray]) -> Callable[[np.ndarray], np.ndarray]:
@@ -255,11 +257,19 @@ def plan_with_arm(
     def origins_kept(origins: np.ndarray) -> np.ndarray:
         return reachable(extra(origins) if extra is not None else origins)
 
-    view_mask = arm.view_mask()
+    mapped = arm.view_mask()
+    extra_mask = view_mask
+
+    def views_kept(origins: np.ndarray) -> np.ndarray:
+        allowed = (
+            mapped(origins) if mapped is not None else np.ones((origins.shape[0], len(context.orientations)), bool)
+        )
+        return allowed & extra_mask(origins) if extra_mask is not None else allowed
+
     start = time.perf_counter()
     kept = timed(origins_kept)
-    if isinstance(planner, GainPlanner) and view_mask is not None:
-        ranked = planner.rank(state, context, top_k=top_k, origin_filter=kept, view_mask=timed(view_mask))
+    if isinstance(planner, GainPlanner) and (mapped is not None or extra_mask is not None):
+        ranked = planner.rank(state, context, top_k=top_k, origin_filter=kept, view_mask=timed(views_kept))
     else:
         ranked = planner.rank(state, context, top_k=top_k, origin_filter=kept)
     gain_seconds = time.perf_counter() - start - pruning

@@ -130,7 +130,7 @@ def run(args: argparse.Namespace) -> int:
                 constrained = feasibility(weight, seed, capability)
                 swept = None if args.no_swept else SweptVolume(checker, geometry)
                 arm_planner = ArmPlanner(
-                    gain_planner, constrained, geometry, start, args.top_k, swept, args.fallback_radius
+                    gain_planner, constrained, geometry, start, args.top_k, swept, args.fallback_radius, first
                 )
                 planner, moves = arm_planner, arm_planner.moves
             ctx = context(world)
