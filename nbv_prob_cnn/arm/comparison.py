@@ -17,6 +17,7 @@ import numpy as np
 
 from nbv_prob_cnn.arm.feasibility import ArmFeasibility, FeasibilityReport, plan_with_arm
 from nbv_prob_cnn.arm.swept import SweptVolume
+from nbv_prob_cnn.camera import orientations
 from nbv_prob_cnn.explore import ExplorationResult
 from nbv_prob_cnn.planners import GainPlanner, PlanningContext, ViewChoice
 from nbv_prob_cnn.planners.base import OriginFilter
@@ -88,7 +89,7 @@ class ArmPlanner:
             raise ValueError(f"fallback_radius_m: expected a finite radius >= 0 (0 = off), got {fallback_radius_m}")
         self.fallback_radius_m = float(fallback_radius_m)
         self.taken: set[tuple[tuple[int, ...], int]] = set()  # (cell, orientation) of the views taken
-        self.n_views = 0
+        self.n_views = len(orientations(3))  # the arm plans in 3D grids
         if first is not None:
             self.take(first)
         self.name = f"{planner.name} arm λ={arm.motion_weight:g}"
@@ -128,7 +129,6 @@ class ArmPlanner:
 
     def plan(self, state: np.ndarray, context: PlanningContext) -> ViewChoice | None:
         known = state if self.swept is None else self.swept.carve(state)
-        self.n_views = len(context.orientations)
         args = (self.planner, known, context, self.geometry, self.arm, self.q, self.top_k)
         report = plan_with_arm(*args, view_mask=self.not_taken)
         if report.view is None and self.fallback_radius_m > 0:
