@@ -120,9 +120,16 @@ def test_summary_matches_the_run_logs(compared):
         assert float(summary[config]["unknown_fraction_final_mean"]) == pytest.approx(
             float(rows[-1]["unknown_fraction"]), abs=1e-6
         )
+        assert int(summary[config]["runs_complete"]) == int(len(rows) == VIEWS)
         if config != "free_flying":
             travel = sum(float(row["joint_travel"]) for row in rows)
             assert float(summary[config]["joint_travel_total_mean"]) == pytest.approx(travel, abs=1e-5)
+            checked = np.mean([int(row["checked"]) for row in rows[1:]])
+            assert float(summary[config]["checked_per_view_mean"]) == pytest.approx(checked, abs=1e-3)
+            fallback = sum(int(row["fallback"]) for row in rows[1:])
+            assert float(summary[config]["fallback_views_per_run_mean"]) == pytest.approx(fallback, abs=1e-3)
+        else:
+            assert summary[config]["checked_per_view_mean"] == ""
     assert summary["free_flying"]["joint_travel_total_mean"] == ""
     table = (compared / "summary.md").read_text()
     assert all(f"| {config} |" in table for config in CONFIGS)

@@ -244,6 +244,10 @@ class ConfigSummary:
     time_capability_mean: float
     time_ik_collision_mean: float
     curve: np.ndarray  # mean unknown fraction per view (a run that stopped keeps its last value)
+    runs_complete: int = 0  # runs that took every view
+    checked_mean: float = math.nan  # exact checks per planned view (arm)
+    camera_blocked_mean: float = math.nan  # views rejected by the camera-rigid bodies per planned view (arm)
+    fallback_views_mean: float = math.nan  # planned views per run found by the near-camera fallback (arm)
 
 
 def summarize(runs: dict[str, list[list[dict]]], views: int) -> list[ConfigSummary]:
@@ -252,6 +256,7 @@ def summarize(runs: dict[str, list[list[dict]]], views: int) -> list[ConfigSumma
     for config, logs in runs.items():
         curves = np.empty((len(logs), views))
         travel, gain_t, cap_t, ik_t = [], [], [], []
+        checked, blocked, fallback = [], [], []
         for r, rows in enumerate(logs):
             fractions = [float(row["unknown_fraction"]) for row in rows]
             curves[r] = fractions + [fractions[-1]] * (views - len(fractions))
@@ -260,6 +265,9 @@ def summarize(runs: dict[str, list[list[dict]]], views: int) -> list[ConfigSumma
             gain_t += [_float(row["time_gain_s"]) for row in planned]
             cap_t += [_float(row["time_capability_s"]) for row in planned]
             ik_t += [_float(row["time_ik_collision_s"]) for row in planned]
+            checked += [_float(row.get("checked", "")) for row in planned]
+            blocked += [_float(row.get("camera_blocked", "")) for row in planned]
+            fallback.append(sum(_float(row.get("fallback", "")) for row in planned))
 
         def mean(values: list[float]) -> float:
             return float(np.mean(values)) if values else math.nan
@@ -276,6 +284,10 @@ def summarize(runs: dict[str, list[list[dict]]], views: int) -> list[ConfigSumma
                 mean(cap_t),
                 mean(ik_t),
                 curves.mean(axis=0),
+                sum(len(rows) == views for rows in logs),
+                mean(checked),
+                mean(blocked),
+                mean(fallback),
             )
         )
     return out
@@ -284,6 +296,7 @@ def summarize(runs: dict[str, list[list[dict]]], views: int) -> list[ConfigSumma
 SUMMARY_COLUMNS = [
     "config", "runs", "views_mean", "unknown_fraction_final_mean", "unknown_fraction_final_std",
     "joint_travel_total_mean", "time_gain_s_mean", "time_capability_s_mean", "time_ik_collision_s_mean",
+    "runs_complete", "checked_per_view_mean", "camera_blocked_per_view_mean", "fallback_views_per_run_mean",
 ]  # fmt: skip
 
 
@@ -300,22 +313,26 @@ def write_summary(summaries: list[ConfigSummary], csv_path: Path, md_path: Path,
             writer.writerow(
                 [s.config, s.runs, f"{s.views_mean:.2f}", f"{s.unknown_final_mean:.6f}", f"{s.unknown_final_std:.6f}"]
                 + [_cell(v, 6) for v in (s.joint_travel_mean, s.time_gain_mean, s.time_capability_mean)]
-                + [_cell(s.time_ik_collision_mean, 6)]
+                + [_cell(s.time_ik_collision_mean, 6), s.runs_complete]
+                + [_cell(v, 3) for v in (s.checked_mean, s.camera_blocked_mean, s.fallback_views_mean)]
             )
     lines = [
         header,
         "",
         (
             f"| configuration | runs | views (mean) | unknown fraction after {views} views | total joint travel (rad) "
-            "| gain s/view | capability s/view | IK+collision s/view |"
+            "| gain s/view | capability s/view | IK+collision s/view | runs with all views "
+            "| exact checks/view | hand-blocked/view | fallback views/run |"
         ),
-        "|---|---|---|---|---|---|---|---|",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for s in summaries:
         lines.append(
             f"| {s.config} | {s.runs} | {s.views_mean:.1f} | {s.unknown_final_mean:.4f} ± {s.unknown_final_std:.4f} "
             f"| {_cell(s.joint_travel_mean, 2) or '—'} | {s.time_gain_mean:.3f} "
-            f"| {_cell(s.time_capability_mean, 3) or '—'} | {_cell(s.time_ik_collision_mean, 3) or '—'} |"
+            f"| {_cell(s.time_capability_mean, 3) or '—'} | {_cell(s.time_ik_collision_mean, 3) or '—'} "
+            f"| {s.runs_complete} | {_cell(s.checked_mean, 1) or '—'} | {_cell(s.camera_blocked_mean, 1) or '—'} "
+            f"| {_cell(s.fallback_views_mean, 1) or '—'} |"
         )
     md_path.write_text("\n".join(lines) + "\n")
 
