@@ -25,7 +25,7 @@ from nbv_prob_cnn.planners.base import OriginFilter
 FREE_FLYING = "free_flying"
 
 #: Per planned arm view: views ranked by gain, left by the capability map, rejected because a
-#: camera-rigid body (hand, fingers) would enter a blocked cell, exactly checked, and rejected by
+#: camera-rigid body (link 7, hand, fingers) would enter a blocked cell, exactly checked, and rejected by
 #: IK / collision at the goal / collision on the path, and whether the near-camera fallback found
 #: the view (FeasibilityReport fields; counts of the pass that found it).
 STAGE_COUNTS = (
