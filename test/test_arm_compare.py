@@ -12,6 +12,7 @@ import pytest
 
 pytest.importorskip("pinocchio")
 
+from nbv_prob_cnn.arm.comparison import STAGE_COUNTS  # noqa: E402
 from nbv_prob_cnn.arm.ik import DEFAULT_IK  # noqa: E402
 from nbv_prob_cnn.arm.kinematics import CameraChain  # noqa: E402
 from nbv_prob_cnn.arm.robot import RobotModel  # noqa: E402
@@ -81,6 +82,16 @@ def test_arm_log_is_consistent_with_kinematics(compared, config):
     for row in rows[1:]:
         times = [float(row[k]) for k in ("time_gain_s", "time_capability_s", "time_ik_collision_s")]
         assert all(t >= 0 for t in times) and sum(times) <= float(row["time_total_s"]) + 1e-6
+        # candidates per stage: each stage keeps at most what the one before handed it, and
+        # every exact check but the accepted ones ends in exactly one of the three failures
+        n = {k: int(row[k]) for k in STAGE_COUNTS}
+        assert n["candidates"] <= n["ranked"] and n["camera_blocked"] + n["checked"] <= n["candidates"]
+        failures = n["unreachable"] + n["in_collision"] + n["path_blocked"]
+        if config == "arm_lambda_0":
+            assert failures == n["checked"] - 1  # λ = 0: the first feasible view ends the check
+        else:
+            assert failures <= n["checked"] - 1
+        assert n["fallback"] in (0, 1)
 
 
 @pytest.mark.parametrize("config", CONFIGS)
@@ -109,9 +120,16 @@ def test_summary_matches_the_run_logs(compared):
         assert float(summary[config]["unknown_fraction_final_mean"]) == pytest.approx(
             float(rows[-1]["unknown_fraction"]), abs=1e-6
         )
+        assert int(summary[config]["runs_complete"]) == int(len(rows) == VIEWS)
         if config != "free_flying":
             travel = sum(float(row["joint_travel"]) for row in rows)
             assert float(summary[config]["joint_travel_total_mean"]) == pytest.approx(travel, abs=1e-5)
+            checked = np.mean([int(row["checked"]) for row in rows[1:]])
+            assert float(summary[config]["checked_per_view_mean"]) == pytest.approx(checked, abs=1e-3)
+            fallback = sum(int(row["fallback"]) for row in rows[1:])
+            assert float(summary[config]["fallback_views_per_run_mean"]) == pytest.approx(fallback, abs=1e-3)
+        else:
+            assert summary[config]["checked_per_view_mean"] == ""
     assert summary["free_flying"]["joint_travel_total_mean"] == ""
     table = (compared / "summary.md").read_text()
     assert all(f"| {config} |" in table for config in CONFIGS)

@@ -71,21 +71,41 @@ class CapabilityMap:
     def reachable_fraction(self) -> float:
         return float(self.reachable.mean())
 
-    def views_at(self, cells: np.ndarray) -> np.ndarray:
+    def views_at(self, cells: np.ndarray, strict: bool = False) -> np.ndarray:
         """``(N, V)`` bool: orientations possibly reachable at grid cells ``(N, 3)``: the OR of
-        the (up to eight) lattice nodes around each cell; a cell on a node plane along an axis
-        only looks at that plane. Cells beyond the lattice see nothing."""
+        the (up to eight) lattice nodes around each cell (``strict``: the AND, fewer false
+        positives, more false negatives); a cell on a node plane along an axis only looks at
+        that plane. Cells outside the grid (negative indices) or beyond the lattice see nothing."""
         cells = np.asarray(cells, dtype=np.int64).reshape(-1, 3)
-        base = cells // self.stride
-        between = (cells % self.stride) != 0
-        out = np.zeros((cells.shape[0], self.reachable.shape[3]), dtype=bool)
-        upper = np.array(self.reachable.shape[:3]) - 1
-        for corner in np.ndindex(2, 2, 2):
-            node = base + np.array(corner) * between
-            valid = np.all((node >= 0) & (node <= upper), axis=1)
-            node = np.clip(node, 0, upper)
-            out |= self.reachable[node[:, 0], node[:, 1], node[:, 2]] & valid[:, None]
+        slot = 2 * (cells // self.stride) + ((cells % self.stride) != 0)
+        table = self._slot_table(strict)
+        inside = np.all((slot >= 0) & (slot < np.array(table.shape[:3])), axis=1)
+        out = np.zeros((cells.shape[0], table.shape[3]), dtype=bool)
+        s = slot[inside]
+        out[inside] = table[s[:, 0], s[:, 1], s[:, 2]]
         return out
+
+    def _slot_table(self, strict: bool) -> np.ndarray:
+        """Lookup per slot ``2 · node + between`` along each axis (even: on a node plane, odd:
+        between two nodes), reduced over the nodes around it once, so a query is one gather."""
+        cache = self.__dict__.setdefault("_slot_tables", {})
+        if strict not in cache:
+            nodes = np.array(self.reachable.shape[:3])
+            slots = np.stack(np.meshgrid(*[np.arange(2 * n) for n in nodes], indexing="ij"), -1).reshape(-1, 3)
+            base, between = slots // 2, slots % 2
+            table = np.full((slots.shape[0], self.reachable.shape[3]), strict, dtype=bool)
+            for corner in np.ndindex(2, 2, 2):
+                node = base + np.array(corner) * between
+                valid = np.all(node < nodes, axis=1)
+                node = np.minimum(node, nodes - 1)
+                at_node = self.reachable[node[:, 0], node[:, 1], node[:, 2]] & valid[:, None]
+                table = table & at_node if strict else table | at_node
+            cache[strict] = table.reshape(*(2 * nodes), -1)
+        return cache[strict]
+
+    def strict_views_at(self, cells: np.ndarray) -> np.ndarray:
+        """:meth:`views_at` with ``strict=True``."""
+        return self.views_at(cells, strict=True)
 
     def origin_filter(self, origins: np.ndarray) -> np.ndarray:
         """The origins where at least one orientation is possibly reachable (for ``GainPlanner.rank``)."""

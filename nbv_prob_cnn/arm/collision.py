@@ -153,6 +153,10 @@ class CollisionChecker:
         self.data = data
         self.moving = [i for i, obj in enumerate(objects) if obj.parentJoint > 0]
         self.points = {i: hull_points(body_mesh(objects[i]), spacing) for i in self.moving}
+        camera_joint = model.frames[robot.camera_frame].parentJoint
+        #: Bodies that move rigidly with the camera while only the chain joints move (the camera's
+        #: own joint and the joints below it, e.g. the hand and the fingers).
+        self.camera_rigid = [i for i in self.moving if camera_joint in list(model.supports[objects[i].parentJoint])]
 
     @property
     def n_pairs(self) -> int:
@@ -176,6 +180,18 @@ class CollisionChecker:
         """World positions ``(N, 3)`` of every moving body's sample points at ``q``."""
         poses = self.body_poses(q)
         return np.vstack([self.points[i] @ pose[:3, :3].T + pose[:3, 3] for i, pose in poses.items()])
+
+    def camera_rigid_points(self, q: np.ndarray) -> np.ndarray:
+        """Sample points ``(M, 3)`` of the camera-rigid bodies (:attr:`camera_rigid`) in the
+        optical frame at ``q``; they stay there for any move of the chain joints alone, so a
+        camera pose ``T`` puts them at ``points @ T[:3, :3].T + T[:3, 3]`` without IK."""
+        poses = self.body_poses(q)
+        camera_from_world = np.linalg.inv(self.robot.camera_pose(q))
+        local = []
+        for i in self.camera_rigid:
+            camera_from_body = camera_from_world @ poses[i]
+            local.append(self.points[i] @ camera_from_body[:3, :3].T + camera_from_body[:3, 3])
+        return np.vstack(local) if local else np.zeros((0, 3))
 
     def grid_collisions(self, q: np.ndarray, obstacles: GridObstacles) -> list[str]:
         """Names of the bodies that enter a blocked cell at ``q`` (empty list: free)."""

@@ -16,16 +16,27 @@ from pathlib import Path
 import numpy as np
 
 from nbv_prob_cnn.arm.feasibility import ArmFeasibility, FeasibilityReport, plan_with_arm
+from nbv_prob_cnn.arm.swept import SweptVolume
+from nbv_prob_cnn.camera import orientations
 from nbv_prob_cnn.explore import ExplorationResult
 from nbv_prob_cnn.planners import GainPlanner, PlanningContext, ViewChoice
 from nbv_prob_cnn.planners.base import OriginFilter
 
 FREE_FLYING = "free_flying"
 
+#: Per planned arm view: views ranked by gain, left by the capability map, rejected because a
+#: camera-rigid body (link 7, hand, fingers) would enter a blocked cell, exactly checked, and rejected by
+#: IK / collision at the goal / collision on the path, and whether the near-camera fallback found
+#: the view (FeasibilityReport fields; counts of the pass that found it).
+STAGE_COUNTS = (
+    "ranked", "candidates", "camera_blocked", "checked", "unreachable", "in_collision", "path_blocked", "fallback",
+)  # fmt: skip
+
+
 RUN_COLUMNS = [
     "iteration", "unknown_fraction", "unknown_fraction_all", "gain", "time_total_s", "time_gain_s",
     "time_capability_s", "time_ik_collision_s", "joint_travel", "cell_i", "cell_j", "cell_k", "view_index",
-    "x", "y", "z", "qx", "qy", "qz", "qw",
+    "x", "y", "z", "qx", "qy", "qz", "qw", *STAGE_COUNTS,
 ]  # fmt: skip
 
 
@@ -41,20 +52,51 @@ class ArmMove:
     q: np.ndarray
     joint_travel: float
     times: dict[str, float] = field(default_factory=dict)
+    counts: dict[str, int] = field(default_factory=dict)  # candidates per stage, see STAGE_COUNTS
 
 
 class ArmPlanner:
     """A :class:`GainPlanner` restricted to what the arm can take (:func:`plan_with_arm`), as a
-    ``Planner`` for :func:`explore`. It keeps the arm's configuration and logs each move."""
+    ``Planner`` for :func:`explore`. It keeps the arm's configuration and logs each move.
 
-    def __init__(self, planner: GainPlanner, arm: ArmFeasibility, geometry, start: ArmMove, top_k: int = 200) -> None:
+    With ``swept`` (a :class:`SweptVolume`), the space the arm has swept (the move from its
+    reference configuration to ``start``, then every planned move) is carved free in the grid
+    the planner and the collision check see; the camera's map is not changed. With
+    ``fallback_radius_m`` > 0, an iteration in which no ranked view is feasible ranks again among
+    the origins within that distance of the camera (small moves, whose links mostly stay in
+    space already swept) before giving up. Views already taken (``first`` and every planned one)
+    are never ranked again: in a static scene a view repeated shows nothing new, while the gain
+    model may still credit it (seen in ``arm-compare``: a view kept its ``prob_ig`` gain after
+    being taken and the arm, unable to reach the better ones, took it again and again)."""
+
+    def __init__(
+        self,
+        planner: GainPlanner,
+        arm: ArmFeasibility,
+        geometry,
+        start: ArmMove,
+        top_k: int = 200,
+        swept: SweptVolume | None = None,
+        fallback_radius_m: float = 0.0,
+        first: ViewChoice | None = None,
+    ) -> None:
         self.planner = planner
         self.arm = arm
         self.geometry = geometry
         self.top_k = top_k
+        self.swept = swept
+        if not (np.isfinite(fallback_radius_m) and fallback_radius_m >= 0):
+            raise ValueError(f"fallback_radius_m: expected a finite radius >= 0 (0 = off), got {fallback_radius_m}")
+        self.fallback_radius_m = float(fallback_radius_m)
+        self.taken: set[tuple[tuple[int, ...], int]] = set()  # (cell, orientation) of the views taken
+        self.n_views = len(orientations(3))  # the arm plans in 3D grids
+        if first is not None:
+            self.take(first)
         self.name = f"{planner.name} arm λ={arm.motion_weight:g}"
         self.moves: list[ArmMove] = [start]
         self.last_report: FeasibilityReport | None = None
+        if swept is not None:
+            swept.add_path(arm.robot.reference_q, start.q)
 
     @property
     def q(self) -> np.ndarray:
@@ -70,12 +112,39 @@ class ArmPlanner:
         choice = self.plan(state, context)
         return [] if choice is None else [choice]
 
+    def take(self, choice: ViewChoice) -> None:
+        self.taken.add((tuple(int(c) for c in choice.cell), int(choice.view_index)))
+
+    def near_camera(self, origins: np.ndarray) -> np.ndarray:
+        """The origins whose cell centre lies within ``fallback_radius_m`` of the camera now."""
+        camera = self.arm.robot.camera_pose(self.q)[:3, 3]
+        return origins[np.linalg.norm(self.geometry.cell_centre(origins) - camera, axis=1) <= self.fallback_radius_m]
+
+    def not_taken(self, origins: np.ndarray) -> np.ndarray:
+        """``(N, V)`` view mask: False for the (cell, orientation) pairs already taken."""
+        allowed = np.ones((origins.shape[0], self.n_views), dtype=bool)
+        for (i, j, k), view in self.taken:
+            allowed[(origins[:, 0] == i) & (origins[:, 1] == j) & (origins[:, 2] == k), view] = False
+        return allowed
+
     def plan(self, state: np.ndarray, context: PlanningContext) -> ViewChoice | None:
-        report = plan_with_arm(self.planner, state, context, self.geometry, self.arm, self.q, self.top_k)
+        known = state if self.swept is None else self.swept.carve(state)
+        args = (self.planner, known, context, self.geometry, self.arm, self.q, self.top_k)
+        report = plan_with_arm(*args, view_mask=self.not_taken)
+        if report.view is None and self.fallback_radius_m > 0:
+            first = report
+            report = plan_with_arm(*args, origin_filter=self.near_camera, view_mask=self.not_taken)
+            report.fallback = True
+            for stage, seconds in first.times.items():  # stage times cover both passes
+                report.times[stage] = report.times.get(stage, 0.0) + seconds
         self.last_report = report
         if report.view is None:
             return None
-        self.moves.append(ArmMove(report.view.q.copy(), report.view.path_length, dict(report.times)))
+        if self.swept is not None:
+            self.swept.add_path(self.q, report.view.q)
+        counts = {name: int(getattr(report, name)) for name in STAGE_COUNTS}
+        self.moves.append(ArmMove(report.view.q.copy(), report.view.path_length, dict(report.times), counts))
+        self.take(report.view.choice)
         return report.view.choice
 
 
@@ -125,6 +194,7 @@ def run_rows(result: ExplorationResult, context: PlanningContext, moves: list[Ar
         if moves is None:
             row.update(time_gain_s=f"{record.time_total_s:.6f}", time_capability_s="", time_ik_collision_s="")
             row["joint_travel"] = ""
+            row.update(dict.fromkeys(STAGE_COUNTS, ""))
         else:
             move = moves[index]
             times = move.times if index > 0 else {}
@@ -134,6 +204,7 @@ def run_rows(result: ExplorationResult, context: PlanningContext, moves: list[Ar
                 time_ik_collision_s=f"{times.get('ik_collision', 0.0):.6f}",
                 joint_travel=f"{move.joint_travel:.6f}",
             )
+            row.update({name: move.counts.get(name, "") for name in STAGE_COUNTS})
             row.update({f"q{j}": f"{v:.8f}" for j, v in enumerate(move.q)})
         rows.append(row)
     return rows
@@ -173,6 +244,10 @@ class ConfigSummary:
     time_capability_mean: float
     time_ik_collision_mean: float
     curve: np.ndarray  # mean unknown fraction per view (a run that stopped keeps its last value)
+    runs_complete: int = 0  # runs that took every view
+    checked_mean: float = math.nan  # exact checks per planned view (arm)
+    camera_blocked_mean: float = math.nan  # views rejected by the camera-rigid bodies per planned view (arm)
+    fallback_views_mean: float = math.nan  # planned views per run found by the near-camera fallback (arm)
 
 
 def summarize(runs: dict[str, list[list[dict]]], views: int) -> list[ConfigSummary]:
@@ -181,6 +256,7 @@ def summarize(runs: dict[str, list[list[dict]]], views: int) -> list[ConfigSumma
     for config, logs in runs.items():
         curves = np.empty((len(logs), views))
         travel, gain_t, cap_t, ik_t = [], [], [], []
+        checked, blocked, fallback = [], [], []
         for r, rows in enumerate(logs):
             fractions = [float(row["unknown_fraction"]) for row in rows]
             curves[r] = fractions + [fractions[-1]] * (views - len(fractions))
@@ -189,6 +265,9 @@ def summarize(runs: dict[str, list[list[dict]]], views: int) -> list[ConfigSumma
             gain_t += [_float(row["time_gain_s"]) for row in planned]
             cap_t += [_float(row["time_capability_s"]) for row in planned]
             ik_t += [_float(row["time_ik_collision_s"]) for row in planned]
+            checked += [_float(row.get("checked", "")) for row in planned]
+            blocked += [_float(row.get("camera_blocked", "")) for row in planned]
+            fallback.append(sum(_float(row.get("fallback", "")) for row in planned))
 
         def mean(values: list[float]) -> float:
             return float(np.mean(values)) if values else math.nan
@@ -205,6 +284,10 @@ def summarize(runs: dict[str, list[list[dict]]], views: int) -> list[ConfigSumma
                 mean(cap_t),
                 mean(ik_t),
                 curves.mean(axis=0),
+                sum(len(rows) == views for rows in logs),
+                mean(checked),
+                mean(blocked),
+                mean(fallback),
             )
         )
     return out
@@ -213,6 +296,7 @@ def summarize(runs: dict[str, list[list[dict]]], views: int) -> list[ConfigSumma
 SUMMARY_COLUMNS = [
     "config", "runs", "views_mean", "unknown_fraction_final_mean", "unknown_fraction_final_std",
     "joint_travel_total_mean", "time_gain_s_mean", "time_capability_s_mean", "time_ik_collision_s_mean",
+    "runs_complete", "checked_per_view_mean", "camera_blocked_per_view_mean", "fallback_views_per_run_mean",
 ]  # fmt: skip
 
 
@@ -229,22 +313,26 @@ def write_summary(summaries: list[ConfigSummary], csv_path: Path, md_path: Path,
             writer.writerow(
                 [s.config, s.runs, f"{s.views_mean:.2f}", f"{s.unknown_final_mean:.6f}", f"{s.unknown_final_std:.6f}"]
                 + [_cell(v, 6) for v in (s.joint_travel_mean, s.time_gain_mean, s.time_capability_mean)]
-                + [_cell(s.time_ik_collision_mean, 6)]
+                + [_cell(s.time_ik_collision_mean, 6), s.runs_complete]
+                + [_cell(v, 3) for v in (s.checked_mean, s.camera_blocked_mean, s.fallback_views_mean)]
             )
     lines = [
         header,
         "",
         (
             f"| configuration | runs | views (mean) | unknown fraction after {views} views | total joint travel (rad) "
-            "| gain s/view | capability s/view | IK+collision s/view |"
+            "| gain s/view | capability s/view | IK+collision s/view | runs with all views "
+            "| exact checks/view | hand-blocked/view | fallback views/run |"
         ),
-        "|---|---|---|---|---|---|---|---|",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for s in summaries:
         lines.append(
             f"| {s.config} | {s.runs} | {s.views_mean:.1f} | {s.unknown_final_mean:.4f} ± {s.unknown_final_std:.4f} "
             f"| {_cell(s.joint_travel_mean, 2) or '—'} | {s.time_gain_mean:.3f} "
-            f"| {_cell(s.time_capability_mean, 3) or '—'} | {_cell(s.time_ik_collision_mean, 3) or '—'} |"
+            f"| {_cell(s.time_capability_mean, 3) or '—'} | {_cell(s.time_ik_collision_mean, 3) or '—'} "
+            f"| {s.runs_complete} | {_cell(s.checked_mean, 1) or '—'} | {_cell(s.camera_blocked_mean, 1) or '—'} "
+            f"| {_cell(s.fallback_views_mean, 1) or '—'} |"
         )
     md_path.write_text("\n".join(lines) + "\n")
 

@@ -15,19 +15,19 @@ is free of self- and grid collision, and the straight joint path to it is free a
 from __future__ import annotations
 
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from nbv_prob_cnn.arm.capability import CapabilityMap
 from nbv_prob_cnn.arm.collision import CollisionChecker, GridObstacles
-from nbv_prob_cnn.arm.ik import DEFAULT_IK, IkSettings, solve_camera_pose
+from nbv_prob_cnn.arm.ik import DEFAULT_IK, IkSettings, alternative_solutions, solve_camera_pose
 from nbv_prob_cnn.arm.kinematics import CameraChain
 from nbv_prob_cnn.arm.robot import RobotModel
 from nbv_prob_cnn.camera import matrix_from_quaternion
 from nbv_prob_cnn.geometry import GridGeometry
-from nbv_prob_cnn.planners import PlanningContext, ViewChoice
+from nbv_prob_cnn.planners import GainPlanner, PlanningContext, ViewChoice
 from nbv_prob_cnn.planners.requests import view_pose
 
 
@@ -43,15 +43,20 @@ class ArmView:
 
 @dataclass
 class FeasibilityReport:
-    """Outcome of :meth:`ArmFeasibility.select`: the chosen view (None if none is feasible) and
-    counters/times (seconds) of the exact stage."""
+    """Outcome of :meth:`ArmFeasibility.select`: the chosen view (None if none is feasible),
+    counters (ranked views, candidates left by the capability map, exact checks and why they
+    failed) and times (seconds) of the stages."""
 
     view: ArmView | None
+    ranked: int = 0
+    candidates: int = 0
+    camera_blocked: int = 0
     checked: int = 0
     unreachable: int = 0
     in_collision: int = 0
     path_blocked: int = 0
     budget_exhausted: bool = False
+    fallback: bool = False  # set by callers that ranked again with a narrower origin filter
     times: dict[str, float] = field(default_factory=lambda: {"capability": 0.0, "ik_collision": 0.0})
 
 
@@ -70,6 +75,11 @@ class ArmFeasibility:
         max_checks: at most this many candidates get the exact check per call (bounds the time
             when the ranked views are mostly infeasible); 0 = no limit.
         rng: random restarts of IK.
+        ik_alternatives: when the first IK solution of a view collides (or its path does), up to
+            this many other solutions of the same pose (:func:`alternative_solutions`) are
+            checked before the view is rejected; 0 = the first solution only.
+        strict_capability: views pass the capability map only when every lattice node around
+            their cell reaches the orientation (:meth:`CapabilityMap.views_at` ``strict``).
     """
 
     def __init__(
@@ -84,6 +94,8 @@ class ArmFeasibility:
         max_checks: int = 0,
         ik_settings: IkSettings = DEFAULT_IK,
         rng: np.random.Generator | None = None,
+        ik_alternatives: int = 0,
+        strict_capability: bool = False,
     ) -> None:
         if not (np.isfinite(motion_weight) and motion_weight >= 0):
             raise ValueError(f"motion_weight: expected a finite value >= 0, got {motion_weight}")
@@ -101,11 +113,22 @@ class ArmFeasibility:
             raise ValueError(f"max_checks: expected >= 0 (0 = no limit), got {max_checks}")
         self.max_checks = int(max_checks)
         self.ik_settings = ik_settings
+        if ik_alternatives < 0:
+            raise ValueError(f"ik_alternatives: expected >= 0, got {ik_alternatives}")
+        self.ik_alternatives = int(ik_alternatives)
+        self.strict_capability = bool(strict_capability)
         self.rng = rng if rng is not None else np.random.default_rng()
 
     def origin_filter(self) -> Callable[[np.ndarray], np.ndarray] | None:
         """Origin filter for ``GainPlanner.rank`` (None without a capability map)."""
         return self.capability.origin_filter if self.capability is not None else None
+
+    def view_mask(self) -> Callable[[np.ndarray], np.ndarray] | None:
+        """Orientations possibly reachable per origin, for ``GainPlanner.rank`` (None without a
+        capability map): the ranked list then holds only (cell, orientation) pairs the map keeps."""
+        if self.capability is None:
+            return None
+        return self.capability.strict_views_at if self.strict_capability else self.capability.views_at
 
     def prune(self, ranked: Sequence[ViewChoice]) -> list[ViewChoice]:
         """The ranked views whose (cell, orientation) the capability map says may be reachable."""
@@ -113,8 +136,32 @@ class ArmFeasibility:
             return list(ranked)
         cells = np.array([c.cell for c in ranked])
         views = np.array([c.view_index for c in ranked])
-        keep = self.capability.views_at(cells)[np.arange(len(ranked)), views]
+        keep = self.capability.views_at(cells, self.strict_capability)[np.arange(len(ranked)), views]
         return [c for c, k in zip(ranked, keep, strict=True) if k]
+
+    def _goals(self, first: np.ndarray, target: np.ndarray, current_q: np.ndarray) -> Iterator[np.ndarray]:
+        """``first``, then (computed only if asked for) up to ``ik_alternatives`` other IK
+        solutions of ``target``, closest to ``current_q`` first."""
+        yield first
+        if self.ik_alternatives:
+            others = alternative_solutions(self.chain, target, current_q, self.rng, self.ik_settings)
+            distinct = [r.q for r in others if r.q is not None and np.abs(r.q - first).max() > 1e-3]
+            yield from distinct[: self.ik_alternatives]
+
+    def _free_goal(
+        self, first: np.ndarray, target: np.ndarray, current_q: np.ndarray, obstacles: GridObstacles
+    ) -> tuple[np.ndarray | None, str]:
+        """The first of :meth:`_goals` that is collision-free with a free straight path from
+        ``current_q``; else None and why the last one failed (``"collision"`` or ``"path"``)."""
+        failure = ""
+        for goal in self._goals(first, target, current_q):
+            if not self.checker.is_free(goal, obstacles):
+                failure = "collision"
+            elif not self.checker.path_is_free(current_q, goal, obstacles, self.path_step):
+                failure = "path"
+            else:
+                return goal, ""
+        return None, failure
 
     def select(
         self,
@@ -133,36 +180,42 @@ class ArmFeasibility:
         report = FeasibilityReport(None)
         start = time.perf_counter()
         candidates = self.prune(ranked)
+        report.ranked, report.candidates = len(ranked), len(candidates)
         report.times["capability"] = time.perf_counter() - start
         start = time.perf_counter()
         obstacles = GridObstacles.from_state(state, geometry, self.margin_cells, self.free_above_m)
         obstacles = obstacles.cleared(self.checker.body_points(current_q))
+        camera_rigid = self.checker.camera_rigid_points(current_q)
         best: ArmView | None = None
         for choice in candidates:
             if best is not None and (self.motion_weight == 0.0 or choice.gain <= best.utility):
                 break
-            if self.max_checks and report.checked >= self.max_checks:
-                report.budget_exhausted = True
-                break
-            report.checked += 1
             position, quaternion = view_pose(choice, context, geometry)
             target = np.eye(4)
             target[:3, :3] = matrix_from_quaternion(quaternion)
             target[:3, 3] = position
+            if np.any(obstacles.hits(camera_rigid @ target[:3, :3].T + position)):
+                report.camera_blocked += 1  # exact for these bodies and cheap: no IK, no budget
+                continue
+            if self.max_checks and report.checked >= self.max_checks:
+                report.budget_exhausted = True
+                break
+            report.checked += 1
             solution = solve_camera_pose(self.chain, target, current_q, self.rng, self.ik_settings)
             if solution.q is None:
                 report.unreachable += 1
                 continue
-            if not self.checker.is_free(solution.q, obstacles):
-                report.in_collision += 1
+            goal, failure = self._free_goal(solution.q, target, current_q, obstacles)
+            if goal is None:
+                if failure == "collision":
+                    report.in_collision += 1
+                else:
+                    report.path_blocked += 1
                 continue
-            if not self.checker.path_is_free(current_q, solution.q, obstacles, self.path_step):
-                report.path_blocked += 1
-                continue
-            length = float(np.linalg.norm((solution.q - current_q)[self.chain.q_index]))
+            length = float(np.linalg.norm((goal - current_q)[self.chain.q_index]))
             utility = choice.gain - self.motion_weight * length
             if best is None or utility > best.utility:
-                best = ArmView(choice, solution.q, length, utility)
+                best = ArmView(choice, goal, length, utility)
         report.view = best
         report.times["ik_collision"] = time.perf_counter() - start
         return report
@@ -176,22 +229,49 @@ def plan_with_arm(
     arm: ArmFeasibility,
     current_q: np.ndarray,
     top_k: int = 50,
+    origin_filter: Callable[[np.ndarray], np.ndarray] | None = None,
+    view_mask: Callable[[np.ndarray], np.ndarray] | None = None,
 ) -> FeasibilityReport:
-    """Thin adapter: ``planner.rank`` (a ``GainPlanner``) on the capability-filtered origins, then
-    :meth:`ArmFeasibility.select`. Times: ``gain`` (the planner, pruning excluded), ``capability``
-    (origin filter and view pruning), ``ik_collision`` (the exact stage)."""
+    """Thin adapter: ``planner.rank`` (a ``GainPlanner``) on the capability-filtered origins, with
+    the map's orientations as view mask (a ``GainPlanner``'s local search: only (cell, orientation)
+    pairs the map keeps are ranked), then :meth:`ArmFeasibility.select`. Times: ``gain`` (the
+    planner, pruning excluded), ``capability`` (origin filter, view mask and view pruning),
+    ``ik_collision`` (the exact stage). ``origin_filter`` (optional) narrows the origins
+    further, before the capability map's filter; ``view_mask`` (optional) is ANDed with the
+    map's (a ``GainPlanner``'s local search only)."""
     pruning = 0.0
-    inner = arm.origin_filter()
 
-    def timed_filter(origins: np.ndarray) -> np.ndarray:
-        nonlocal pruning
-        begin = time.perf_counter()
-        kept = inner(origins) if inner is not None else origins
-        pruning += time.perf_counter() - begin
-        return kept
+    def timed(stage: Callable[[np.ndarray], np.ndarray]) -> Callable[[np.ndarray], np.ndarray]:
+        def run(cells: np.ndarray) -> np.ndarray:
+            nonlocal pruning
+            begin = time.perf_counter()
+            out = stage(cells)
+            pruning += time.perf_counter() - begin
+            return out
+
+        return run
+
+    reachable = arm.origin_filter() or (lambda origins: origins)
+    extra = origin_filter
+
+    def origins_kept(origins: np.ndarray) -> np.ndarray:
+        return reachable(extra(origins) if extra is not None else origins)
+
+    mapped = arm.view_mask()
+    extra_mask = view_mask
+
+    def views_kept(origins: np.ndarray) -> np.ndarray:
+        allowed = (
+            mapped(origins) if mapped is not None else np.ones((origins.shape[0], len(context.orientations)), bool)
+        )
+        return allowed & extra_mask(origins) if extra_mask is not None else allowed
 
     start = time.perf_counter()
-    ranked = planner.rank(state, context, top_k=top_k, origin_filter=timed_filter)
+    kept = timed(origins_kept)
+    if isinstance(planner, GainPlanner) and (mapped is not None or extra_mask is not None):
+        ranked = planner.rank(state, context, top_k=top_k, origin_filter=kept, view_mask=timed(views_kept))
+    else:
+        ranked = planner.rank(state, context, top_k=top_k, origin_filter=kept)
     gain_seconds = time.perf_counter() - start - pruning
     report = arm.select(ranked, state, context, geometry, current_q)
     report.times["gain"] = gain_seconds

@@ -136,3 +136,30 @@ def solve_camera_pose(
     distances = np.linalg.norm(q[ok] - start, axis=1)
     best = int(np.argmin(distances))
     return IkResult(chain.full_configuration(q[ok][best], current_q), float(distances[best]))
+
+
+def alternative_solutions(
+    chain: CameraChain,
+    target: np.ndarray,
+    current_q: np.ndarray,
+    rng: np.random.Generator,
+    settings: IkSettings = DEFAULT_IK,
+    min_separation: float = 0.2,
+) -> list[IkResult]:
+    """Other IK solutions of one pose (a redundant arm reaches it with different elbow/wrist
+    placements): ``settings.restarts`` random seeds plus ``current_q``, each run to convergence,
+    the converged ones sorted by chain-joint distance from the seed, keeping only solutions at
+    least ``min_separation`` rad (Euclidean) from every one kept before."""
+    current_q = np.asarray(current_q, dtype=np.float64)
+    start = current_q[chain.q_index]
+    seeds = np.vstack([start, rng.uniform(chain.lower, chain.upper, size=(settings.restarts, chain.n))])
+    q, ok = solve_batch(chain, np.broadcast_to(target, (seeds.shape[0], 4, 4)), seeds, settings)
+    found = q[ok]
+    distances = np.linalg.norm(found - start, axis=1)
+    kept: list[np.ndarray] = []
+    results = []
+    for index in np.argsort(distances, kind="stable"):
+        if all(np.linalg.norm(found[index] - other) >= min_separation for other in kept):
+            kept.append(found[index])
+            results.append(IkResult(chain.full_configuration(found[index], current_q), float(distances[index])))
+    return results

@@ -26,6 +26,25 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--free-above", type=float, default=0.4, help="tabletop prior: unknown above this height (m) does not block"
     )
+    parser.add_argument(
+        "--ik-alternatives", type=int, default=4, help="other IK solutions tried when the first one collides"
+    )
+    parser.add_argument(
+        "--loose-capability",
+        action="store_true",
+        help="capability lookup: OR of the lattice nodes around a cell (default: AND, fewer IK failures)",
+    )
+    parser.add_argument(
+        "--fallback-radius",
+        type=float,
+        default=0.25,
+        help="when no ranked view is feasible, rank again within this distance (m) of the camera (0: off)",
+    )
+    parser.add_argument(
+        "--no-swept",
+        action="store_true",
+        help="do not treat the space the arm has swept as free (the arm then sees only the camera's map)",
+    )
     parser.add_argument("--quiet", action="store_true", help="no progress bars")
 
 
@@ -47,6 +66,7 @@ def run(args: argparse.Namespace) -> int:
     )
     from nbv_prob_cnn.arm.feasibility import ArmFeasibility
     from nbv_prob_cnn.arm.robot import RobotModel
+    from nbv_prob_cnn.arm.swept import SweptVolume
     from nbv_prob_cnn.camera import dataset_defaults
     from nbv_prob_cnn.explore import explore
     from nbv_prob_cnn.planners import GAIN_METHODS, GainPlanner, Planner, PlanningContext
@@ -54,6 +74,8 @@ def run(args: argparse.Namespace) -> int:
 
     if args.method not in GAIN_METHODS:
         raise ValueError(f"--method: expected one of {sorted(GAIN_METHODS)}, got {args.method!r}")
+    if args.ik_alternatives < 0:
+        raise ValueError(f"--ik-alternatives: expected >= 0, got {args.ik_alternatives}")
     if args.scenes < 1 or args.views < 1:
         raise ValueError("--scenes and --views: expected at least 1")
     if not (np.isfinite(args.motion_weight) and args.motion_weight > 0):
@@ -77,6 +99,8 @@ def run(args: argparse.Namespace) -> int:
             free_above_m=args.free_above,
             max_checks=args.max_checks,
             rng=np.random.default_rng(seed),
+            ik_alternatives=args.ik_alternatives,
+            strict_capability=not args.loose_capability,
         )
 
     def context(world) -> PlanningContext:
@@ -104,7 +128,10 @@ def run(args: argparse.Namespace) -> int:
             moves = None
             if weight is not None:
                 constrained = feasibility(weight, seed, capability)
-                arm_planner = ArmPlanner(gain_planner, constrained, geometry, start, top_k=args.top_k)
+                swept = None if args.no_swept else SweptVolume(checker, geometry)
+                arm_planner = ArmPlanner(
+                    gain_planner, constrained, geometry, start, args.top_k, swept, args.fallback_radius, first
+                )
                 planner, moves = arm_planner, arm_planner.moves
             ctx = context(world)
             bar.set_postfix(seed=seed, config=name)
@@ -119,7 +146,10 @@ def run(args: argparse.Namespace) -> int:
     header = (
         f"3DT seeds {seeds[0]}..{seeds[-1]} ({len(seeds)} scenes) x {args.views} views, method {args.method}, "
         f"λ > 0 = {args.motion_weight:g}, capability stride {args.stride}, top_k {args.top_k}, "
-        f"max_checks {args.max_checks}, unknown free above {args.free_above} m"
+        f"max_checks {args.max_checks}, unknown free above {args.free_above} m, "
+        f"swept space free: {'no' if args.no_swept else 'yes'}, IK alternatives {args.ik_alternatives}, "
+        f"capability lookup {'OR' if args.loose_capability else 'AND'} of the surrounding nodes, "
+        f"near-camera fallback radius {args.fallback_radius:g} m"
     )
     write_summary(summaries, out / "summary.csv", out / "summary.md", args.views, header)
     save_comparison_png(summaries, out / "comparison.png", f"3DT, {len(seeds)} scenes, {args.method}")

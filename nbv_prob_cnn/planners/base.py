@@ -22,6 +22,8 @@ CompletionHook = Callable[[np.ndarray, "PlanningContext"], np.ndarray]
 RankHook = Callable[[str, np.ndarray, "np.ndarray | None", int], "list[ViewChoice]"]
 #: Narrows candidate origins (e.g. to a reachable box): ``(N, dims) -> (M, dims)``.
 OriginFilter = Callable[[np.ndarray], np.ndarray]
+#: Allowed orientations at origins: ``(N, 3)`` cells → ``(N, V)`` bool (e.g. a capability map).
+ViewMask = Callable[[np.ndarray], np.ndarray]
 
 
 @dataclass
@@ -139,6 +141,7 @@ def search_views(
     top_k: int = 1,
     prune: bool = True,
     prune_views: bool = True,
+    view_mask: ViewMask | None = None,
 ) -> list[ViewChoice]:
     """The ``top_k`` (origin, orientation) pairs with the largest ``G_W``, best first (SPEC §5).
 
@@ -147,10 +150,11 @@ def search_views(
     Views with zero gain are never returned. With ``top_k == 1`` on OpenCL (and ``prune``) the
     exact coarse-to-fine search :func:`~nbv_prob_cnn.gain.best_origin_view` finds the same view
     without evaluating origins that provably cannot reach it (``prune_views``: nor views; False
-    evaluates every view of the origins it evaluates, for comparison).
+    evaluates every view of the origins it evaluates, for comparison). ``view_mask`` (optional)
+    gives the orientations allowed at each origin; the others count as zero gain (never returned).
     """
     sensor = context.active_sensor
-    if top_k == 1 and prune and _uses_opencl(context.backend) and origins.shape[0] > 0:
+    if top_k == 1 and prune and view_mask is None and _uses_opencl(context.backend) and origins.shape[0] > 0:
         t0 = time.perf_counter()
         block = 2 * (context.origin_stride or context.defaults.origin_stride)  # about 2^dims origins per block
         index, view, gain = best_origin_view(
@@ -170,7 +174,13 @@ def search_views(
         views = origin_view_gains(
             state, prob, context.directions, sensor.r_max, context.membership, chunk, context.backend,
             mode=mode, eps=context.eps, min_range=sensor.min_range,
-        ).ravel()  # fmt: skip
+        )  # fmt: skip
+        if view_mask is not None:
+            allowed = np.asarray(view_mask(chunk), dtype=bool)
+            if allowed.shape != views.shape:
+                raise ValueError(f"view_mask: expected a {views.shape} bool mask, got shape {allowed.shape}")
+            views = np.where(allowed, views, 0.0).astype(views.dtype, copy=False)
+        views = views.ravel()
         t1 = time.perf_counter()
         k = min(top_k, views.size)
         if k == 1:

@@ -25,7 +25,14 @@ import numpy as np
 
 from nbv_prob_cnn.grid import probability_from_truth, probability_with_constant
 from nbv_prob_cnn.modes import GainMode, ProbabilitySource
-from nbv_prob_cnn.planners.base import OriginFilter, PlanningContext, RankingPlanner, ViewChoice, search_views
+from nbv_prob_cnn.planners.base import (
+    OriginFilter,
+    PlanningContext,
+    RankingPlanner,
+    ViewChoice,
+    ViewMask,
+    search_views,
+)
 
 #: Origins evaluated by the downsampled method, per dimensionality (SPEC §5).
 DOWNSAMPLED_ORIGINS = {2: 2000, 3: 500}
@@ -107,8 +114,11 @@ class GainPlanner(RankingPlanner):
         context: PlanningContext,
         top_k: int = 1,
         origin_filter: OriginFilter | None = None,
+        view_mask: ViewMask | None = None,
     ) -> list[ViewChoice]:
-        """The ``top_k`` best views, best first (empty if no view has positive gain)."""
+        """The ``top_k`` best views, best first (empty if no view has positive gain).
+        ``view_mask``: orientations allowed per origin (local search only; a remote ranker
+        ignores it)."""
         uses_cnn = self.method.probability == "cnn"
         start = time.perf_counter()
         prob = probability_map(self.method, state, context) if (uses_cnn or context.ranker is None) else None
@@ -117,7 +127,7 @@ class GainPlanner(RankingPlanner):
             found = context.ranker(self.name, state, prob, top_k)
         else:
             origins = method_origins(self.method, state, context, origin_filter)
-            found = search_views(state, prob, origins, context, self.method.mode, top_k)
+            found = search_views(state, prob, origins, context, self.method.mode, top_k, view_mask=view_mask)
         for choice in found:
             choice.times["cnn"] = t_prob if uses_cnn else 0.0
         return found

@@ -1,0 +1,319 @@
+"""What keeps the arm-constrained exploration going: the swept space counted free, the capability
+map as view mask in the ranking (strict lookup), camera-rigid bodies checked before IK, and other
+IK solutions of a pose tried when the first one collides."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+pytest.importorskip("pinocchio")
+
+from nbv_prob_cnn.arm.capability import CapabilityMap  # noqa: E402
+from nbv_prob_cnn.arm.collision import CollisionChecker, GridObstacles  # noqa: E402
+from nbv_prob_cnn.arm.feasibility import ArmFeasibility  # noqa: E402
+from nbv_prob_cnn.arm.ik import DEFAULT_IK, alternative_solutions, solve_camera_pose  # noqa: E402
+from nbv_prob_cnn.arm.kinematics import CameraChain  # noqa: E402
+from nbv_prob_cnn.arm.robot import RobotModel  # noqa: E402
+from nbv_prob_cnn.arm.swept import SweptVolume  # noqa: E402
+from nbv_prob_cnn.camera import DATASETS, DatasetDefaults, Sensor, matrix_from_quaternion  # noqa: E402
+from nbv_prob_cnn.gain import ray_gains  # noqa: E402
+from nbv_prob_cnn.geometry import GridGeometry  # noqa: E402
+from nbv_prob_cnn.grid import EMPTY, OCCUPIED, UNKNOWN, probability_with_constant  # noqa: E402
+from nbv_prob_cnn.planners import GAIN_METHODS, GainPlanner, PlanningContext, ViewChoice  # noqa: E402
+from nbv_prob_cnn.planners.base import search_views  # noqa: E402
+
+GEOMETRY_3DT = GridGeometry((0.0, 0.0, 0.0), DATASETS["3dt"].resolution_m, DATASETS["3dt"].shape)
+SMALL_3D = DatasetDefaults("3du", 3, (18, 16, 14), 0.01, Sensor(60.0, 46.0, 8), 4, 3)
+
+
+@pytest.fixture(scope="module")
+def robot() -> RobotModel:
+    return RobotModel()
+
+
+@pytest.fixture(scope="module")
+def chain(robot) -> CameraChain:
+    return CameraChain(robot)
+
+
+@pytest.fixture(scope="module")
+def checker(robot) -> CollisionChecker:
+    return CollisionChecker(robot, spacing=0.75 * GEOMETRY_3DT.resolution)
+
+
+def unknown_grid() -> np.ndarray:
+    return np.full(GEOMETRY_3DT.shape, UNKNOWN, dtype=np.int8)
+
+
+def moved(robot, changes: dict[str, float]) -> np.ndarray:
+    q = robot.reference_q.copy()
+    for name, delta in changes.items():
+        q[robot.joint_names.index(name)] += delta
+    return np.clip(q, robot.lower, robot.upper)
+
+
+# --- swept space --------------------------------------------------------------------------------
+
+
+def test_swept_space_is_free_for_every_sampled_configuration(robot, checker):
+    goal = moved(robot, {"panda_joint1": 0.6, "panda_joint4": 0.5})
+    swept = SweptVolume(checker, GEOMETRY_3DT, path_step=0.05)
+    swept.add_path(robot.reference_q, goal)
+    carved = swept.carve(unknown_grid())
+    assert swept.cell_count == int(np.count_nonzero(carved == EMPTY)) > 0
+    obstacles = GridObstacles.from_state(carved, GEOMETRY_3DT)
+    # every configuration sampled on the path (12 steps of 0.05 rad for 0.6 rad) is free ...
+    for t in np.linspace(0.0, 1.0, 13):
+        assert checker.grid_collisions(robot.reference_q + t * (goal - robot.reference_q), obstacles) == []
+    # ... and a configuration the arm never took is not
+    elsewhere = moved(robot, {"panda_joint1": -1.2})
+    assert checker.grid_collision(elsewhere, obstacles)
+    assert checker.grid_collision(goal, GridObstacles.from_state(unknown_grid(), GEOMETRY_3DT))
+
+
+def test_carving_keeps_occupied_cells_and_the_input(robot, checker):
+    swept = SweptVolume(checker, GEOMETRY_3DT)
+    swept.add_configuration(robot.reference_q)
+    cell, inside = GEOMETRY_3DT.containing_cell(checker.body_points(robot.reference_q))
+    a, b = cell[inside][0], cell[inside][-1]
+    state = unknown_grid()
+    state[a[0], a[1], a[2]] = OCCUPIED
+    state[b[0], b[1], b[2]] = EMPTY
+    carved = swept.carve(state)
+    assert carved[a[0], a[1], a[2]] == OCCUPIED and carved[b[0], b[1], b[2]] == EMPTY
+    assert state[b[0] - 0, b[1], b[2]] == EMPTY and int(np.count_nonzero(state == EMPTY)) == 1  # input unchanged
+    # cells no body filled stay unknown
+    assert carved[0, 0, 0] == UNKNOWN and carved[127, 127, 95] == UNKNOWN
+
+
+def test_swept_volume_bad_input(robot, checker):
+    with pytest.raises(ValueError, match="path_step"):
+        SweptVolume(checker, GEOMETRY_3DT, path_step=0.0)
+    swept = SweptVolume(checker, GEOMETRY_3DT)
+    with pytest.raises(ValueError, match="expected a grid of shape"):
+        swept.carve(np.full((4, 4, 4), UNKNOWN, dtype=np.int8))
+    with pytest.raises(ValueError, match="q_goal"):
+        swept.add_path(robot.reference_q, np.zeros(3))
+
+
+# --- camera-rigid bodies ------------------------------------------------------------------------
+
+
+def test_camera_rigid_points_follow_the_camera(robot, chain, checker):
+    names = sorted(checker.geometry_model.geometryObjects[i].name for i in checker.camera_rigid)
+    assert names == ["panda_hand_0", "panda_leftfinger_0", "panda_link7_0", "panda_rightfinger_0"]
+    local = checker.camera_rigid_points(robot.reference_q)
+    rng = np.random.default_rng(11)
+    for _ in range(5):
+        q = chain.full_configuration(rng.uniform(chain.lower, chain.upper), robot.reference_q)
+        camera = robot.camera_pose(q)
+        poses = checker.body_poses(q)  # pinocchio forward kinematics of the bodies themselves
+        expected = np.vstack([checker.points[i] @ poses[i][:3, :3].T + poses[i][:3, 3] for i in checker.camera_rigid])
+        np.testing.assert_allclose(local @ camera[:3, :3].T + camera[:3, 3], expected, atol=1e-9)
+
+
+# --- view mask in the ranking -------------------------------------------------------------------
+
+
+def test_view_mask_ranks_only_the_allowed_views(rng):
+    state = rng.choice(np.array([-1, 0, 1], dtype=np.int8), size=SMALL_3D.shape, p=[0.5, 0.45, 0.05])
+    prob = probability_with_constant(state, 0.15)
+    context = PlanningContext(SMALL_3D, backend="numpy")
+    origins = np.argwhere(state == 0)
+    allowed = np.random.default_rng(4).random((origins.shape[0], context.membership.shape[1])) < 0.3
+    index = {tuple(c): k for k, c in enumerate(origins)}
+
+    def view_mask(cells: np.ndarray) -> np.ndarray:
+        return allowed[[index[tuple(c)] for c in cells]]
+
+    full = ray_gains(state, prob, context.directions, 8, origins, "numpy") @ context.membership
+    masked = np.where(allowed, full, 0.0).ravel()
+    order = np.lexsort((np.arange(masked.size), -masked))[:20]
+    found = search_views(state, prob, origins, context, top_k=20, view_mask=view_mask)
+    assert len(found) == 20
+    np.testing.assert_allclose([f.gain for f in found], masked[order], atol=1e-5)
+    assert all(allowed[index[tuple(f.cell)], f.view_index] for f in found)
+    with pytest.raises(ValueError, match="view_mask"):
+        search_views(state, prob, origins, context, top_k=5, view_mask=lambda cells: np.ones((1, 1), bool))
+
+
+def test_strict_capability_lookup_takes_the_and_of_surrounding_nodes():
+    geometry = GridGeometry((0.0, 0.0, 0.0), 0.01, (20, 20, 20))
+    table = np.zeros((3, 3, 3, 52), dtype=bool)
+    table[1, 1, 1, 7] = True  # node at cell (10, 10, 10)
+    table[1:, 1:, 1:, 9] = True  # the 8 nodes around cells (11..19, 11..19, 11..19)
+    cmap = CapabilityMap(table, 10, geometry)
+    cells = np.array([[10, 10, 10], [5, 5, 5], [15, 15, 15], [10, 15, 15], [15, 15, 10], [9, 15, 15]])
+    strict = cmap.views_at(cells, strict=True)
+    assert strict[:, 7].tolist() == [True, False, False, False, False, False]
+    assert strict[:, 9].tolist() == [True, False, True, True, True, False]
+    loose = cmap.views_at(cells)
+    assert loose[:, 7].tolist() == [True, True, True, True, True, True]
+    assert not np.any(strict & ~loose)
+    np.testing.assert_array_equal(cmap.strict_views_at(cells), strict)
+
+
+def test_plan_with_arm_ranks_only_views_the_map_keeps(robot, checker):
+    """With a map that allows one orientation everywhere, every ranked view has it (without the
+    view mask the top views of this grid use other orientations)."""
+    context = PlanningContext.for_dataset("3dt", backend="numpy")
+    state = unknown_grid()
+    state[30:50, 60:80, 40:60] = EMPTY
+    table = np.zeros((17, 17, 13, 52), dtype=bool)
+    table[..., 3] = True
+    capability = CapabilityMap(table, 8, GEOMETRY_3DT)
+    planner = GainPlanner(GAIN_METHODS["prob_ig"])
+    unmasked = planner.rank(state, context, top_k=20, origin_filter=capability.origin_filter)
+    assert any(c.view_index != 3 for c in unmasked)
+    arm = ArmFeasibility(robot, checker, capability, max_checks=1, rng=np.random.default_rng(0))
+    from nbv_prob_cnn.arm.feasibility import plan_with_arm
+
+    report = plan_with_arm(planner, state, context, GEOMETRY_3DT, arm, robot.reference_q, top_k=20)
+    assert report.ranked == report.candidates == 20  # all kept by the map: no pair pruned after the gain
+
+
+# --- other IK solutions -------------------------------------------------------------------------
+
+
+def test_alternative_solutions_reach_the_pose_and_differ(robot, chain):
+    goal = moved(robot, {"panda_joint1": 0.3, "panda_joint2": 0.2, "panda_joint4": 0.4})
+    target = robot.camera_pose(goal)
+    found = alternative_solutions(chain, target, robot.reference_q, np.random.default_rng(2))
+    assert len(found) >= 2  # a 7-joint arm reaches a 6-D pose in several ways
+    distances = [r.distance for r in found]
+    assert distances == sorted(distances)
+    for r in found:
+        pose = robot.camera_pose(r.q)
+        assert np.linalg.norm(pose[:3, 3] - target[:3, 3]) < DEFAULT_IK.position_tol
+        assert robot.within_limits(r.q)
+    chains = [r.q[chain.q_index] for r in found]
+    assert all(np.linalg.norm(a - b) >= 0.2 for k, a in enumerate(chains) for b in chains[k + 1 :])
+
+
+def test_other_ik_solutions_rescue_a_view_whose_first_one_collides(robot, chain, checker):
+    context = PlanningContext.for_dataset("3dt")
+    rescued = 0
+    for view in (50, 30, 20):  # a few orientations at one reachable cell
+        cell, _ = GEOMETRY_3DT.containing_cell(np.array([0.50, 0.60, 0.30]))
+        choice = ViewChoice(cell, view, 1.0)
+        quaternion = context.view_quaternion(view)
+        target = np.eye(4)
+        target[:3, :3] = matrix_from_quaternion(quaternion)
+        target[:3, 3] = GEOMETRY_3DT.cell_centre(cell)
+        first = solve_camera_pose(chain, target, robot.reference_q, np.random.default_rng(9))
+        if first.q is None:
+            continue
+        # a 5-cell cube of obstacle at the elbow (link 4 frame) of the first solution
+        state = np.zeros(GEOMETRY_3DT.shape, dtype=np.int8)
+        elbow = next(i for i in checker.moving if checker.geometry_model.geometryObjects[i].name == "panda_link4_0")
+        c, inside = GEOMETRY_3DT.containing_cell(checker.body_poses(first.q)[elbow][:3, 3])
+        assert inside
+        state[c[0] - 2 : c[0] + 3, c[1] - 2 : c[1] + 3, c[2] - 2 : c[2] + 3] = OCCUPIED
+        single = ArmFeasibility(robot, checker, rng=np.random.default_rng(9))
+        report = single.select([choice], state, context, GEOMETRY_3DT, robot.reference_q)
+        if report.view is not None:  # the obstacle also overlapped the reference pose: cleared
+            continue
+        assert report.in_collision + report.path_blocked == 1
+        several = ArmFeasibility(robot, checker, rng=np.random.default_rng(9), ik_alternatives=4)
+        report = several.select([choice], state, context, GEOMETRY_3DT, robot.reference_q)
+        if report.view is None:
+            continue
+        rescued += 1
+        q = report.view.q
+        assert np.abs(q - first.q).max() > 1e-3
+        position = robot.camera_pose(q)[:3, 3]
+        assert np.linalg.norm(position - target[:3, 3]) < DEFAULT_IK.position_tol
+        obstacles = GridObstacles.from_state(state, GEOMETRY_3DT).cleared(checker.body_points(robot.reference_q))
+        assert checker.is_free(q, obstacles)
+        assert checker.path_is_free(robot.reference_q, q, obstacles, 0.1)
+    assert rescued >= 1
+
+
+def test_bad_feasibility_arguments(robot, checker):
+    with pytest.raises(ValueError, match="ik_alternatives"):
+        ArmFeasibility(robot, checker, ik_alternatives=-1)
+
+
+# --- arm planner: views taken, near-camera fallback ---------------------------------------------
+
+
+class TwoViews:
+    """A stand-in ranker (not a GainPlanner: no view mask): the far view first, then the near one,
+    each kept only if the origin filter keeps its cell."""
+
+    name = "two_views"
+
+    def __init__(self, far: ViewChoice, near: ViewChoice) -> None:
+        self.views = [far, near]
+
+    def rank(self, state, context, top_k=1, origin_filter=None):
+        cells = np.array([v.cell for v in self.views])
+        kept = origin_filter(cells) if origin_filter is not None else cells
+        return [ViewChoice(v.cell, v.view_index, v.gain) for v in self.views if (kept == v.cell).all(axis=1).any()]
+
+
+def near_view(robot, context) -> ViewChoice:
+    """A view 5 cm beside the camera's reference pose, in the orientation closest to its own."""
+    pose = robot.camera_pose(robot.reference_q)
+    cell, inside = GEOMETRY_3DT.containing_cell(pose[:3, 3] + np.array([0.0, 0.05, 0.0]))
+    assert inside
+    angles = [np.trace(matrix_from_quaternion(q).T @ pose[:3, :3]) for q in context.orientations]
+    return ViewChoice(cell, int(np.argmax(angles)), 0.5)
+
+
+def test_fallback_ranks_again_near_the_camera(robot, checker):
+    from nbv_prob_cnn.arm.comparison import ArmMove, ArmPlanner
+
+    context = PlanningContext.for_dataset("3dt")
+    far = ViewChoice(np.array([127, 5, 90]), 50, 1.0)  # 1.9 m from the shoulder: IK fails
+    near = near_view(robot, context)
+    state = np.zeros(GEOMETRY_3DT.shape, dtype=np.int8)
+    start = ArmMove(robot.reference_q.copy(), 0.0)
+    arm = ArmFeasibility(robot, checker, max_checks=1, rng=np.random.default_rng(0))  # budget: one check
+    without = ArmPlanner(TwoViews(far, near), arm, GEOMETRY_3DT, start)
+    assert without.plan(state, context) is None  # the far view spends the budget
+    assert without.last_report.unreachable == 1 and without.last_report.budget_exhausted
+    planner = ArmPlanner(TwoViews(far, near), arm, GEOMETRY_3DT, start, fallback_radius_m=0.2)
+    camera = robot.camera_pose(robot.reference_q)[:3, 3]
+    assert np.linalg.norm(GEOMETRY_3DT.cell_centre(near.cell) - camera) <= 0.2
+    np.testing.assert_array_equal(planner.near_camera(np.array([far.cell, near.cell])), [near.cell])
+    choice = planner.plan(state, context)
+    assert choice is not None and (choice.cell == near.cell).all() and choice.view_index == near.view_index
+    assert planner.last_report.fallback and len(planner.moves) == 2
+    position = robot.camera_pose(planner.q)[:3, 3]
+    assert np.linalg.norm(position - GEOMETRY_3DT.cell_centre(near.cell)) < DEFAULT_IK.position_tol
+    with pytest.raises(ValueError, match="fallback_radius_m"):
+        ArmPlanner(TwoViews(far, near), arm, GEOMETRY_3DT, start, fallback_radius_m=-1.0)
+
+
+def test_views_taken_are_not_ranked_again(robot, checker):
+    from nbv_prob_cnn.arm.comparison import ArmMove, ArmPlanner
+
+    context = PlanningContext.for_dataset("3dt", backend="numpy")
+    first = near_view(robot, context)
+    state = np.full(GEOMETRY_3DT.shape, UNKNOWN, dtype=np.int8)
+    c = first.cell
+    state[c[0] - 4 : c[0] + 5, c[1] - 4 : c[1] + 5, c[2] - 4 : c[2] + 5] = EMPTY
+    arm = ArmFeasibility(robot, checker, free_above_m=0.0, max_checks=5, rng=np.random.default_rng(0))
+    start = ArmMove(robot.reference_q.copy(), 0.0)
+    planner = ArmPlanner(GainPlanner(GAIN_METHODS["prob_ig"]), arm, GEOMETRY_3DT, start, top_k=20, first=first)
+    mask = planner.not_taken(np.array([first.cell, first.cell + 1]))
+    assert mask.shape == (2, 52) and mask.sum() == 103 and not mask[0, first.view_index]
+    taken = {(tuple(first.cell), first.view_index)}
+    for _ in range(3):  # the map does not change: without the rule the same best view would come back
+        choice = planner.plan(state, context)
+        assert choice is not None
+        key = (tuple(int(v) for v in choice.cell), choice.view_index)
+        assert key not in taken
+        taken.add(key)
+    assert planner.taken == taken
+    # the counterfactual: forgetting the views taken, the same view comes back on the same map
+    again = ArmPlanner(GainPlanner(GAIN_METHODS["prob_ig"]), arm, GEOMETRY_3DT, start, top_k=20)
+    views = []
+    for _ in range(2):
+        again.taken.clear()
+        again.moves = [start]  # and the arm back where it started
+        choice = again.plan(state, context)
+        views.append((tuple(int(v) for v in choice.cell), choice.view_index))
+    assert views[0] == views[1]
