@@ -232,3 +232,30 @@ def test_frontier_is_unknown_next_to_empty_by_a_face():
     state = np.array([[-1, -1, -1, -1], [-1, 0, -1, 1], [-1, -1, 1, -1]], dtype=np.int8)
     expected = np.array([[0, 1, 0, 0], [1, 0, 1, 0], [0, 1, 0, 0]], dtype=bool)
     np.testing.assert_array_equal(frontier_mask(state), expected)
+
+
+@pytest.mark.parametrize("method", ["flat_city_cnn", "d_city_cnn"])
+def test_untrained_gain_heads_start_near_the_typical_gain(method):
+    """The sigmoid gain heads start near the mean gain target (~0.1), not at 0.5: from 0.5 the
+    first Adam steps drove a 2D D-City-CNN into a saturated all-zero output (its validation MSE
+    then equalled the all-zero output's to six digits)."""
+    from nbv_prob_cnn.city_cnn import build_network
+
+    torch.manual_seed(0)
+    spec = DatasetSpec("2d", 2, (32, 32), 1.0, Sensor(60.0, None, 12), 4, 2, city_n_rays=4)
+    state = np.full((32, 32), -1, dtype=np.int8)
+    state[8:24, 8:24] = 0
+    with torch.inference_mode():
+        out = build_network(method, spec, 8)(encode_city_input(state[None])).numpy()
+    assert 0.03 < out.mean() < 0.25, out.mean()
+
+
+def test_zero_output_mse_by_hand():
+    from nbv_prob_cnn.completion.tasks import Example
+    from nbv_prob_cnn.completion.train import zero_output_mse
+
+    inputs, mask = np.zeros((2, 2, 2), np.float32), np.ones((1, 2, 2), np.float32)
+    one_cell = Example(inputs, np.array([[[2.0, 0.0], [0.0, 0.0]]], np.float32), mask)  # (4 + 0 + 0 + 0) / 4 = 1
+    halves = Example(inputs, np.full((1, 2, 2), 0.5, np.float32), mask)  # 0.25
+    assert zero_output_mse([one_cell, halves]) == pytest.approx(0.625)
+    assert math.isnan(zero_output_mse([]))

@@ -75,7 +75,8 @@ def run(args: argparse.Namespace) -> int:
     ece = f", test ECE {result.ece:.4f}" if result.ece is not None else ""
     print(
         f"weights: {result.weights} (best validation MSE {result.validation_mse:.5f}, "
-        f"test MSE {result.test_mse:.5f}{ece}, {result.epochs_done} epochs)"
+        f"test MSE {result.test_mse:.5f}{ece}, {result.epochs_done} epochs; all-zero output: "
+        f"validation MSE {result.validation_zero_mse:.5f}, test MSE {result.test_zero_mse:.5f})"
     )
     print(f"history: {result.history_csv}, plot: {result.plot}, card: {result.card}")
     return 0

@@ -64,6 +64,8 @@ class TrainResult:
     test_mse: float
     ece: float | None
     epochs_done: int
+    validation_zero_mse: float = float("nan")
+    test_zero_mse: float = float("nan")
 
 
 def side_paths(out: str | Path) -> dict[str, Path]:
@@ -130,6 +132,12 @@ def _same_shape_groups(examples: Sequence[Example]) -> list[list[Example]]:
     for e in examples:
         groups.setdefault((e.inputs.shape, e.target.shape, e.mask.shape), []).append(e)
     return list(groups.values())
+
+
+def zero_output_mse(examples: Sequence[Example]) -> float:
+    """Mean per-example MSE of an all-zero output (as :func:`evaluate` scores a network): the
+    trivial solution that sparse targets invite, the baseline a trained network must beat."""
+    return float(np.mean([np.mean(e.target.astype(np.float64) ** 2) for e in examples])) if examples else float("nan")
 
 
 def fixed_examples(task: TrainingTask, samples: Sequence[TrainingSample], crop: int | None) -> list[Example]:
@@ -227,7 +235,9 @@ def _card_markdown(card: dict) -> str:
         "epochs": "Epochs trained",
         "best_epoch": "Epoch of these weights (lowest validation MSE)",
         "validation_mse": "Validation MSE of these weights",
+        "validation_zero_mse": "Validation MSE of an all-zero output (baseline)",
         "test_mse": "Test MSE of these weights",
+        "test_zero_mse": "Test MSE of an all-zero output (baseline)",
         "ece": "Calibration on the test split, unknown cells (ECE, 10 bins)",
         "final_validation_mse": "Validation MSE after the last epoch",
         "final_train_mse": "Train MSE of the last epoch",
@@ -341,6 +351,7 @@ def train(
         val_samples = load_samples(dataset, val_seeds, workers, bar.update)
         test_samples = load_samples(dataset, test_seeds, workers, bar.update)
     val_examples = fixed_examples(task, val_samples, crop_edge)
+    zero = {"validation_zero_mse": zero_output_mse(val_examples)}
     rots = rotations(dataset)
 
     torch.manual_seed(seed)
@@ -361,7 +372,7 @@ def train(
         history, best, elapsed = ckpt["history"], ckpt["best"], float(ckpt["elapsed_s"])
 
     generator_versions = sorted({s.generator_version for s in train_samples + val_samples + test_samples})
-    card_args = (dataset, method, model, run_config, generator_versions, rots, dev, command, note)
+    card_args = (dataset, method, model, run_config, generator_versions, rots, dev, command, note, zero)
     start_epoch = len(history)
     items_per_epoch = len(train_samples) * len(rots)
     steps_per_epoch = -(-items_per_epoch // batch_size)
@@ -415,7 +426,9 @@ def train(
     from nbv_prob_cnn.completion.inference import load_model
 
     kept = load_model(out, dataset, dev, model_name=method)
-    test_mse = evaluate(kept, fixed_examples(task, test_samples, crop_edge), dev, batch_size)
+    test_examples = fixed_examples(task, test_samples, crop_edge)
+    test_mse = evaluate(kept, test_examples, dev, batch_size)
+    zero["test_zero_mse"] = zero_output_mse(test_examples)
     best = {**best, "test_mse": test_mse}
     if task.is_completion:
         table = calibration_of(kept, task, test_samples, crop_edge, dev, batch_size)
@@ -435,6 +448,8 @@ def train(
         float(test_mse),
         best.get("ece"),
         len(history),
+        zero["validation_zero_mse"],
+        zero["test_zero_mse"],
     )
 
 
@@ -452,6 +467,7 @@ def _card(
     device: torch.device,
     command: str,
     note: str,
+    zero: dict[str, float],
     history: list[dict],
     best: dict,
     elapsed: float,
@@ -486,6 +502,8 @@ def _card(
     }
     if "test_mse" in best:
         card["test_mse"] = round(float(best["test_mse"]), 6)
+    for key, value in zero.items():
+        card[key] = round(float(value), 6)
     if "ece" in best:
         card["ece"] = round(float(best["ece"]), 5)
     if note:
