@@ -259,3 +259,18 @@ def test_zero_output_mse_by_hand():
     halves = Example(inputs, np.full((1, 2, 2), 0.5, np.float32), mask)  # 0.25
     assert zero_output_mse([one_cell, halves]) == pytest.approx(0.625)
     assert math.isnan(zero_output_mse([]))
+
+
+def test_gain_head_starts_at_the_mean_masked_target():
+    """By hand: targets 0.2 and 0.0 on kept cells (0.9 on a masked one is ignored): mean 0.1."""
+    from nbv_prob_cnn.city_cnn import build_network
+    from nbv_prob_cnn.completion.tasks import Example
+    from nbv_prob_cnn.completion.train import mean_masked_target, start_at_mean_target
+
+    inputs = np.zeros((2, 1, 3), np.float32)
+    example = Example(inputs, np.array([[[0.2, 0.0, 0.9]]], np.float32), np.array([[[1.0, 1.0, 0.0]]], np.float32))
+    assert mean_masked_target([example]) == pytest.approx(0.1)
+    spec = DatasetSpec("2d", 2, (32, 32), 1.0, Sensor(60.0, None, 12), 4, 2, city_n_rays=4)
+    net = build_network("flat_city_cnn", spec, 4)
+    start_at_mean_target(net, [example])
+    assert torch.sigmoid(net.final.bias).detach().numpy() == pytest.approx(np.full(net.out_channels, 0.1), rel=1e-5)
