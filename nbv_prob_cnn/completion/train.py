@@ -194,6 +194,7 @@ def retrain_args(
     *,
     method: str = "cnn_prob",
     n_val_envs: int | None = None,
+    test_crop: int | None = None,
 ) -> str:
     """The ``nbv train`` command line that reproduces a run."""
     cmd = f"nbv train --dataset {dataset}"
@@ -207,6 +208,8 @@ def retrain_args(
             cmd += f" {flag} {value}"
     if crop is not None:
         cmd += f" --crop {crop}"
+    if test_crop is not None and test_crop != DEFAULT_TEST_CROP[dataset]:
+        cmd += f" --test-crop {test_crop}"
     if batch_size != DEFAULT_BATCH[dataset]:
         cmd += f" --batch-size {batch_size}"
     return cmd
@@ -350,8 +353,9 @@ def train(
     torch.set_num_threads(threads or default_threads())
     dev = resolve_device(device)
     command = retrain_args(
-        dataset, epochs, out, n_train_envs, n_test_envs, crop, batch_size, method=method, n_val_envs=n_val_envs
-    )
+        dataset, epochs, out, n_train_envs, n_test_envs, crop, batch_size, method=method, n_val_envs=n_val_envs,
+        test_crop=crop_edge,
+    )  # fmt: skip
     run_config = {
         "dataset": dataset,
         "method": method,
