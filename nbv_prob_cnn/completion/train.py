@@ -153,10 +153,13 @@ def start_at_mean_target(model: CompletionNet, examples: Sequence[Example]) -> f
     (2D about 0.1, 3DT crops about 0.006): a head starting far above them collapsed to the
     all-zero output (3DT ``flat_city_cnn`` from logit(0.1): validation MSE equal to the all-zero
     output's to seven digits)."""
+    bias = model.final.bias
+    if bias is None:
+        raise ValueError("model: the final conv has no bias to start at the mean target")
     mean = mean_masked_target(examples)
     p = float(np.clip(mean, 1e-3, 0.5))
     with torch.no_grad():
-        model.final.bias.fill_(float(np.log(p / (1.0 - p))))
+        bias.fill_(float(np.log(p / (1.0 - p))))
     return mean
 
 
