@@ -31,8 +31,9 @@ from nbv_prob_cnn.planners import PlanningContext, make_planner, method_spec
 
 #: Evaluation environments of a quick comparison: the first ten of the protocol's (test split).
 DEFAULT_SEEDS = EVALUATION_SEEDS[:10]
-#: Environment variables passed on to Ray workers.
-FORWARDED_ENV = ("NBV_CACHE_DIR", "NBV_WEIGHTS_DIR")
+#: Environment variables passed on to Ray workers (caches, weights, the OpenCL device choice and
+#: the ICD loader's vendor folder, so workers ray-cast on the same device as the driver).
+FORWARDED_ENV = ("NBV_CACHE_DIR", "NBV_WEIGHTS_DIR", "NBV_OPENCL_DEVICE", "OCL_ICD_VENDORS")
 
 
 @dataclass

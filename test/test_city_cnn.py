@@ -232,3 +232,45 @@ def test_frontier_is_unknown_next_to_empty_by_a_face():
     state = np.array([[-1, -1, -1, -1], [-1, 0, -1, 1], [-1, -1, 1, -1]], dtype=np.int8)
     expected = np.array([[0, 1, 0, 0], [1, 0, 1, 0], [0, 1, 0, 0]], dtype=bool)
     np.testing.assert_array_equal(frontier_mask(state), expected)
+
+
+@pytest.mark.parametrize("method", ["flat_city_cnn", "d_city_cnn"])
+def test_untrained_gain_heads_start_near_the_typical_gain(method):
+    """The sigmoid gain heads start near the mean gain target (~0.1), not at 0.5: from 0.5 the
+    first Adam steps drove a 2D D-City-CNN into a saturated all-zero output (its validation MSE
+    then equalled the all-zero output's to six digits)."""
+    from nbv_prob_cnn.city_cnn import build_network
+
+    torch.manual_seed(0)
+    spec = DatasetSpec("2d", 2, (32, 32), 1.0, Sensor(60.0, None, 12), 4, 2, city_n_rays=4)
+    state = np.full((32, 32), -1, dtype=np.int8)
+    state[8:24, 8:24] = 0
+    with torch.inference_mode():
+        out = build_network(method, spec, 8)(encode_city_input(state[None])).numpy()
+    assert 0.03 < out.mean() < 0.25, out.mean()
+
+
+def test_zero_output_mse_by_hand():
+    from nbv_prob_cnn.completion.tasks import Example
+    from nbv_prob_cnn.completion.train import zero_output_mse
+
+    inputs, mask = np.zeros((2, 2, 2), np.float32), np.ones((1, 2, 2), np.float32)
+    one_cell = Example(inputs, np.array([[[2.0, 0.0], [0.0, 0.0]]], np.float32), mask)  # (4 + 0 + 0 + 0) / 4 = 1
+    halves = Example(inputs, np.full((1, 2, 2), 0.5, np.float32), mask)  # 0.25
+    assert zero_output_mse([one_cell, halves]) == pytest.approx(0.625)
+    assert math.isnan(zero_output_mse([]))
+
+
+def test_gain_head_starts_at_the_mean_masked_target():
+    """By hand: targets 0.2 and 0.0 on kept cells (0.9 on a masked one is ignored): mean 0.1."""
+    from nbv_prob_cnn.city_cnn import build_network
+    from nbv_prob_cnn.completion.tasks import Example
+    from nbv_prob_cnn.completion.train import mean_masked_target, start_at_mean_target
+
+    inputs = np.zeros((2, 1, 3), np.float32)
+    example = Example(inputs, np.array([[[0.2, 0.0, 0.9]]], np.float32), np.array([[[1.0, 1.0, 0.0]]], np.float32))
+    assert mean_masked_target([example]) == pytest.approx(0.1)
+    spec = DatasetSpec("2d", 2, (32, 32), 1.0, Sensor(60.0, None, 12), 4, 2, city_n_rays=4)
+    net = build_network("flat_city_cnn", spec, 4)
+    start_at_mean_target(net, [example])
+    assert torch.sigmoid(net.final.bias).detach().numpy() == pytest.approx(np.full(net.out_channels, 0.1), rel=1e-5)

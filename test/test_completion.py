@@ -398,6 +398,10 @@ def test_retrain_command_omits_default_out(tmp_path):
         "3du", 2, default_weights_path("3du", "b_city_cnn"), 3, None, None, 4, method="b_city_cnn", n_val_envs=2
     ) == ("nbv train --dataset 3du --method b_city_cnn --epochs 2 --train-envs 3 --val-envs 2")
     assert f"--out {tmp_path / 'x.pt'}" in retrain_args("3du", 2, tmp_path / "x.pt", 3, None, None, 4)
+    assert retrain_args("3du", 2, default_weights_path("3du"), None, None, 16, 2, test_crop=32) == (
+        "nbv train --dataset 3du --epochs 2 --crop 16 --test-crop 32 --batch-size 2"
+    )
+    assert "--test-crop" not in retrain_args("2d", 2, default_weights_path("2d"), None, None, 256, 8, test_crop=400)
 
 
 def test_cli_arguments():

@@ -18,23 +18,22 @@ from nbv_prob_cnn.ros.common import GRID_QOS  # noqa: E402
 from nbv_prob_cnn.ros.conversions import grid_to_msg  # noqa: E402
 from nbv_prob_cnn.ros.graph import wait_for  # noqa: E402
 
-ros = planning_tests.ros  # the same fixture: a fresh domain, a client node, the node graph
+ros = planning_tests.ros_fixture(160, 10)  # the same fixture, on this module's domains 160..169
 
 
 @pytest.fixture
 def weights_dir(tmp_path, monkeypatch):
-    """Untrained (seeded) d_city_cnn weights for 3du, in a folder the nodes are pointed to."""
+    """Untrained (seeded) weights of the three City-CNNs for 3du, in a folder the nodes are pointed to."""
     import torch
 
-    from nbv_prob_cnn.city_cnn import build_network
+    from nbv_prob_cnn.city_cnn import CITY_METHODS, build_network
     from nbv_prob_cnn.completion.inference import clear_model_cache, save_weights
     from nbv_prob_cnn.datasets import dataset_spec
 
     torch.manual_seed(0)
     folder = tmp_path / "weights"
-    save_weights(
-        build_network("d_city_cnn", dataset_spec("3du"), 2), folder / "3du_d_city_cnn.pt", "3du", name="d_city_cnn"
-    )
+    for method in CITY_METHODS:
+        save_weights(build_network(method, dataset_spec("3du"), 2), folder / f"3du_{method}.pt", "3du", name=method)
     monkeypatch.setenv("NBV_WEIGHTS_DIR", str(folder))
     clear_model_cache()
     yield folder
@@ -42,6 +41,7 @@ def weights_dir(tmp_path, monkeypatch):
 
 
 def test_city_cnn_plans_through_the_servers(weights_dir, ros):
+    from nbv_prob_cnn.city_cnn import CITY_METHODS
     from nbv_prob_cnn.planners import PlanningContext, make_planner
 
     node, graph, context = ros
@@ -49,13 +49,15 @@ def test_city_cnn_plans_through_the_servers(weights_dir, ros):
     graph.start_node("nbv_planner", "nbv_planner", {"dataset": "3du", "method": "prob_ig"})
     state = random_grid(5)
     node.create_publisher(VoxelGrid, "/nbv/grid", GRID_QOS).publish(grid_to_msg(state, GEOMETRY))
-    request = PlanNextBestView.Request(top_k=5, method="d_city_cnn")
-    assert wait_for(lambda: call(node, context, PlanNextBestView, "/nbv/plan", request).success, 30.0, 0.5)
-    reply = call(node, context, PlanNextBestView, "/nbv/plan", request)
-    core = make_planner("d_city_cnn").rank(state, PlanningContext.for_dataset("3du", backend="opencl"), 5)
-    assert len(reply.ranked) == len(core) == 5
-    np.testing.assert_allclose([v.gain for v in reply.ranked], [c.gain for c in core], rtol=1e-5)
-    for view, choice in zip(reply.ranked, core, strict=True):
-        p = view.pose.pose.position
-        np.testing.assert_allclose([p.x, p.y, p.z], GEOMETRY.cell_centre(choice.cell), atol=1e-6)
-    assert reply.time_cnn_s > 0 or reply.time_views_s > 0
+    first = PlanNextBestView.Request(top_k=5, method="d_city_cnn")
+    assert wait_for(lambda: call(node, context, PlanNextBestView, "/nbv/plan", first).success, 30.0, 0.5)
+    for method in CITY_METHODS:  # each City-CNN through the same servers
+        reply = call(node, context, PlanNextBestView, "/nbv/plan", PlanNextBestView.Request(top_k=5, method=method))
+        assert reply.success, (method, reply.message)
+        core = make_planner(method).rank(state, PlanningContext.for_dataset("3du", backend="opencl"), 5)
+        assert len(reply.ranked) == len(core) == 5, method
+        np.testing.assert_allclose([v.gain for v in reply.ranked], [c.gain for c in core], rtol=1e-5, err_msg=method)
+        for view, choice in zip(reply.ranked, core, strict=True):
+            p = view.pose.pose.position
+            np.testing.assert_allclose([p.x, p.y, p.z], GEOMETRY.cell_centre(choice.cell), atol=1e-6, err_msg=method)
+        assert reply.time_cnn_s > 0 or reply.time_views_s > 0, method

@@ -34,19 +34,26 @@ GEOMETRY = GridGeometry((0.1, -0.2, 0.0), 0.0116, (64, 64, 64))
 _counter = iter(range(1000))
 
 
-@pytest.fixture
-def ros(tmp_path, ros_domain):
-    """A fresh domain (221..232), an rclpy context and a client node for one test."""
-    domain = 221 + (os.getpid() + next(_counter)) % 12
-    env = ros_domain(domain)
-    context = rclpy.Context()
-    rclpy.init(context=context)
-    node = rclpy.create_node("test_client", context=context)
-    graph = NodeGraph(env, log_dir=tmp_path / "logs")
-    yield node, graph, context
-    graph.stop()
-    node.destroy_node()
-    rclpy.shutdown(context=context)
+def ros_fixture(first_domain: int, n_domains: int):
+    """A fixture giving each test a fresh domain (``first_domain`` .. ``first_domain + n_domains - 1``),
+    an rclpy context and a client node (other test modules reuse it on their own domains)."""
+
+    @pytest.fixture
+    def ros(tmp_path, ros_domain):
+        env = ros_domain(first_domain + (os.getpid() + next(_counter)) % n_domains)
+        context = rclpy.Context()
+        rclpy.init(context=context)
+        node = rclpy.create_node("test_client", context=context)
+        graph = NodeGraph(env, log_dir=tmp_path / "logs")
+        yield node, graph, context
+        graph.stop()
+        node.destroy_node()
+        rclpy.shutdown(context=context)
+
+    return ros
+
+
+ros = ros_fixture(221, 12)
 
 
 def call(node, context, srv_type, name, request, timeout_s=60.0):

@@ -43,6 +43,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help=f"random training crop edge (default: {_defaults('crop')})",
     )
     parser.add_argument(
+        "--test-crop",
+        type=_positive,
+        default=None,
+        help=f"fixed validation/test crop edge (default: {_defaults('test_crop')}; None = whole grids)",
+    )
+    parser.add_argument(
         "--batch-size", type=_positive, default=None, help=f"grids per step (default: {_defaults('batch_size')})"
     )
     parser.add_argument("--workers", type=_positive, default=1, help="processes generating missing training data")
@@ -65,6 +71,7 @@ def run(args: argparse.Namespace) -> int:
         crop=args.crop if args.crop is not None else training.crop,
         resume=not args.no_resume,
         batch_size=args.batch_size,
+        test_crop=args.test_crop if args.test_crop is not None else "default",
         workers=args.workers,
         threads=args.threads,
         device=args.device,
@@ -75,7 +82,8 @@ def run(args: argparse.Namespace) -> int:
     ece = f", test ECE {result.ece:.4f}" if result.ece is not None else ""
     print(
         f"weights: {result.weights} (best validation MSE {result.validation_mse:.5f}, "
-        f"test MSE {result.test_mse:.5f}{ece}, {result.epochs_done} epochs)"
+        f"test MSE {result.test_mse:.5f}{ece}, {result.epochs_done} epochs; all-zero output: "
+        f"validation MSE {result.validation_zero_mse:.5f}, test MSE {result.test_zero_mse:.5f})"
     )
     print(f"history: {result.history_csv}, plot: {result.plot}, card: {result.card}")
     return 0
