@@ -263,6 +263,8 @@ def test_explore_drives_the_arm_through_arm_sim(ros):
         assert fb.joint_travel == pytest.approx(np.linalg.norm(goal[:7] - previous[:7]), abs=1e-9)
         previous = goal
     assert sum(m.feedback.joint_travel for m in feedback) > 0.1  # the arm really moved
+    views = {tuple(np.round(np.concatenate(pose_to_arrays(m.feedback.pose.pose)), 4)) for m in feedback}
+    assert len(views) == 3  # no view taken twice
     # arm_sim is at the last goal and its camera at the last view
     time.sleep(0.5)
     np.testing.assert_allclose(bench.latest["joints"].position, previous, atol=1e-3)

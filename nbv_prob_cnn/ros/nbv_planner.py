@@ -161,6 +161,7 @@ class NbvPlanner(Node):
         self._joints: JointStateTracker | None = None
         self._arm_lock = threading.Lock()  # guards the fields below (arm planning runs one at a time)
         self._selectors: dict[tuple, tuple[ArmViewSelector, list]] = {}  # per grid geometry: selector, fed count
+        self._seen_lock = threading.Lock()  # guards _seen_q (not _arm_lock: a plan holds that for long)
         self._seen_q: list[np.ndarray] = []  # configurations seen on joint_states, >= one swept step apart
         self._last_arm_plan: tuple[ArmViewSelector, np.ndarray, ArmView] | None = None
         group = ReentrantCallbackGroup()
@@ -208,7 +209,7 @@ class NbvPlanner(Node):
             self.get_logger().error(f"{error}", throttle_duration_sec=5.0)
         elif self.arm_carve_swept:
             q, _ = self._joints.current()
-            with self._arm_lock:
+            with self._seen_lock:
                 if not self._seen_q or np.abs(q - self._seen_q[-1]).max() >= SWEPT_STEP:
                     self._seen_q.append(q)
 
@@ -222,9 +223,11 @@ class NbvPlanner(Node):
             self._selectors[key] = (ArmViewSelector(arm, geometry, swept, self.arm_fallback_radius_m), [0])
         selector, fed = self._selectors[key]
         if selector.swept is not None:
-            for q in self._seen_q[fed[0] :]:
+            with self._seen_lock:
+                seen = self._seen_q[fed[0] :]
+            for q in seen:
                 selector.swept.add_configuration(q)
-            fed[0] = len(self._seen_q)
+            fed[0] += len(seen)
         return selector
 
     def _took_planned_view(self) -> None:
