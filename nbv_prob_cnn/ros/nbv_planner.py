@@ -274,7 +274,8 @@ class NbvPlanner(Node):
             keep = origin_filter(geometry, request.use_workspace, box_min, box_max, int(request.max_origins), self._rng)
             planner = RecordingPlanner(make_planner(method.name), keep, self._height_limit(geometry))
             if not self.in_process:
-                context.completion, context.ranker = self._server_hooks(grid, geometry, request, context, planner)
+                hooks = self._server_hooks(grid, state, geometry, request, context, planner)
+                context.completion, context.ranker = hooks
             report = None
             if self._arm is None:
                 planner.rank(state, context, top_k)
@@ -330,11 +331,14 @@ class NbvPlanner(Node):
             return None
         return lambda origins: origins[geometry.cell_centre(origins)[:, 2] >= low]
 
-    def _server_hooks(self, grid: VoxelGrid, geometry, request: PlanNextBestView.Request, context, planner):
+    def _server_hooks(
+        self, grid: VoxelGrid, original: np.ndarray, geometry, request: PlanNextBestView.Request, context, planner
+    ):
         """Completion (``/nbv/complete``) and ranking (``/nbv/rank_views``) hooks of the core
-        planner; the arm's capability filter (``planner.arm_filter``) travels as allowed origins."""
+        planner; the arm's capability filter (``planner.arm_filter``) travels as allowed origins.
+        ``original`` is ``grid``'s state: a planner's grid that differs from it (swept space
+        carved) travels as a grid message of its own."""
         completed = {}
-        original, _ = msg_to_grid(grid)
         carved: list = []  # (state, message) of the planner's grid when it differs (swept space carved)
 
         def grid_msg(state: np.ndarray) -> VoxelGrid:
