@@ -277,7 +277,7 @@ def test_fallback_ranks_again_near_the_camera(robot, checker):
     planner = ArmPlanner(TwoViews(far, near), arm, GEOMETRY_3DT, start, fallback_radius_m=0.2)
     camera = robot.camera_pose(robot.reference_q)[:3, 3]
     assert np.linalg.norm(GEOMETRY_3DT.cell_centre(near.cell) - camera) <= 0.2
-    np.testing.assert_array_equal(planner.near_camera(np.array([far.cell, near.cell])), [near.cell])
+    np.testing.assert_array_equal(planner.selector.near_camera(planner.q)(np.array([far.cell, near.cell])), [near.cell])
     choice = planner.plan(state, context)
     assert choice is not None and (choice.cell == near.cell).all() and choice.view_index == near.view_index
     assert planner.last_report.fallback and len(planner.moves) == 2
@@ -298,7 +298,7 @@ def test_views_taken_are_not_ranked_again(robot, checker):
     arm = ArmFeasibility(robot, checker, free_above_m=0.0, max_checks=5, rng=np.random.default_rng(0))
     start = ArmMove(robot.reference_q.copy(), 0.0)
     planner = ArmPlanner(GainPlanner(GAIN_METHODS["prob_ig"]), arm, GEOMETRY_3DT, start, top_k=20, first=first)
-    mask = planner.not_taken(np.array([first.cell, first.cell + 1]))
+    mask = planner.selector.not_taken(np.array([first.cell, first.cell + 1]))
     assert mask.shape == (2, 52) and mask.sum() == 103 and not mask[0, first.view_index]
     taken = {(tuple(first.cell), first.view_index)}
     for _ in range(3):  # the map does not change: without the rule the same best view would come back
@@ -317,3 +317,109 @@ def test_views_taken_are_not_ranked_again(robot, checker):
         choice = again.plan(state, context)
         views.append((tuple(int(v) for v in choice.cell), choice.view_index))
     assert views[0] == views[1]
+
+
+# --- the selector shared by arm-compare and the ROS nbv_planner ---------------------------------
+
+
+def test_selector_carves_the_planner_grid_only_where_the_arm_has_been(robot, checker):
+    from nbv_prob_cnn.arm.selection import ArmViewSelector
+
+    arm = ArmFeasibility(robot, checker)
+    state = unknown_grid()
+    state[:, :, :3] = OCCUPIED  # floor
+    state[60:70, 60:70, 20:30] = EMPTY
+    selector = ArmViewSelector(arm, GEOMETRY_3DT, SweptVolume(checker, GEOMETRY_3DT))
+    np.testing.assert_array_equal(selector.known(state), state)  # nothing swept yet
+    q = moved(robot, {"panda_joint1": 0.4})
+    selector.swept.add_configuration(q)
+    known = selector.known(state)
+    cells, inside = GEOMETRY_3DT.containing_cell(checker.body_points(q))
+    filled = np.zeros(state.shape, dtype=bool)
+    filled[tuple(cells[inside].T)] = True
+    assert filled.sum() > 100
+    np.testing.assert_array_equal(known[filled & (state == UNKNOWN)], EMPTY)
+    np.testing.assert_array_equal(known[~filled], state[~filled])  # nowhere else
+    np.testing.assert_array_equal(known[state == OCCUPIED], OCCUPIED)  # occupied stays occupied
+    unswept = ArmViewSelector(arm, GEOMETRY_3DT)
+    assert unswept.known(state) is state
+    with pytest.raises(ValueError, match="swept"):
+        ArmViewSelector(arm, GEOMETRY_3DT, SweptVolume(checker, GridGeometry((0, 0, 0), 0.01, (4, 4, 4))))
+
+
+def views_grid(first: ViewChoice) -> np.ndarray:
+    """Unknown, but a 9-cell cube of empty space around the view's cell."""
+    state = unknown_grid()
+    c = first.cell
+    state[c[0] - 4 : c[0] + 5, c[1] - 4 : c[1] + 5, c[2] - 4 : c[2] + 5] = EMPTY
+    return state
+
+
+def test_remote_ranking_skips_taken_views_and_sees_the_carved_grid(robot, checker):
+    """Through the servers the ranking ignores view masks: the selector still never returns a
+    view taken, and the ranker gets the grid with the swept space carved."""
+    pytest.importorskip("rclpy")
+    from nbv_prob_cnn.arm.selection import ArmViewSelector
+    from nbv_prob_cnn.ros.nbv_planner import RecordingPlanner
+
+    context = PlanningContext.for_dataset("3dt", backend="numpy")
+    near = near_view(robot, context)
+    other = ViewChoice(near.cell + np.array([0, -2, 0]), near.view_index, 0.4)
+    seen = []
+
+    def ranker(method, state, prob, top_k):
+        seen.append(state)
+        return [ViewChoice(near.cell, near.view_index, 0.5), ViewChoice(other.cell, other.view_index, 0.4)]
+
+    context.ranker = ranker
+    arm = ArmFeasibility(robot, checker, free_above_m=0.0, max_checks=5, rng=np.random.default_rng(0))
+    selector = ArmViewSelector(arm, GEOMETRY_3DT, SweptVolume(checker, GEOMETRY_3DT))
+    selector.swept.add_configuration(robot.reference_q)
+    state = views_grid(near)
+    planner = RecordingPlanner(GainPlanner(GAIN_METHODS["prob_ig"]), lambda origins: origins)
+    first = selector.select(planner, state, context, robot.reference_q, 20)
+    assert first.view is not None and (first.view.choice.cell == near.cell).all()
+    assert (seen[0] == EMPTY).sum() > (state == EMPTY).sum()  # carved before the ranking
+    np.testing.assert_array_equal(seen[0], selector.swept.carve(state))
+    selector.moved(robot.reference_q, first.view)
+    second = selector.select(planner, state, context, first.view.q, 20)
+    assert second.view is not None and (second.view.choice.cell == other.cell).all()
+    selector.take(second.view.choice)
+    assert selector.select(planner, state, context, first.view.q, 20).view is None  # both taken
+
+
+def test_ros_planner_wrapper_chooses_as_the_core_planner(robot, checker):
+    """``nbv_planner``'s in-process path (the ranking wrapped by ``RecordingPlanner``) and the
+    core's ``GainPlanner`` choose the same views from the same grid and configurations, the strict
+    capability map applied as view mask inside the ranking in both."""
+    pytest.importorskip("rclpy")
+    from nbv_prob_cnn.arm.selection import ArmViewSelector
+    from nbv_prob_cnn.ros.nbv_planner import RecordingPlanner
+
+    context = PlanningContext.for_dataset("3dt", backend="numpy")
+    near = near_view(robot, context)
+    state = views_grid(near)
+    look = matrix_from_quaternion(context.orientations[near.view_index])[:, 2]
+    table = np.zeros((17, 17, 13, 52), dtype=bool)  # the map keeps the orientations within 90° of the near view's
+    table[..., [matrix_from_quaternion(q)[:, 2] @ look > 0.0 for q in context.orientations]] = True
+    capability = CapabilityMap(table, 8, GEOMETRY_3DT)
+    runs = []
+    for wrap in (False, True):
+        arm = ArmFeasibility(
+            robot, checker, capability, free_above_m=0.0, max_checks=0, rng=np.random.default_rng(0),
+            strict_capability=True,
+        )  # fmt: skip
+        selector = ArmViewSelector(arm, GEOMETRY_3DT, SweptVolume(checker, GEOMETRY_3DT), fallback_radius_m=0.25)
+        gain = GainPlanner(GAIN_METHODS["prob_ig"])
+        planner = RecordingPlanner(gain, lambda origins: origins) if wrap else gain
+        q, views = robot.reference_q.copy(), []
+        for _ in range(2):
+            report = selector.select(planner, state, context, q, 20)
+            assert report.view is not None
+            views.append((tuple(int(c) for c in report.view.choice.cell), report.view.choice.view_index))
+            selector.moved(q, report.view)
+            q = report.view.q
+        assert len(set(views)) == 2
+        runs.append((views, q))
+    assert runs[0][0] == runs[1][0]
+    np.testing.assert_allclose(runs[0][1], runs[1][1])

@@ -26,9 +26,14 @@ from rclpy.executors import MultiThreadedExecutor  # noqa: E402
 from sensor_msgs.msg import JointState  # noqa: E402
 
 from nbv_prob_cnn.arm.collision import CollisionChecker, GridObstacles  # noqa: E402
-from nbv_prob_cnn.arm.robot import RobotModel  # noqa: E402
+from nbv_prob_cnn.arm.robot import RobotConfig, RobotModel  # noqa: E402
+from nbv_prob_cnn.arm.selection import ArmViewSelector  # noqa: E402
+from nbv_prob_cnn.arm.swept import SweptVolume  # noqa: E402
+from nbv_prob_cnn.arm.views import ArmPlanningSetup  # noqa: E402
 from nbv_prob_cnn.camera import matrix_from_quaternion, quaternion_from_matrix  # noqa: E402
 from nbv_prob_cnn.geometry import GridGeometry  # noqa: E402
+from nbv_prob_cnn.planners import GAIN_METHODS, GainPlanner  # noqa: E402
+from nbv_prob_cnn.planners.requests import planning_context  # noqa: E402
 from nbv_prob_cnn.ros.common import GRID_QOS  # noqa: E402
 from nbv_prob_cnn.ros.conversions import grid_to_msg, pose_to_arrays  # noqa: E402
 from nbv_prob_cnn.ros.graph import NodeGraph  # noqa: E402
@@ -176,6 +181,17 @@ def test_plan_with_arm_answers_a_reachable_view_with_its_joint_goal(ros):
     assert 0 < ok.best_gain <= ok.ranked[0].gain + 1e-6  # the best reachable view, not above the best view
     cell = GEOMETRY.containing_cell(np.asarray(position)[None])[0][0]
     assert bench.state[tuple(cell)] == 0  # a known-empty cell
+    # the core's selector (node defaults: swept space from the joint state seen, 4 IK alternatives,
+    # strict capability lookup, near-camera fallback) chooses the same view and joint goal
+    setup = ArmPlanningSetup(RobotConfig(), 0.0, None, 0, 0, ik_alternatives=4, strict_capability=True)
+    arm = setup.feasibility(GEOMETRY)
+    selector = ArmViewSelector(arm, GEOMETRY, SweptVolume(arm.checker, GEOMETRY), fallback_radius_m=0.25)
+    selector.swept.add_configuration(start)
+    context = planning_context("3dt", GEOMETRY, "auto", 0, np.random.default_rng(0))
+    core = selector.select(GainPlanner(GAIN_METHODS["prob_ig"]), bench.state, context, start, 300).view
+    assert core is not None
+    assert_pose_close(robot.camera_pose(core.q), position, quaternion)
+    np.testing.assert_allclose(core.q, goal, atol=1e-6)  # the same IK solution (the base pose via parameters)
     assert graph.alive()["nbv_planner"]
 
 
@@ -263,6 +279,8 @@ def test_explore_drives_the_arm_through_arm_sim(ros):
         assert fb.joint_travel == pytest.approx(np.linalg.norm(goal[:7] - previous[:7]), abs=1e-9)
         previous = goal
     assert sum(m.feedback.joint_travel for m in feedback) > 0.1  # the arm really moved
+    views = {tuple(np.round(np.concatenate(pose_to_arrays(m.feedback.pose.pose)), 4)) for m in feedback}
+    assert len(views) == 3  # no view taken twice
     # arm_sim is at the last goal and its camera at the last view
     time.sleep(0.5)
     np.testing.assert_allclose(bench.latest["joints"].position, previous, atol=1e-3)

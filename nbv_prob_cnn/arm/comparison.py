@@ -15,9 +15,9 @@ from pathlib import Path
 
 import numpy as np
 
-from nbv_prob_cnn.arm.feasibility import ArmFeasibility, FeasibilityReport, plan_with_arm
+from nbv_prob_cnn.arm.feasibility import ArmFeasibility, FeasibilityReport
+from nbv_prob_cnn.arm.selection import ArmViewSelector
 from nbv_prob_cnn.arm.swept import SweptVolume
-from nbv_prob_cnn.camera import orientations
 from nbv_prob_cnn.explore import ExplorationResult
 from nbv_prob_cnn.planners import GainPlanner, PlanningContext, ViewChoice
 from nbv_prob_cnn.planners.base import OriginFilter
@@ -56,18 +56,15 @@ class ArmMove:
 
 
 class ArmPlanner:
-    """A :class:`GainPlanner` restricted to what the arm can take (:func:`plan_with_arm`), as a
-    ``Planner`` for :func:`explore`. It keeps the arm's configuration and logs each move.
+    """A :class:`GainPlanner` restricted to what the arm can take, as a ``Planner`` for
+    :func:`explore`: each iteration is one :meth:`ArmViewSelector.select` from the arm's
+    configuration; it keeps the configuration and logs each move.
 
     With ``swept`` (a :class:`SweptVolume`), the space the arm has swept (the move from its
     reference configuration to ``start``, then every planned move) is carved free in the grid
-    the planner and the collision check see; the camera's map is not changed. With
-    ``fallback_radius_m`` > 0, an iteration in which no ranked view is feasible ranks again among
-    the origins within that distance of the camera (small moves, whose links mostly stay in
-    space already swept) before giving up. Views already taken (``first`` and every planned one)
-    are never ranked again: in a static scene a view repeated shows nothing new, while the gain
-    model may still credit it (seen in ``arm-compare``: a view kept its ``prob_ig`` gain after
-    being taken and the arm, unable to reach the better ones, took it again and again)."""
+    the planner and the collision check see; the camera's map is not changed. ``fallback_radius_m``:
+    the near-camera fallback of :class:`ArmViewSelector`. Views already taken (``first`` and every
+    planned one) are never ranked again."""
 
     def __init__(
         self,
@@ -84,14 +81,9 @@ class ArmPlanner:
         self.arm = arm
         self.geometry = geometry
         self.top_k = top_k
-        self.swept = swept
-        if not (np.isfinite(fallback_radius_m) and fallback_radius_m >= 0):
-            raise ValueError(f"fallback_radius_m: expected a finite radius >= 0 (0 = off), got {fallback_radius_m}")
-        self.fallback_radius_m = float(fallback_radius_m)
-        self.taken: set[tuple[tuple[int, ...], int]] = set()  # (cell, orientation) of the views taken
-        self.n_views = len(orientations(3))  # the arm plans in 3D grids
+        self.selector = ArmViewSelector(arm, geometry, swept, fallback_radius_m)
         if first is not None:
-            self.take(first)
+            self.selector.take(first)
         self.name = f"{planner.name} arm λ={arm.motion_weight:g}"
         self.moves: list[ArmMove] = [start]
         self.last_report: FeasibilityReport | None = None
@@ -101,6 +93,14 @@ class ArmPlanner:
     @property
     def q(self) -> np.ndarray:
         return self.moves[-1].q
+
+    @property
+    def swept(self) -> SweptVolume | None:
+        return self.selector.swept
+
+    @property
+    def taken(self) -> set[tuple[tuple[int, ...], int]]:
+        return self.selector.taken
 
     def rank(
         self, state: np.ndarray, context: PlanningContext, top_k: int = 1, origin_filter: OriginFilter | None = None
@@ -112,39 +112,15 @@ class ArmPlanner:
         choice = self.plan(state, context)
         return [] if choice is None else [choice]
 
-    def take(self, choice: ViewChoice) -> None:
-        self.taken.add((tuple(int(c) for c in choice.cell), int(choice.view_index)))
-
-    def near_camera(self, origins: np.ndarray) -> np.ndarray:
-        """The origins whose cell centre lies within ``fallback_radius_m`` of the camera now."""
-        camera = self.arm.robot.camera_pose(self.q)[:3, 3]
-        return origins[np.linalg.norm(self.geometry.cell_centre(origins) - camera, axis=1) <= self.fallback_radius_m]
-
-    def not_taken(self, origins: np.ndarray) -> np.ndarray:
-        """``(N, V)`` view mask: False for the (cell, orientation) pairs already taken."""
-        allowed = np.ones((origins.shape[0], self.n_views), dtype=bool)
-        for (i, j, k), view in self.taken:
-            allowed[(origins[:, 0] == i) & (origins[:, 1] == j) & (origins[:, 2] == k), view] = False
-        return allowed
-
     def plan(self, state: np.ndarray, context: PlanningContext) -> ViewChoice | None:
-        known = state if self.swept is None else self.swept.carve(state)
-        args = (self.planner, known, context, self.geometry, self.arm, self.q, self.top_k)
-        report = plan_with_arm(*args, view_mask=self.not_taken)
-        if report.view is None and self.fallback_radius_m > 0:
-            first = report
-            report = plan_with_arm(*args, origin_filter=self.near_camera, view_mask=self.not_taken)
-            report.fallback = True
-            for stage, seconds in first.times.items():  # stage times cover both passes
-                report.times[stage] = report.times.get(stage, 0.0) + seconds
+        report = self.selector.select(self.planner, state, context, self.q, self.top_k)
         self.last_report = report
         if report.view is None:
             return None
-        if self.swept is not None:
-            self.swept.add_path(self.q, report.view.q)
+        q_start = self.q
         counts = {name: int(getattr(report, name)) for name in STAGE_COUNTS}
         self.moves.append(ArmMove(report.view.q.copy(), report.view.path_length, dict(report.times), counts))
-        self.take(report.view.choice)
+        self.selector.moved(q_start, report.view)
         return report.view.choice
 
 

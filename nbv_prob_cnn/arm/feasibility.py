@@ -221,6 +221,12 @@ class ArmFeasibility:
         return report
 
 
+def takes_view_mask(planner) -> bool:
+    """Whether ``planner.rank`` takes a ``view_mask``: a ``GainPlanner``, or a wrapper that says so
+    (``takes_view_mask`` attribute true)."""
+    return isinstance(planner, GainPlanner) or bool(getattr(planner, "takes_view_mask", False))
+
+
 def plan_with_arm(
     planner,
     state: np.ndarray,
@@ -238,7 +244,8 @@ def plan_with_arm(
     planner, pruning excluded), ``capability`` (origin filter, view mask and view pruning),
     ``ik_collision`` (the exact stage). ``origin_filter`` (optional) narrows the origins
     further, before the capability map's filter; ``view_mask`` (optional) is ANDed with the
-    map's (a ``GainPlanner``'s local search only)."""
+    map's (a ``GainPlanner``'s local search), and the ranked views it forbids are dropped
+    afterwards too (planners without view masks, remote rankers)."""
     pruning = 0.0
 
     def timed(stage: Callable[[np.ndarray], np.ndarray]) -> Callable[[np.ndarray], np.ndarray]:
@@ -268,11 +275,17 @@ def plan_with_arm(
 
     start = time.perf_counter()
     kept = timed(origins_kept)
-    if isinstance(planner, GainPlanner) and (mapped is not None or extra_mask is not None):
+    if takes_view_mask(planner) and (mapped is not None or extra_mask is not None):
         ranked = planner.rank(state, context, top_k=top_k, origin_filter=kept, view_mask=timed(views_kept))
     else:
         ranked = planner.rank(state, context, top_k=top_k, origin_filter=kept)
     gain_seconds = time.perf_counter() - start - pruning
+    if extra_mask is not None and ranked:  # a remote ranker, or a planner without view masks, ignored it
+        begin = time.perf_counter()
+        cells = np.array([c.cell for c in ranked])
+        allowed = np.asarray(extra_mask(cells), dtype=bool)[np.arange(len(ranked)), [c.view_index for c in ranked]]
+        ranked = [c for c, keep in zip(ranked, allowed, strict=True) if keep]
+        pruning += time.perf_counter() - begin
     report = arm.select(ranked, state, context, geometry, current_q)
     report.times["gain"] = gain_seconds
     report.times["capability"] += pruning

@@ -32,6 +32,8 @@ class ArmPlanningSetup:
         max_checks: exact checks per plan at most (0: no limit).
         capability_stride: lattice stride (cells) of the capability map (0: no map).
         seed: IK restarts' random seed.
+        ik_alternatives: other IK solutions of a view tried when the first collides (:class:`ArmFeasibility`).
+        strict_capability: the capability lookup ANDs the lattice nodes around a cell (:class:`ArmFeasibility`).
     """
 
     config: RobotConfig
@@ -40,6 +42,8 @@ class ArmPlanningSetup:
     max_checks: int = 0
     capability_stride: int = 8
     seed: int = 0
+    ik_alternatives: int = 0
+    strict_capability: bool = False
     robot: RobotModel = field(init=False)
     _cache: dict = field(init=False, default_factory=dict)
 
@@ -62,6 +66,7 @@ class ArmPlanningSetup:
             self._cache[key] = ArmFeasibility(
                 self.robot, checker, capability, motion_weight=self.motion_weight, free_above_m=self.free_above_m,
                 max_checks=self.max_checks, rng=np.random.default_rng(self.seed),
+                ik_alternatives=self.ik_alternatives, strict_capability=self.strict_capability,
             )  # fmt: skip
         return self._cache[key]
 

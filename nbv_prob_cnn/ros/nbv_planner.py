@@ -10,9 +10,12 @@
 
 With ``use_arm:=true`` (robot description parameters of :class:`RobotParams`) a plan is the best
 view the arm reaches collision-free from the configuration of the latest ``/joint_states``
-(:func:`~nbv_prob_cnn.arm.feasibility.plan_with_arm`: views ranked by gain, capability map, IK,
-self/grid collision and the straight joint path, utility ``gain − motion_weight · path length``);
-the response carries its joint goal.
+(:class:`~nbv_prob_cnn.arm.selection.ArmViewSelector`, as ``nbv arm-compare``: views ranked by
+gain, capability map, IK and its alternatives, self/grid collision and the straight joint path,
+utility ``gain − motion_weight · path length``, a near-camera fallback); the response carries its
+joint goal. The planner's grid (not the integrator's) counts as free the cells the arm's bodies
+filled at the configurations seen on ``/joint_states`` and along the moves the exploration
+commanded (``arm_carve_swept``); a view the exploration moved to is never planned again.
 """
 
 from __future__ import annotations
@@ -33,7 +36,9 @@ from rclpy.node import Node
 from sensor_msgs.msg import JointState
 from visualization_msgs.msg import MarkerArray
 
-from nbv_prob_cnn.arm.feasibility import FeasibilityReport, plan_with_arm
+from nbv_prob_cnn.arm.feasibility import ArmView, FeasibilityReport, takes_view_mask
+from nbv_prob_cnn.arm.selection import ArmViewSelector
+from nbv_prob_cnn.arm.swept import SweptVolume
 from nbv_prob_cnn.arm.views import ArmPlanningSetup
 from nbv_prob_cnn.camera import DATASETS
 from nbv_prob_cnn.grid import unknown_fraction_all
@@ -45,6 +50,7 @@ from nbv_prob_cnn.ros import names
 from nbv_prob_cnn.ros.common import GRID_QOS, call_service, declare_config, param, positive_seconds, run_node
 from nbv_prob_cnn.ros.conversions import (
     arrays_to_pose_stamped,
+    grid_to_msg,
     msg_to_grid,
     msg_to_probability,
     pose_to_arrays,
@@ -53,6 +59,9 @@ from nbv_prob_cnn.ros.conversions import (
 from nbv_prob_cnn.ros.markers import planning_markers
 from nbv_prob_cnn.ros.robot_params import ArmViewParams, JointStateTracker, joint_state_msg
 
+#: Joint-space step (rad) between the configurations whose bodies are carved free (joint_states
+#: samples kept, samples of a commanded path), as ``SweptVolume``'s default.
+SWEPT_STEP = 0.02
 #: Planning's message when every candidate view has zero gain (a normal end of an exploration).
 NO_POSITIVE_GAIN = "no view with positive gain"
 #: Planning's message (prefix) when ``use_arm`` finds no view the arm can take (also an end of an exploration).
@@ -67,8 +76,9 @@ class RecordingPlanner:
     def __init__(self, planner, request_filter, arm_limit=None) -> None:
         self.planner, self.request_filter, self.arm_limit = planner, request_filter, arm_limit
         self.ranked, self.arm_filter = [], None
+        self.takes_view_mask = takes_view_mask(planner)  # passed on to the planner (plan_with_arm)
 
-    def rank(self, state, context, top_k=1, origin_filter=None):
+    def rank(self, state, context, top_k=1, origin_filter=None, view_mask=None):
         keep, capability, limit = self.request_filter, origin_filter, self.arm_limit
 
         def arm_filter(origins):
@@ -78,7 +88,10 @@ class RecordingPlanner:
             return keep(origins if capability is None else arm_filter(origins))
 
         self.arm_filter = None if capability is None else arm_filter
-        self.ranked = self.planner.rank(state, context, top_k, both)
+        if view_mask is None:
+            self.ranked = self.planner.rank(state, context, top_k, both)
+        else:
+            self.ranked = self.planner.rank(state, context, top_k, both, view_mask=view_mask)
         return self.ranked
 
 
@@ -116,6 +129,14 @@ class PlannerConfig(ArmViewParams):
         0.0, "use_arm: only views with the camera at least this high (grid frame z, m; 0 = no limit)", min_value=0.0,
         max_value=100.0,
     )  # fmt: skip
+    arm_ik_alternatives: int = param(4, "use_arm: other IK solutions tried when the first collides", min_value=0,
+                                     max_value=64)  # fmt: skip
+    arm_strict_capability: bool = param(True, "use_arm: capability lookup ANDs the lattice nodes around a cell")
+    arm_fallback_radius_m: float = param(
+        0.25, "use_arm: no ranked view feasible: rank again within this distance (m) of the camera (0 = off)",
+        min_value=0.0, max_value=10.0,
+    )  # fmt: skip
+    arm_carve_swept: bool = param(True, "use_arm: cells the arm has filled (joint_states, moves) count as free")
     joint_tolerance: float = param(1e-3, "move_mode arm: joint arrival tolerance (rad or m)", min_value=1e-6,
                                    max_value=1.0)  # fmt: skip
 
@@ -138,12 +159,18 @@ class NbvPlanner(Node):
             raise ValueError("move_mode 'arm' needs use_arm:=true (the joint goal comes from planning with the arm)")
         self._arm: ArmPlanningSetup | None = None
         self._joints: JointStateTracker | None = None
+        self._arm_lock = threading.Lock()  # guards the fields below (arm planning runs one at a time)
+        self._selectors: dict[tuple, tuple[ArmViewSelector, list]] = {}  # per grid geometry: selector, fed count
+        self._seen_lock = threading.Lock()  # guards _seen_q (not _arm_lock: a plan holds that for long)
+        self._seen_q: list[np.ndarray] = []  # configurations seen on joint_states, >= one swept step apart
+        self._last_arm_plan: tuple[ArmViewSelector, np.ndarray, ArmView] | None = None
         group = ReentrantCallbackGroup()
         if self.use_arm:
             cfg = self.config
             self._arm = ArmPlanningSetup(
-                cfg.robot_config(), cfg.motion_weight, cfg.free_above(), cfg.arm_max_checks, cfg.capability_stride
-            )
+                cfg.robot_config(), cfg.motion_weight, cfg.free_above(), cfg.arm_max_checks, cfg.capability_stride,
+                ik_alternatives=cfg.arm_ik_alternatives, strict_capability=cfg.arm_strict_capability,
+            )  # fmt: skip
             self._joints = JointStateTracker(self._arm.robot)
             self.create_subscription(JointState, names.JOINT_STATES, self._on_joint_state, 10, callback_group=group)
         self.create_subscription(VoxelGrid, names.GRID, self._on_grid, GRID_QOS, callback_group=group)
@@ -180,6 +207,40 @@ class NbvPlanner(Node):
         error = self._joints.on_joint_state(msg)
         if error:
             self.get_logger().error(f"{error}", throttle_duration_sec=5.0)
+        elif self.arm_carve_swept:
+            q, _ = self._joints.current()
+            with self._seen_lock:
+                if not self._seen_q or np.abs(q - self._seen_q[-1]).max() >= SWEPT_STEP:
+                    self._seen_q.append(q)
+
+    def _selector(self, geometry) -> ArmViewSelector:
+        """The arm's view selector of this grid geometry, its swept volume brought up to date
+        with the configurations seen on joint_states (call with ``_arm_lock`` held)."""
+        key = (tuple(geometry.origin), float(geometry.resolution), tuple(geometry.shape))
+        if key not in self._selectors:
+            arm = self._arm.feasibility(geometry)
+            swept = SweptVolume(arm.checker, geometry, SWEPT_STEP) if self.arm_carve_swept else None
+            self._selectors[key] = (ArmViewSelector(arm, geometry, swept, self.arm_fallback_radius_m), [0])
+        selector, fed = self._selectors[key]
+        if selector.swept is not None:
+            with self._seen_lock:
+                seen = self._seen_q[fed[0] :]
+            for q in seen:
+                selector.swept.add_configuration(q)
+            fed[0] += len(seen)
+        return selector
+
+    def _took_planned_view(self) -> None:
+        """The exploration moved the camera to the last plan's view: it is taken; when the arm
+        moved there (``move_mode`` arm), its straight joint path is swept too."""
+        with self._arm_lock:
+            if self._last_arm_plan is not None:
+                selector, q_start, view = self._last_arm_plan
+                if self.move_mode == "arm":
+                    selector.moved(q_start, view)
+                else:
+                    selector.take(view.choice)
+                self._last_arm_plan = None
 
     def _latest_grid(self) -> VoxelGrid:
         with self._grid_lock:
@@ -213,14 +274,17 @@ class NbvPlanner(Node):
             keep = origin_filter(geometry, request.use_workspace, box_min, box_max, int(request.max_origins), self._rng)
             planner = RecordingPlanner(make_planner(method.name), keep, self._height_limit(geometry))
             if not self.in_process:
-                context.completion, context.ranker = self._server_hooks(grid, geometry, request, context, planner)
+                hooks = self._server_hooks(grid, state, geometry, request, context, planner)
+                context.completion, context.ranker = hooks
             report = None
             if self._arm is None:
                 planner.rank(state, context, top_k)
             else:
                 current_q, _ = self._joints.current()  # raises on missing / wrong joint states
-                arm = self._arm.feasibility(geometry)
-                report = plan_with_arm(planner, state, context, geometry, arm, current_q, max(top_k, self.arm_top_k))
+                with self._arm_lock:
+                    selector = self._selector(geometry)
+                    report = selector.select(planner, state, context, current_q, max(top_k, self.arm_top_k))
+                    self._last_arm_plan = None if report.view is None else (selector, current_q, report.view)
             ranked = planner.ranked
             views = [(*view_pose(c, context, geometry), c.gain) for c in ranked]
             if ranked:
@@ -267,13 +331,25 @@ class NbvPlanner(Node):
             return None
         return lambda origins: origins[geometry.cell_centre(origins)[:, 2] >= low]
 
-    def _server_hooks(self, grid: VoxelGrid, geometry, request: PlanNextBestView.Request, context, planner):
+    def _server_hooks(
+        self, grid: VoxelGrid, original: np.ndarray, geometry, request: PlanNextBestView.Request, context, planner
+    ):
         """Completion (``/nbv/complete``) and ranking (``/nbv/rank_views``) hooks of the core
-        planner; the arm's capability filter (``planner.arm_filter``) travels as allowed origins."""
+        planner; the arm's capability filter (``planner.arm_filter``) travels as allowed origins.
+        ``original`` is ``grid``'s state: a planner's grid that differs from it (swept space
+        carved) travels as a grid message of its own."""
         completed = {}
+        carved: list = []  # (state, message) of the planner's grid when it differs (swept space carved)
+
+        def grid_msg(state: np.ndarray) -> VoxelGrid:
+            if state.shape == original.shape and np.array_equal(state, original):
+                return grid
+            if not carved or carved[0][0] is not state:
+                carved[:] = [(state, grid_to_msg(state, geometry, grid.header.frame_id, grid.header.stamp))]
+            return carved[0][1]
 
         def complete(state: np.ndarray, context) -> np.ndarray:
-            call = CompleteGrid.Request(grid=grid, dataset=self.dataset)
+            call = CompleteGrid.Request(grid=grid_msg(state), dataset=self.dataset)
             reply = call_service(self, self._complete_client, call, self.service_timeout_s)
             if not reply.success:
                 raise ValueError(f"completion failed: {reply.message}")
@@ -282,7 +358,9 @@ class NbvPlanner(Node):
             return prob
 
         def rank(method: str, state: np.ndarray, prob, top_k: int) -> list:
-            call = RankViews.Request(grid=grid, method=method, top_k=top_k, use_workspace=request.use_workspace)
+            call = RankViews.Request(
+                grid=grid_msg(state), method=method, top_k=top_k, use_workspace=request.use_workspace
+            )
             call.workspace_min, call.workspace_max = request.workspace_min, request.workspace_max
             call.max_origins = request.max_origins
             if planner.arm_filter is not None and (self.capability_stride or self.arm_min_view_height_m > 0):
@@ -412,6 +490,8 @@ class NbvPlanner(Node):
                     frame_ns = self._move_arm(planned.joint_goal)
                 else:
                     frame_ns = self._move_camera(planned.best_pose)
+                if self._arm is not None:
+                    self._took_planned_view()
                 grid = self._wait_for_grid(frame_ns, self.grid_timeout_s)
                 fraction = unknown_fraction_all(msg_to_grid(grid)[0])
                 result.poses.append(planned.best_pose)
@@ -433,6 +513,7 @@ class NbvPlanner(Node):
 def unreachable_message(report: FeasibilityReport) -> str:
     """Why ``use_arm`` planning found nothing, with the counts of the exact stage."""
     budget = ", check budget spent" if report.budget_exhausted else ""
+    budget += ", near the camera too" if report.fallback else ""
     return (
         f"{NO_REACHABLE_VIEW}: {report.checked} ranked views checked ({report.unreachable} without IK solution, "
         f"{report.in_collision} in collision, {report.path_blocked} with a blocked path{budget})"
