@@ -42,7 +42,7 @@ CASES = [((40, 36), 16, 24), ((41, 37), 4, 30), ((19, 17, 15), 4, 12), ((16, 15,
 def test_best_view_equals_exhaustive_and_numpy(shape, n_rays, r_max, mode, seed, block_size):
     """Same (origin, view) as the exhaustive OpenCL argmax, gain within 1e-4 of the numpy
     reference, and a maximum of the reference: the reference's argmax itself unless another pair
-    is within 1e-6 of it (``ig`` sums equal weights: exact ties that float32 and float64 sums in
+    is within 1e-6 (relative, plus 1e-6) of it (``ig`` sums equal weights: exact ties that float32 and float64 sums in
     different orders break differently)."""
     rng = np.random.default_rng(seed)
     state, prob = _explored_world(rng, shape)
@@ -61,7 +61,7 @@ def test_best_view_equals_exhaustive_and_numpy(shape, n_rays, r_max, mode, seed,
     assert reference.max() > 0.05
     flat = int(np.argmax(exhaustive))
     assert (index, view) == divmod(flat, exhaustive.shape[1])
-    assert reference[index, view] >= reference.max() - 1e-6
+    assert reference[index, view] >= reference.max() * (1 - 1e-6) - 1e-6
     assert gain == exhaustive.flat[flat]
     assert abs(gain - reference.max()) <= 1e-4
 
@@ -208,7 +208,7 @@ def test_best_view_evaluates_only_views_that_can_win(monkeypatch, mode):
     assert evaluated and max(evaluated) < 1.0 and min(evaluated) < 0.75  # view sets really shrink
     assert (index, view) == divmod(int(np.argmax(exhaustive)), exhaustive.shape[1])
     assert gain == exhaustive.max()
-    assert reference[index, view] >= reference.max() - 1e-6  # a reference maximum
+    assert reference[index, view] >= reference.max() * (1 - 1e-6) - 1e-6  # a reference maximum
     assert abs(gain - reference.max()) <= 1e-4
 
 
