@@ -148,17 +148,19 @@ def test_arm_rendered_and_filtered_out_of_the_grid(ros_domain, tmp_path: Path) -
             # wrong joint names: arm_sim stops, the test publishes joint states of another robot
             arm_sim.send_signal(signal.SIGINT)
             assert arm_sim.wait(timeout=20.0) == 0
-            joints = client.node.create_publisher(JointState, "/joint_states", 10)
-            message = {"names": ["elbow", *robot.joint_names[1:]]}
+            joints = client.node.create_publisher(JointState, "/joint_states", 100)
 
-            def publish_joints() -> None:
-                msg = JointState(name=message["names"], position=[float(v) for v in robot.reference_q])
-                msg.header.stamp = client.node.get_clock().now().to_msg()
-                joints.publish(msg)
+            def publish_window(joint_names: list[str], start_ns: int, count: int = 80) -> None:
+                """Joint states stamped every 50 ms from ``start_ns``, sent at once: a frame taken inside
+                that window pairs with them whatever the executors' delays (joint states published by a
+                timer of this test's executor arrived too late under load)."""
+                for k in range(count):
+                    msg = JointState(name=joint_names, position=[float(v) for v in robot.reference_q])
+                    msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(start_ns + k * 50_000_000, 10**9)
+                    joints.publish(msg)
 
-            client.node.create_timer(0.01, publish_joints)
-            # sim_camera keeps showing the last good joint state; once that is older than 0.5 s
-            # (ARM_STATE_MAX_AGE_NS) its frames are stamped with the time now, among the bad ones
+            window_start = client.node.get_clock().now().nanoseconds
+            publish_window(["elbow", *robot.joint_names[1:]], window_start)  # 4 s of another robot's
             client.spin_until(lambda: False, 1.0)
             assert client.call(move, request).success
             assert client.spin_until(
@@ -166,7 +168,7 @@ def test_arm_rendered_and_filtered_out_of_the_grid(ros_domain, tmp_path: Path) -
                     json.loads(client.call(diagnostics, Trigger.Request()).message)["dropped"]["bad_joint_states"] >= 1
                 ),
                 20.0,
-            ), "the frame with bad joint states was not counted"
+            ), f"the frame with bad joint states was not counted: {client.call(diagnostics, Trigger.Request()).message}"
             report = json.loads(client.call(diagnostics, Trigger.Request()).message)
             assert report["integrated"] == integrated
             assert (
@@ -174,8 +176,8 @@ def test_arm_rendered_and_filtered_out_of_the_grid(ros_domain, tmp_path: Path) -
                 in report["last_drop"]["bad_joint_states"]
             )
             # the node keeps going: good joint states again, the next frame is integrated
-            message["names"] = list(robot.joint_names)
-            client.spin_until(lambda: False, 0.5)
+            publish_window(list(robot.joint_names), window_start + 4_000_000_000)  # then 4 s of good ones
+            client.spin_until(lambda: client.node.get_clock().now().nanoseconds > window_start + 4_500_000_000, 10.0)
             reply = client.call(move, request)
             assert reply.success
             client.wait_grid(stamp_ns(reply.frame_stamp), timeout_s=30.0)
