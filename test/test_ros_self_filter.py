@@ -71,7 +71,7 @@ def test_arm_rendered_and_filtered_out_of_the_grid(ros_domain, tmp_path: Path) -
     table.export(tmp_path / "table.stl")
     robot = RobotModel()
     grid_params = {"origin": list(ORIGIN), "shape": list(SHAPE), "voxel_size": VOXEL, "publish_rate_hz": 0.0,
-                   "sync_tolerance_s": 0.05, "pose_timeout_s": 2.0, "qos_reliability": "reliable"}  # fmt: skip
+                   "sync_tolerance_s": 0.05, "pose_timeout_s": 5.0, "qos_reliability": "reliable"}  # fmt: skip
     with NodeGraph(env, log_dir=tmp_path) as graph:
         arm_sim = graph.start_node("arm_sim", "arm_sim", {"rate_hz": 50.0})
         camera_params = {"mesh_file": str(tmp_path / "table.stl"), "render_arm": True, "rate_hz": 0.0,
@@ -108,8 +108,19 @@ def test_arm_rendered_and_filtered_out_of_the_grid(ros_domain, tmp_path: Path) -
                 assert "no joint_states received yet" in reply.message, reply.message
                 client.spin_until(lambda: False, 0.2)
             assert reply is not None and reply.success, reply and reply.message
-            stamp = stamp_ns(reply.frame_stamp)
-            filtered, geometry = msg_to_grid(client.wait_grid(stamp, timeout_s=30.0))
+            # a frame stamped before the integrator's joint_states reader matched arm_sim's writer
+            # (seen at start-up under load) is dropped as no_joint_states, never integrated: retake it
+            for attempt in range(3):
+                stamp = stamp_ns(reply.frame_stamp)
+                try:
+                    grid_msg = client.wait_grid(stamp, timeout_s=15.0)
+                    break
+                except AssertionError:
+                    if attempt == 2:
+                        raise
+                    reply = client.call(move, request)
+                    assert reply.success, reply.message
+            filtered, geometry = msg_to_grid(grid_msg)
             assert client.spin_until(lambda: "grid" in raw and stamp_ns(raw["grid"].header.stamp) >= stamp, 30.0)
             unfiltered, _ = msg_to_grid(raw["grid"])
             assert filtered.shape == SHAPE and geometry.resolution == pytest.approx(VOXEL)
