@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
-# Idempotent set-up: system library for open3d, a virtual environment at .venv with the
-# pinned dependencies, this package installed in editable mode, and the interface package
-# msg_defs/ built into the environment.
+# Idempotent set-up: Debian packages the wheels need (libusb for open3d; pocl where pip's pocl
+# cannot compile for this CPU), a virtual environment at .venv with the pinned dependencies, this
+# package installed in editable mode, and the interface package msg_defs/ built into the environment.
 # Fast when nothing changed (a stamp file records the hash of the inputs).
 set -euo pipefail
 repo="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
@@ -19,22 +19,24 @@ if [ -f "$stamp" ] && [ "$(cat "$stamp")" = "$want" ]; then
 probe_opencl() { "$venv/bin/python" -c "from nbv_prob_cnn.cl_device import cl_runtime; cl_runtime()" 2>"$venv/.nbv_opencl.log"; }
 if ! probe_opencl; then
   echo "[setup] no OpenCL device compiles kernels with pip's pocl; installing Debian's pocl-opencl-icd"
-  SUDO=""
-  [ "$(id -u)" -ne 0 ] && SUDO="sudo"
-  $SUDO apt-get update -qq
-  DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq pocl-opencl-icd >/dev/null
+  apt_install pocl-opencl-icd
   probe_opencl || { tail -5 "$venv/.nbv_opencl.log"; echo "[setup] no usable OpenCL device"; exit 1; }
 fi
   exit 0
 fi
 
+# Debian packages the wheels need (apt, with sudo unless root).
+apt_install() {
+  local sudo=""
+  [ "$(id -u)" -ne 0 ] && sudo="sudo"
+  $sudo apt-get update -qq
+  DEBIAN_FRONTEND=noninteractive $sudo apt-get install -y -qq "$@" >/dev/null
+}
+
 # open3d-cpu links against libusb-1.0 (Debian package libusb-1.0-0).
 if ! ldconfig -p 2>/dev/null | grep -q 'libusb-1.0.so.0'; then
   echo "[setup] installing libusb-1.0-0 (needed by open3d)"
-  SUDO=""
-  [ "$(id -u)" -ne 0 ] && SUDO="sudo"
-  $SUDO apt-get update -qq
-  DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq libusb-1.0-0 >/dev/null
+  apt_install libusb-1.0-0
 fi
 
 if [ ! -x "$venv/bin/python" ]; then
@@ -53,10 +55,7 @@ VIRTUAL_ENV="$venv" bash "$repo/launch_scripts/build_interfaces.sh"
 probe_opencl() { "$venv/bin/python" -c "from nbv_prob_cnn.cl_device import cl_runtime; cl_runtime()" 2>"$venv/.nbv_opencl.log"; }
 if ! probe_opencl; then
   echo "[setup] no OpenCL device compiles kernels with pip's pocl; installing Debian's pocl-opencl-icd"
-  SUDO=""
-  [ "$(id -u)" -ne 0 ] && SUDO="sudo"
-  $SUDO apt-get update -qq
-  DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq pocl-opencl-icd >/dev/null
+  apt_install pocl-opencl-icd
   probe_opencl || { tail -5 "$venv/.nbv_opencl.log"; echo "[setup] no usable OpenCL device"; exit 1; }
 fi
 echo "$want" > "$stamp"
