@@ -1,4 +1,5 @@
-"""Shared test set-up: an isolated cache directory per test session."""
+"""Shared test set-up: an isolated cache directory per test session, the DDS environment of ROS
+tests, and the default robot of the arm tests."""
 
 import os
 import tempfile
@@ -33,3 +34,29 @@ def ros_domain(monkeypatch):
         return env
 
     return use
+
+
+# ------------------------------------------------------------------ the arm (test_arm, test_arm_unstall)
+@pytest.fixture(scope="module")
+def robot():
+    """The default robot (the Panda beside the 3DT table)."""
+    pytest.importorskip("pinocchio")
+    from nbv_prob_cnn.arm.robot import RobotModel
+
+    return RobotModel()
+
+
+@pytest.fixture(scope="module")
+def chain(robot):
+    from nbv_prob_cnn.arm.kinematics import CameraChain
+
+    return CameraChain(robot)
+
+
+@pytest.fixture(scope="module")
+def checker(robot):
+    """Collision checker with sample points 0.75 cells of the 3DT grid apart."""
+    from nbv_prob_cnn.arm.collision import CollisionChecker
+    from nbv_prob_cnn.camera import DATASETS
+
+    return CollisionChecker(robot, spacing=0.75 * DATASETS["3dt"].resolution_m)

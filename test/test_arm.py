@@ -23,7 +23,6 @@ from nbv_prob_cnn.arm.capability import (  # noqa: E402
 from nbv_prob_cnn.arm.collision import CollisionChecker, GridObstacles, body_mesh  # noqa: E402
 from nbv_prob_cnn.arm.feasibility import ArmFeasibility  # noqa: E402
 from nbv_prob_cnn.arm.ik import DEFAULT_IK, rotation_error, solve_camera_pose  # noqa: E402
-from nbv_prob_cnn.arm.kinematics import CameraChain  # noqa: E402
 from nbv_prob_cnn.arm.robot import RobotConfig, RobotModel, translation  # noqa: E402
 from nbv_prob_cnn.camera import DATASETS, look_rotation  # noqa: E402
 from nbv_prob_cnn.geometry import GridGeometry  # noqa: E402
@@ -31,21 +30,6 @@ from nbv_prob_cnn.grid import OCCUPIED, UNKNOWN  # noqa: E402
 from nbv_prob_cnn.planners import PlanningContext, ViewChoice  # noqa: E402
 
 GEOMETRY_3DT = GridGeometry((0.0, 0.0, 0.0), DATASETS["3dt"].resolution_m, DATASETS["3dt"].shape)
-
-
-@pytest.fixture(scope="module")
-def robot() -> RobotModel:
-    return RobotModel()
-
-
-@pytest.fixture(scope="module")
-def chain(robot) -> CameraChain:
-    return CameraChain(robot)
-
-
-@pytest.fixture(scope="module")
-def checker(robot) -> CollisionChecker:
-    return CollisionChecker(robot, spacing=0.75 * GEOMETRY_3DT.resolution)
 
 
 def pose_errors(a: np.ndarray, b: np.ndarray) -> tuple[float, float]:

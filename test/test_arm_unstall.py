@@ -9,37 +9,21 @@ import pytest
 
 pytest.importorskip("pinocchio")
 
+from test_arm import GEOMETRY_3DT  # noqa: E402
+
 from nbv_prob_cnn.arm.capability import CapabilityMap  # noqa: E402
-from nbv_prob_cnn.arm.collision import CollisionChecker, GridObstacles  # noqa: E402
+from nbv_prob_cnn.arm.collision import GridObstacles  # noqa: E402
 from nbv_prob_cnn.arm.feasibility import ArmFeasibility  # noqa: E402
 from nbv_prob_cnn.arm.ik import DEFAULT_IK, alternative_solutions, solve_camera_pose  # noqa: E402
-from nbv_prob_cnn.arm.kinematics import CameraChain  # noqa: E402
-from nbv_prob_cnn.arm.robot import RobotModel  # noqa: E402
 from nbv_prob_cnn.arm.swept import SweptVolume  # noqa: E402
-from nbv_prob_cnn.camera import DATASETS, DatasetDefaults, Sensor, matrix_from_quaternion  # noqa: E402
+from nbv_prob_cnn.camera import DatasetDefaults, Sensor, matrix_from_quaternion  # noqa: E402
 from nbv_prob_cnn.gain import ray_gains  # noqa: E402
 from nbv_prob_cnn.geometry import GridGeometry  # noqa: E402
 from nbv_prob_cnn.grid import EMPTY, OCCUPIED, UNKNOWN, probability_with_constant  # noqa: E402
 from nbv_prob_cnn.planners import GAIN_METHODS, GainPlanner, PlanningContext, ViewChoice  # noqa: E402
 from nbv_prob_cnn.planners.base import search_views  # noqa: E402
 
-GEOMETRY_3DT = GridGeometry((0.0, 0.0, 0.0), DATASETS["3dt"].resolution_m, DATASETS["3dt"].shape)
 SMALL_3D = DatasetDefaults("3du", 3, (18, 16, 14), 0.01, Sensor(60.0, 46.0, 8), 4, 3)
-
-
-@pytest.fixture(scope="module")
-def robot() -> RobotModel:
-    return RobotModel()
-
-
-@pytest.fixture(scope="module")
-def chain(robot) -> CameraChain:
-    return CameraChain(robot)
-
-
-@pytest.fixture(scope="module")
-def checker(robot) -> CollisionChecker:
-    return CollisionChecker(robot, spacing=0.75 * GEOMETRY_3DT.resolution)
 
 
 def unknown_grid() -> np.ndarray:

@@ -24,6 +24,7 @@ from nbv_prob_cnn_msgs.srv import EvaluateViews, PlanNextBestView  # noqa: E402
 from rclpy.action import ActionClient  # noqa: E402
 from rclpy.executors import MultiThreadedExecutor  # noqa: E402
 from sensor_msgs.msg import JointState  # noqa: E402
+from test_ros_explore import wait as wait_future  # noqa: E402
 
 from nbv_prob_cnn.arm.collision import CollisionChecker, GridObstacles  # noqa: E402
 from nbv_prob_cnn.arm.robot import RobotConfig, RobotModel  # noqa: E402
@@ -113,11 +114,8 @@ def ros(tmp_path, ros_domain):
 
 
 def wait(future, timeout_s: float = 120.0):
-    deadline = time.monotonic() + timeout_s
-    while not future.done() and time.monotonic() < deadline:
-        time.sleep(0.02)
-    assert future.done(), "no answer in time"
-    return future.result()
+    """:func:`test_ros_explore.wait` with this module's longer default (arm planning checks IK)."""
+    return wait_future(future, timeout_s)
 
 
 def call_when_ready(node, srv_type, name: str, request, not_ready: str, timeout_s: float = 120.0):
