@@ -355,6 +355,10 @@ def test_sim_camera_follows_the_arm(ros):
         time.sleep(0.05)
     for frame in frames[seen : seen + 3]:  # frames long after both subscriptions matched
         stamp = frame.header.stamp.sec * 1_000_000_000 + frame.header.stamp.nanosec
+        # the arm pose of that stamp may still be queued for this node's own subscription
+        settle = time.monotonic() + 5.0
+        while stamp not in arm_poses and time.monotonic() < settle:
+            time.sleep(0.02)
         assert stamp in arm_poses, "a frame's stamp is not the stamp of an arm camera pose"
         p, t = arm_poses[stamp].pose.position, frame.transform.translation
         np.testing.assert_allclose([t.x, t.y, t.z], [p.x, p.y, p.z], atol=1e-9)
