@@ -159,7 +159,8 @@ def evaluate(
     (out / "runs").mkdir(parents=True, exist_ok=True)
     jobs = [(seed, method) for seed in seeds for method in methods]
     fingerprints = {method: weights_fingerprint(dataset, method) for method in methods}
-    pending, redo = [], {}
+    pending: list[tuple[int, str]] = []
+    redo: dict[str, int] = {}  # method -> runs made with other weights
     for seed, method in jobs:
         status = run_status(run_path(out, dataset, method, seed), views, fingerprints[method])
         if status != "done":
