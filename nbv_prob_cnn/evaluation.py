@@ -5,8 +5,11 @@ a table of the unknown fraction after given numbers of views.
 Runs are Ray tasks (:func:`evaluate`): a local Ray instance by default, an existing cluster with
 ``address``, or plain in-process calls with ``workers=0`` (debugging). A task returns its log;
 the driver writes ``runs/<dataset>_<method>_seed<seed>.csv`` (plus a small ``.json`` with the
-views asked for and why the run stopped), so workers need no shared file system. Runs are
-resumable: a run whose files exist (for at least as many views) is read back, not recomputed.
+views asked for, why the run stopped and the fingerprint of the weights the method read), so
+workers need no shared file system. Runs are resumable: a run whose files exist (for at least as
+many views) is read back, not recomputed, unless the method's weights file has changed since
+(its fingerprint differs from the one recorded, or none was recorded): then the run is redone
+and the progress output says so. Methods without weights record none and are never redone.
 Worlds and weights are read on the worker (``NBV_CACHE_DIR`` and ``NBV_WEIGHTS_DIR`` are passed
 on); every node of a cluster needs this package installed (``launch_scripts/setup.sh``).
 """
@@ -14,9 +17,11 @@ on); every node of a cluster needs this package installed (``launch_scripts/setu
 from __future__ import annotations
 
 import csv
+import hashlib
 import io
 import json
 import os
+import sys
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -34,6 +39,8 @@ DEFAULT_SEEDS = EVALUATION_SEEDS[:10]
 #: Environment variables passed on to Ray workers (caches, weights, the OpenCL device choice and
 #: the ICD loader's vendor folder, so workers ray-cast on the same device as the driver).
 FORWARDED_ENV = ("NBV_CACHE_DIR", "NBV_WEIGHTS_DIR", "NBV_OPENCL_DEVICE", "OCL_ICD_VENDORS")
+#: Key of a run's ``.json`` that holds :func:`weights_fingerprint` of the weights it ran with.
+WEIGHTS_KEY = "weights_sha256"
 
 
 @dataclass
@@ -57,18 +64,39 @@ def run_path(out: Path, dataset: str, method: str, seed: int) -> Path:
     return out / "runs" / f"{dataset}_{method}_seed{seed}.csv"
 
 
-def is_finished(path: Path, views: int) -> bool:
-    """A run CSV exists for at least ``views`` views (or stopped early in a run that asked for as many)."""
+def weights_fingerprint(dataset: str, method: str) -> str | None:
+    """First 16 hex digits of the sha256 of the weights file ``method`` reads on ``dataset``
+    (None: a method without weights)."""
+    from nbv_prob_cnn.completion.inference import default_weights_path
+
+    weights = method_spec(method).weights
+    if weights is None:
+        return None
+    return hashlib.sha256(default_weights_path(dataset, weights).read_bytes()).hexdigest()[:16]
+
+
+def run_status(path: Path, views: int, weights: str | None = None) -> str:
+    """``"done"``: the run CSV exists for at least ``views`` views (or stopped early in a run that
+    asked for as many) and was made with the weights of fingerprint ``weights`` (None: a method
+    without weights); ``"missing"``, ``"short"``, or ``"other weights"`` (a run of a method with
+    weights whose ``.json`` records another fingerprint or none)."""
     if not path.is_file():
-        return False
-    meta = path.with_suffix(".json")
-    if meta.is_file():
+        return "missing"
+    meta_path = path.with_suffix(".json")
+    if meta_path.is_file():
         try:
-            return int(json.loads(meta.read_text())["views"]) >= views
+            meta = json.loads(meta_path.read_text())
+            enough = int(meta["views"]) >= views
         except (ValueError, KeyError, TypeError):
-            return False
-    with open(path) as handle:
-        return sum(1 for _ in handle) - 1 >= views
+            return "short"
+        recorded = meta.get(WEIGHTS_KEY)
+    else:
+        with open(path) as handle:
+            enough = sum(1 for _ in handle) - 1 >= views
+        recorded = None
+    if not enough:
+        return "short"
+    return "done" if recorded == weights else "other weights"
 
 
 def run_one(dataset: str, method: str, seed: int, views: int, backend: str = "auto") -> tuple[str, dict]:
@@ -76,6 +104,7 @@ def run_one(dataset: str, method: str, seed: int, views: int, backend: str = "au
     from nbv_prob_cnn.worlds import load_or_generate
 
     world = load_or_generate(dataset, seed)
+    weights = weights_fingerprint(dataset, method)  # of the file this worker reads
     # same first view for every method: the rng is seeded by the environment only
     context = PlanningContext(
         dataset_spec(dataset), rng=np.random.default_rng(seed), ground_truth=world.ground_truth, backend=backend
@@ -83,7 +112,8 @@ def run_one(dataset: str, method: str, seed: int, views: int, backend: str = "au
     result = explore(world, make_planner(method), context, views, progress=False)
     text = io.StringIO()
     write_csv(result.records, text)
-    return text.getvalue(), {"views": views, "stop_reason": result.stop_reason, "host": os.uname().nodename}
+    meta = {"views": views, "stop_reason": result.stop_reason, "host": os.uname().nodename, WEIGHTS_KEY: weights}
+    return text.getvalue(), meta
 
 
 def _store(path: Path, text: str, meta: dict) -> None:
@@ -128,9 +158,21 @@ def evaluate(
     check_weights(dataset, methods)
     (out / "runs").mkdir(parents=True, exist_ok=True)
     jobs = [(seed, method) for seed in seeds for method in methods]
-    pending = [(seed, method) for seed, method in jobs if not is_finished(run_path(out, dataset, method, seed), views)]
+    fingerprints = {method: weights_fingerprint(dataset, method) for method in methods}
+    pending: list[tuple[int, str]] = []
+    redo: dict[str, int] = {}  # method -> runs made with other weights
+    for seed, method in jobs:
+        status = run_status(run_path(out, dataset, method, seed), views, fingerprints[method])
+        if status != "done":
+            pending.append((seed, method))
+        if status == "other weights":
+            redo[method] = redo.get(method, 0) + 1
     bar = tqdm(total=len(jobs), initial=len(jobs) - len(pending), desc=f"evaluate {dataset}", unit="run",
                disable=not progress)  # fmt: skip
+    for method, count in redo.items():
+        if progress:
+            bar.write(f"{dataset} {method}: redoing {count} run(s) made with other weights than the current "
+                      f"ones (sha256 {fingerprints[method]})", file=sys.stderr)  # fmt: skip
     if pending and workers == 0 and address is None:
         for seed, method in pending:
             _store(run_path(out, dataset, method, seed), *run_one(dataset, method, seed, views, backend))

@@ -27,7 +27,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--envs", type=int, default=None, help="use only the first N of --seeds")
     parser.add_argument("--views", type=int, default=100, help="views per run, the random first one included")
     parser.add_argument("--at", nargs="+", type=int, default=None, help="table columns: after N views")
-    parser.add_argument("--out", default="out/evaluation", help="output directory (runs are cached there)")
+    parser.add_argument(
+        "--out", default="out/evaluation",
+        help="output directory (runs are cached there; redone when the weights they ran with have changed)",
+    )  # fmt: skip
     parser.add_argument(
         "--workers", type=int, default=None,
         help="local Ray instance with N CPUs (default: all cores); 0 = no Ray, runs one by one in this process",
