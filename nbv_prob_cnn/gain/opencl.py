@@ -118,8 +118,9 @@ def group_sets(view_sets: np.ndarray, membership: np.ndarray, group: int = 1) ->
     padding = -view_sets.shape[0] % group
     rows = np.concatenate([view_sets, np.zeros((padding, view_sets.shape[1]), dtype=bool)]).astype(bool)
     unique, row = unique_rows(np.asarray(rows.reshape(-1, group, rows.shape[1]).any(axis=1)))
-    rays = unique.astype(np.float32) @ (np.asarray(membership).T != 0).astype(np.float32) > 0.0
-    return np.ascontiguousarray(np.concatenate([bit_words(unique), bit_words(rays)], axis=1)[row])
+    view_rays = bit_words(np.asarray(membership).T != 0)  # (V, ray words); OR, not a BLAS product:
+    rays = np.bitwise_or.reduce(np.where(unique[:, :, None], view_rays, np.uint32(0)), axis=1)  # its threads spin
+    return np.ascontiguousarray(np.concatenate([bit_words(unique), rays.astype(np.uint32)], axis=1)[row])
 
 
 def unique_rows(flags: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -420,7 +421,8 @@ class OpenCLRayCaster:
         while done < n and origin_bound[done] >= best[0]:
             stop = min(n, done + batch)
             stop = done + int(np.count_nonzero(origin_bound[done:stop] >= best[0]))
-            chosen, view_sets = order[done:stop], None
+            # origins in grid order: the lanes and work-items of a work-group march from neighbouring cells
+            chosen, view_sets = np.sort(order[done:stop]), None
             if prune_views and best[0] >= 0.0 and not sparse:
                 pattern, reach = reaching_views(view_bound, block_of[chosen], best[0])
                 by_pattern = np.argsort(pattern, kind="stable")  # work-groups of one view set
