@@ -305,7 +305,7 @@ class OpenCLRayCaster:
         # local references keep every buffer alive until the queue has finished with it
         start_buf, rays_buf = self._constant(start), self._constant(rays)
         lanes, device = self.lanes, self.device  # local_size: origins per work-group, a multiple of lanes
-        local_size = int(min(local_size, device.max_work_group_size * lanes, device.local_mem_size // (4 * r)))
+        local_size = int(min(local_size, device.max_work_group_size * lanes, device.local_mem_size // (4 * (r + v))))
         local_size = max(lanes, local_size // lanes * lanes)
         first_sample = group_first_samples(padded, origin_index, local_size)
         every = group_sets(np.ones((1, v), dtype=bool), membership)
@@ -331,7 +331,7 @@ class OpenCLRayCaster:
                 np.int32(nu), np.float32(1.0 / total_weight), np.float32(eps), np.int32(MODES[mode]),
                 np.float32(min_range), start_buf, rays_buf, np.int32(v), first_buf, set_buf, np.int32(set_stride),
                 np.int32(-(-v // 32)),
-                cl.LocalMemory(4 * r * local_size), out_buf,
+                cl.LocalMemory(4 * (r + v) * local_size), out_buf,
             )  # fmt: skip
             cl.enqueue_nd_range_kernel(self.queue, kernel, (groups * local_size // lanes,), (local_size // lanes,))
             cl.enqueue_copy(self.queue, out[begin : begin + count], out_buf)

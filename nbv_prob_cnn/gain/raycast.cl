@@ -114,9 +114,10 @@ __kernel void ray_gain(__global const float *code, __global const int *origins, 
 // G_W(v, W) for every origin and candidate view, without storing ray gains in global memory.
 // One work-group per block of consecutive origins (origins padded to whole work-groups), LANES
 // origins per work-item: the lanes march the same ray from neighbouring cells (coherent loops
-// and memory reads), into local memory (ray_gains[ray][origin]); then the group sums the rays
-// of each (origin, view) pair (view_start/view_rays: the view -> rays membership as compressed
-// rows, rays ascending). out is (n_origins, n_views).
+// and memory reads), into local memory (ray_gains[ray][origin]); then each work-item sums, per
+// view, the view's rays for its lanes (view_start/view_rays: the view -> rays membership as
+// compressed rows, rays ascending) into local memory after the ray gains, and the group writes
+// them to out, (n_origins, n_views).
 // group_sets: per work-group a row of set_stride words (set_stride = 0: one row for every
 // group): first the bit set of the views to sum (view_words words; view w is bit w & 31 of word
 // w >> 5), then the bit set of the rays to march. Views outside the set get 0 and masked-out rays
@@ -146,19 +147,23 @@ __kernel void view_gain(__global const float *code, __global const int *origins,
         LANES_AT(__local floatv, ray_gains + (size_t)h * size + lid * LANES) = gains;
     }
     barrier(CLK_LOCAL_MEM_FENCE);
+    // each work-item sums the views of its own lanes' origins (a vector of sums per view) ...
+    __local float *view_sums = ray_gains + (size_t)n_rays * size;  // [view][origin]
+    for (int w = 0; w < n_views; ++w) {
+        floatv sum = 0.0f;
+        if (((view_set[w >> 5] >> (w & 31)) & 1u) != 0u) {
+            for (int i = view_start[w]; i < view_start[w + 1]; ++i) {
+                sum += LANES_AT(__local floatv, ray_gains + (size_t)view_rays[i] * size + lid * LANES);
+            }
+        }
+        LANES_AT(__local floatv, view_sums + (size_t)w * size + lid * LANES) = sum;
+    }
+    barrier(CLK_LOCAL_MEM_FENCE);
+    // ... then the group writes them out, origin-major
     const int count = min(size, n_origins - first);
     for (int k = lid; k < count * n_views; k += get_local_size(0)) {
         const int o = k / n_views;
         const int w = k - o * n_views;
-        if (((view_set[w >> 5] >> (w & 31)) & 1u) == 0u) {
-            out[(size_t)(first + o) * n_views + w] = 0.0f;
-            continue;
-        }
-        __local const float *gains = ray_gains + o;
-        float sum = 0.0f;
-        for (int i = view_start[w]; i < view_start[w + 1]; ++i) {
-            sum += gains[(size_t)view_rays[i] * size];
-        }
-        out[(size_t)(first + o) * n_views + w] = sum;
+        out[(size_t)(first + o) * n_views + w] = view_sums[(size_t)w * size + o];
     }
 }
