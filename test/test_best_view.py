@@ -11,11 +11,14 @@ from nbv_prob_cnn.gain.opencl import encode_grid, get_ray_caster
 E, O, U = 0, 1, -1  # noqa: E741
 
 
-def _explored_world(rng: np.random.Generator, shape: tuple[int, ...]) -> tuple[np.ndarray, np.ndarray]:
-    """Unknown space with an explored (empty) box on one side, occupied boxes in and around it,
-    and smooth-ish random probabilities: gains differ a lot between origins (pruning happens)."""
+def _explored_world(
+    rng: np.random.Generator, shape: tuple[int, ...], explored_fraction: float = 0.6
+) -> tuple[np.ndarray, np.ndarray]:
+    """Unknown space with an explored (empty) box on one side (``explored_fraction`` of each
+    axis), occupied boxes in and around it, and smooth-ish random probabilities: gains differ a
+    lot between origins (pruning happens)."""
     state = np.full(shape, U, dtype=np.int8)
-    explored = tuple(slice(1, max(2, int(0.6 * s))) for s in shape)
+    explored = tuple(slice(1, max(2, int(explored_fraction * s))) for s in shape)
     state[explored] = E
     for _ in range(4):
         lo = [int(rng.integers(0, s - 3)) for s in shape]
@@ -66,6 +69,31 @@ def test_best_view_equals_exhaustive_and_numpy(shape, n_rays, r_max, mode, seed,
     assert abs(gain - reference.max()) <= 1e-4
 
 
+@pytest.mark.parametrize("shape,n_rays,r_max", [((18, 17, 16), 16, 10), ((44, 40), 16, 24)])
+@pytest.mark.parametrize("lanes", [1, None])
+def test_best_view_late_exploration(shape, n_rays, r_max, lanes):
+    """Late in an exploration (all but one layer of each axis explored: many origins, little unknown
+    left, N_rays=16) with the CPU's default lane width and with one origin per work-item (a GPU's):
+    the exhaustive argmax, gain within 1e-4 of the numpy reference's maximum."""
+    from nbv_prob_cnn.gain.opencl import OpenCLRayCaster
+
+    state, prob = _explored_world(np.random.default_rng(7), shape, explored_fraction=1.0)
+    d, member = _setup(shape, n_rays)
+    origins = np.argwhere(state == E)
+    caster = get_ray_caster() if lanes is None else OpenCLRayCaster(lanes)
+    code, offsets = encode_grid(state, prob), sample_offsets(d, r_max)
+    total = float(distance_weights(r_max, len(shape)).sum())
+    exhaustive = caster.run_views(code, origins, offsets, member, total, "prob", 0.0, 2.0)
+    reference = origin_view_gains(state, prob, d, r_max, member, origins, "numpy", min_range=2)
+    index, view, gain, evaluated = caster.best_view(code, origins, offsets, member, total, "prob", 0.0, 2.0,
+                                                    first_batch=16)  # fmt: skip
+    assert np.count_nonzero(state == U) < 0.25 * state.size and reference.max() > 0.01
+    assert (index, view) == divmod(int(np.argmax(exhaustive)), exhaustive.shape[1])
+    assert gain == exhaustive.max() and abs(gain - reference.max()) <= 1e-4
+    assert reference[index, view] >= reference.max() * (1 - 1e-6) - 1e-6
+    assert evaluated < origins.shape[0]
+
+
 @pytest.mark.parametrize("shape,n_rays,r_max", CASES)
 @pytest.mark.parametrize("mode", ["prob", "ig"])
 @pytest.mark.parametrize("size", [2, 3, 4])
@@ -78,9 +106,7 @@ def test_block_bounds_bound_every_origin(shape, n_rays, r_max, mode, size):
     exact = origin_view_gains(state, p, d, r_max, member, origins, "numpy", mode=mode, min_range=2)
     code = encode_grid(state, p)
     total = float(distance_weights(r_max, len(shape)).sum())
-    block_of, bounds = get_ray_caster().block_bounds(
-        code, origins, sample_offsets(d, r_max), member, total, mode, size
-    )
+    block_of, bounds = get_ray_caster().block_bounds(code, origins, sample_offsets(d, r_max), member, total, mode, size)
     assert block_of.shape == (origins.shape[0],) and bounds.shape[1] == member.shape[1]
     assert bounds.shape[0] < origins.shape[0]  # blocks gather several origins
     assert np.all(bounds[block_of] >= exact - 1e-5)

@@ -3,7 +3,8 @@ on the device of :mod:`nbv_prob_cnn.cl_device` (a GPU if present, else the CPU t
 
 Two kernels call it: ``view_gain`` sums the ray gains of each origin into its candidate views
 in local memory (the planners' path: no per-ray gains in global memory), ``ray_gain`` returns
-per-ray gains (poses with their own frusta).
+per-ray gains (poses with their own frusta). Each work-item marches a ray from ``lanes``
+neighbouring origins at once (:func:`default_lanes`).
 """
 
 from __future__ import annotations
@@ -26,8 +27,11 @@ CODE_OCCUPIED = -2.0
 #: Largest empty-space jump encoded in the grid (cells).
 MAX_SKIP = 1 << 20
 
-#: Origins per work-group in ``view_gain`` (one work-item each).
+#: Origins per work-group in ``view_gain`` (``lanes`` per work-item).
 VIEW_GAIN_LOCAL_SIZE = 16
+#: Origins per work-item (vector lanes of the ray march) on a CPU device; 1 on a GPU.
+CPU_LANES = 16
+LANE_WIDTHS = (1, 2, 4, 8, 16)
 #: Origins per ``view_gain`` launch (bounds the device output buffer).
 VIEW_GAIN_ORIGINS_PER_LAUNCH = 1 << 17
 #: Origins in the first exactly evaluated batch of ``best_view`` (then doubling).
@@ -114,8 +118,9 @@ def group_sets(view_sets: np.ndarray, membership: np.ndarray, group: int = 1) ->
     padding = -view_sets.shape[0] % group
     rows = np.concatenate([view_sets, np.zeros((padding, view_sets.shape[1]), dtype=bool)]).astype(bool)
     unique, row = unique_rows(np.asarray(rows.reshape(-1, group, rows.shape[1]).any(axis=1)))
-    rays = unique.astype(np.float32) @ (np.asarray(membership).T != 0).astype(np.float32) > 0.0
-    return np.ascontiguousarray(np.concatenate([bit_words(unique), bit_words(rays)], axis=1)[row])
+    view_rays = bit_words(np.asarray(membership).T != 0)  # (V, ray words); OR, not a BLAS product:
+    rays = np.bitwise_or.reduce(np.where(unique[:, :, None], view_rays, np.uint32(0)), axis=1)  # its threads spin
+    return np.ascontiguousarray(np.concatenate([bit_words(unique), rays.astype(np.uint32)], axis=1)[row])
 
 
 def unique_rows(flags: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -178,14 +183,33 @@ def bound_grid(padded: np.ndarray, dims: int, probabilistic: bool, size: int) ->
     return np.ascontiguousarray(out, dtype=np.float32)
 
 
-class OpenCLRayCaster:
-    """Compiled kernels plus cached constant buffers for one OpenCL device."""
+def default_lanes(device) -> int:
+    """Origins per work-item for ``device``: :data:`CPU_LANES` on a CPU (pocl runs a work-item's
+    loop as scalar code, branching per sample; a vector of lanes marches branch-free, 2x faster
+    on 3DU N_rays=16), 1 elsewhere (a GPU runs the work-items themselves in lock step)."""
+    import pyopencl as cl
 
-    def __init__(self) -> None:
+    return CPU_LANES if device.type & cl.device_type.CPU else 1
+
+
+def pad_to(values: np.ndarray, multiple: int) -> np.ndarray:
+    """``values`` (1-D) with its last item repeated up to a length multiple of ``multiple``."""
+    padding = -values.size % multiple
+    return np.ascontiguousarray(np.concatenate([values, np.repeat(values[-1:], padding)]) if padding else values)
+
+
+class OpenCLRayCaster:
+    """Compiled kernels plus cached constant buffers for one OpenCL device; ``lanes``: origins
+    per work-item (one of :data:`LANE_WIDTHS`; default :func:`default_lanes`)."""
+
+    def __init__(self, lanes: int | None = None) -> None:
         runtime = cl_runtime()
         cl = self._cl = runtime.cl
         self.device, self.context, self.queue = runtime.device, runtime.context, runtime.queue
-        program = runtime.build(KERNEL_SOURCE)
+        self.lanes = default_lanes(self.device) if lanes is None else lanes
+        if self.lanes not in LANE_WIDTHS:
+            raise ValueError(f"lanes: expected one of {LANE_WIDTHS}, got {lanes!r}")
+        program = runtime.build(KERNEL_SOURCE, (f"-DLANES={self.lanes}",))
         self._ray_kernel = cl.Kernel(program, "ray_gain")
         self._view_kernel = cl.Kernel(program, "view_gain")
         self._cache: dict[tuple, object] = {}
@@ -224,22 +248,24 @@ class OpenCLRayCaster:
     ) -> np.ndarray:
         """Ray gains ``(N, R)`` float32 for the encoded grid ``code``."""
         cl, mf = self._cl, self._cl.mem_flags
-        n, r = origins.shape[0], offsets.shape[0]
-        out = np.empty((n, r), dtype=np.float32)
+        n, r, lanes = origins.shape[0], offsets.shape[0], self.lanes
         if n == 0:
-            return out
+            return np.empty((n, r), dtype=np.float32)
         code_buf, _, origin_index, offset_buf = self._common(code, origins, offsets)
+        origin_index = pad_to(origin_index, lanes)
+        blocks = origin_index.size // lanes
+        out = np.empty((blocks, r, lanes), dtype=np.float32)
         origin_buf = cl.Buffer(self.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=origin_index)
         out_buf = cl.Buffer(self.context, mf.WRITE_ONLY, out.nbytes)
         self._ray_kernel.set_args(
-            code_buf, origin_buf, np.int32(n), offset_buf, np.int32(r), np.int32(offsets.shape[1]),
+            code_buf, origin_buf, np.int32(origin_index.size), offset_buf, np.int32(r), np.int32(offsets.shape[1]),
             np.int32(code.ndim - 1), np.float32(1.0 / total_weight), np.float32(eps), np.int32(MODES[mode]),
             np.float32(min_range), out_buf,
         )  # fmt: skip
-        cl.enqueue_nd_range_kernel(self.queue, self._ray_kernel, (n * r,), None)
+        cl.enqueue_nd_range_kernel(self.queue, self._ray_kernel, (blocks * r,), None)
         cl.enqueue_copy(self.queue, out, out_buf)
         self.queue.finish()
-        return out
+        return np.ascontiguousarray(out.transpose(0, 2, 1).reshape(-1, r)[:n])
 
     def run_views(
         self,
@@ -278,14 +304,15 @@ class OpenCLRayCaster:
         start, rays = view_table(membership)
         # local references keep every buffer alive until the queue has finished with it
         start_buf, rays_buf = self._constant(start), self._constant(rays)
-        local_size = int(min(local_size, self.device.max_work_group_size))
-        local_size = max(1, min(local_size, self.device.local_mem_size // (4 * r)))
+        lanes, device = self.lanes, self.device  # local_size: origins per work-group, a multiple of lanes
+        local_size = int(min(local_size, device.max_work_group_size * lanes, device.local_mem_size // (4 * (r + v))))
+        local_size = max(lanes, local_size // lanes * lanes)
         first_sample = group_first_samples(padded, origin_index, local_size)
         every = group_sets(np.ones((1, v), dtype=bool), membership)
         sets = every if view_sets is None else group_sets(view_sets, membership, local_size)
         set_stride = 0 if view_sets is None else sets.shape[1]
         block = min(n, VIEW_GAIN_ORIGINS_PER_LAUNCH // local_size * local_size)
-        origin_buf = cl.Buffer(self.context, mf.READ_ONLY, block * 4)
+        origin_buf = cl.Buffer(self.context, mf.READ_ONLY, -(-block // local_size) * local_size * 4)
         first_buf = cl.Buffer(self.context, mf.READ_ONLY, -(-block // local_size) * 4)
         set_buf = cl.Buffer(self.context, mf.READ_ONLY, max(every.nbytes, -(-block // local_size) * 4 * set_stride))
         if view_sets is None:
@@ -294,7 +321,7 @@ class OpenCLRayCaster:
         kernel = self._view_kernel
         for begin in range(0, n, block):
             count = min(block, n - begin)
-            cl.enqueue_copy(self.queue, origin_buf, np.ascontiguousarray(origin_index[begin : begin + count]))
+            cl.enqueue_copy(self.queue, origin_buf, pad_to(origin_index[begin : begin + count], local_size))
             group, groups = begin // local_size, -(-count // local_size)
             cl.enqueue_copy(self.queue, first_buf, first_sample[group : group + groups])
             if view_sets is not None:
@@ -304,9 +331,9 @@ class OpenCLRayCaster:
                 np.int32(nu), np.float32(1.0 / total_weight), np.float32(eps), np.int32(MODES[mode]),
                 np.float32(min_range), start_buf, rays_buf, np.int32(v), first_buf, set_buf, np.int32(set_stride),
                 np.int32(-(-v // 32)),
-                cl.LocalMemory(4 * r * local_size), out_buf,
+                cl.LocalMemory(4 * (r + v) * local_size), out_buf,
             )  # fmt: skip
-            cl.enqueue_nd_range_kernel(self.queue, kernel, (groups * local_size,), (local_size,))
+            cl.enqueue_nd_range_kernel(self.queue, kernel, (groups * local_size // lanes,), (local_size // lanes,))
             cl.enqueue_copy(self.queue, out[begin : begin + count], out_buf)
         self.queue.finish()
         return out
@@ -394,7 +421,8 @@ class OpenCLRayCaster:
         while done < n and origin_bound[done] >= best[0]:
             stop = min(n, done + batch)
             stop = done + int(np.count_nonzero(origin_bound[done:stop] >= best[0]))
-            chosen, view_sets = order[done:stop], None
+            # origins in grid order: the lanes and work-items of a work-group march from neighbouring cells
+            chosen, view_sets = np.sort(order[done:stop]), None
             if prune_views and best[0] >= 0.0 and not sparse:
                 pattern, reach = reaching_views(view_bound, block_of[chosen], best[0])
                 by_pattern = np.argsort(pattern, kind="stable")  # work-groups of one view set

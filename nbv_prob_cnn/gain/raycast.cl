@@ -14,46 +14,85 @@
 //   * samples 0 .. d - 1 of every ray from an origin at distance d are empty and change neither
 //     H nor Pr (nor the information gain): view_gain starts the rays of a work-group at the
 //     smallest d of its origins (first_sample). This is exact. (Jumping by d inside the loop is
-//     exact too but breaks the lock-step loop pocl vectorizes across work-items: ~2x slower.)
+//     exact too but was measured ~2x slower on a CPU: each read waits for the previous one; with
+//     lanes all lanes step together anyway.)
 //
-// march_ray is the one implementation of the ray marching; ray_gain stores it per (origin,
-// ray) (poses with their own frusta), view_gain sums it into the candidate views per origin.
+// march_rays is the one implementation of the ray marching: one ray from LANES origins at once
+// (LANES, a build option, 1 on a GPU; on a CPU 16: pocl compiles a work-item's loop to scalar
+// code, where data-dependent branches per sample cost more than the march; as a vector of lanes
+// the loop is branch-free up to "no lane alive", in float32 the same operations per lane as
+// the scalar loop, hence bit-identical gains). ray_gain stores it per (origin, ray) (poses
+// with their own frusta), view_gain sums it into the candidate views per origin.
 #pragma OPENCL FP_CONTRACT OFF
 
 #define MODE_PROBABILISTIC 0
 #define MODE_INFORMATION_GAIN 1
 
-inline float march_ray(__global const float *code, const int origin, __global const int *off,
-                       const int first_sample, const int n_samples, const int nu, const float inv_total, const float eps,
-                       const int mode, const float min_range)
+#ifndef LANES
+#define LANES 1
+#endif
+
+// Lane vectors (floatv, intv) with aligned reads and writes (p: a multiple of LANES items from
+// a buffer's start), gather and any-lane test. Macros, not functions: pocl has select() and
+// any() out of line, its vload16 of int loses the kernels, and 16-wide vectors passed by value
+// change the ABI without AVX-512 (a warning, and pocl's cached build of a program that warned
+// lists no kernels).
+#define CAT_(a, b) a##b
+#define CAT(a, b) CAT_(a, b)
+#if LANES == 1
+typedef float floatv;
+typedef int intv;
+#define GATHER(code, i) ((code)[i])
+#define ANY_LANE(v) ((v) != 0)
+#else
+typedef CAT(float, LANES) floatv;
+typedef CAT(int, LANES) intv;
+#define GATHER CAT(GATHER, LANES)
+#define ANY_LANE CAT(ANY, LANES)
+#endif
+#define LANES_AT(type, p) (*(type *)(p))
+#define GATHER2(code, i) ((float2)((code)[(i).x], (code)[(i).y]))
+#define GATHER4(code, i) ((float4)(GATHER2(code, (i).lo), GATHER2(code, (i).hi)))
+#define GATHER8(code, i) ((float8)(GATHER4(code, (i).lo), GATHER4(code, (i).hi)))
+#define GATHER16(code, i) ((float16)(GATHER8(code, (i).lo), GATHER8(code, (i).hi)))
+#define ANY2(v) ((v).x | (v).y)
+#define ANY4(v) ANY2((v).lo | (v).hi)
+#define ANY8(v) ANY4((v).lo | (v).hi)
+#define ANY16(v) ANY8((v).lo | (v).hi)
+
+// G_r of ray `off` from the origins of the LANES lanes (read at `origins`) into `gains`. A lane
+// is alive until its ray stops (known occupied cell or grid border, or Pr <= eps, or for ig the
+// first non-empty sample); dead lanes keep their values and read their origin cell.
+inline void march_rays(__global const float *code, __global const int *origins, __global const int *off,
+                       const int first_sample, const int n_samples, const int nu, const float inv_total,
+                       const float eps, const int mode, const float min_range, floatv *gains)
 {
-    float visible = 1.0f;  // Pr(r_t) = prod_{i<t} (1 - p_i)
-    float hit = 0.0f;      // H(v, h)
+    const intv origin = LANES_AT(__global const intv, origins);
+    floatv visible = 1.0f;  // Pr(r_t) = prod_{i<t} (1 - p_i)
+    floatv hit = 0.0f;      // H(v, h)
+    intv alive = (intv)(-1);
     for (int t = first_sample; t < n_samples; ++t) {
-        const float c = code[origin + off[t]];
-        if (c <= -2.0f) {
-            continue;  // known empty
-        }
-        if (c < 0.0f) {
-            break;  // known occupied (or outside the grid): Pr = 0 from here on
-        }
+        const intv cell = alive ? origin + off[t] : origin;
+        const floatv c = GATHER(code, cell);
+        const intv unknown = alive & (c >= 0.0f);
         const float weight = (nu == 1) ? (float)t : (float)(t * t);
         if (mode == MODE_INFORMATION_GAIN) {
-            if ((float)t >= min_range) {
-                hit = weight;
-            }
-            break;
+            hit = (unknown & (intv)((float)t >= min_range ? -1 : 0)) ? (floatv)(weight) : hit;
+            alive = alive & (c <= -2.0f);  // stops at the first non-empty sample
+        } else {
+            hit = unknown ? hit + visible * weight : hit;
+            visible = unknown ? visible * (1.0f - c) : visible;
+            alive = alive & ((c <= -2.0f) | (unknown & (visible > eps)));  // occupied: Pr = 0 from here on
         }
-        hit += visible * weight;
-        visible *= 1.0f - c;
-        if (visible <= eps) {
+        if (!ANY_LANE(alive)) {
             break;
         }
     }
-    return hit * inv_total;
+    *gains = hit * inv_total;
 }
 
-// G_r(v, h) for every (origin, ray): one work-item each, out is (n_origins, n_rays).
+// G_r(v, h) for every (origin, ray): one work-item per ray and block of LANES origins (origins
+// padded to a multiple of LANES); out is (n_origins / LANES, n_rays, LANES).
 __kernel void ray_gain(__global const float *code, __global const int *origins, const int n_origins,
                        __global const int *offsets, const int n_rays, const int n_samples,
                        const int nu, const float inv_total, const float eps,
@@ -61,20 +100,24 @@ __kernel void ray_gain(__global const float *code, __global const int *origins, 
                        __global float *out)
 {
     const int gid = get_global_id(0);
-    if (gid >= n_origins * n_rays) {
+    if (gid >= n_origins / LANES * n_rays) {
         return;
     }
     const int n = gid / n_rays;
     const int h = gid - n * n_rays;
-    out[gid] = march_ray(code, origins[n], offsets + (size_t)h * n_samples, 0, n_samples, nu, inv_total,
-                         eps, mode, min_range);
+    floatv gains;
+    march_rays(code, origins + (size_t)n * LANES, offsets + (size_t)h * n_samples, 0, n_samples, nu, inv_total, eps,
+               mode, min_range, &gains);
+    LANES_AT(__global floatv, out + (size_t)gid * LANES) = gains;
 }
 
 // G_W(v, W) for every origin and candidate view, without storing ray gains in global memory.
-// One work-group per block of consecutive origins, one work-item per origin: neighbouring
-// work-items march the same ray from neighbouring cells (coherent loops and memory reads), into
-// local memory; then the group sums the rays of each (origin, view) pair (view_start/view_rays:
-// the view -> rays membership as compressed rows, rays ascending). out is (n_origins, n_views).
+// One work-group per block of consecutive origins (origins padded to whole work-groups), LANES
+// origins per work-item: the lanes march the same ray from neighbouring cells (coherent loops
+// and memory reads), into local memory (ray_gains[ray][origin]); then each work-item sums, per
+// view, the view's rays for its lanes (view_start/view_rays: the view -> rays membership as
+// compressed rows, rays ascending) into local memory after the ray gains, and the group writes
+// them to out, (n_origins, n_views).
 // group_sets: per work-group a row of set_stride words (set_stride = 0: one row for every
 // group): first the bit set of the views to sum (view_words words; view w is bit w & 31 of word
 // w >> 5), then the bit set of the rays to march. Views outside the set get 0 and masked-out rays
@@ -90,35 +133,37 @@ __kernel void view_gain(__global const float *code, __global const int *origins,
                         const int view_words, __local float *ray_gains, __global float *out)
 {
     const int lid = get_local_id(0);
-    const int size = get_local_size(0);
+    const int size = get_local_size(0) * LANES;  // origins per work-group
     const int first = get_group_id(0) * size;
     const int first_sample = group_first_sample[get_group_id(0)];
-    const int origin = origins[min(first + lid, n_origins - 1)];
-    __local float *mine = ray_gains + (size_t)lid * n_rays;
     __global const uint *view_set = group_sets + (size_t)get_group_id(0) * set_stride;
     __global const uint *ray_set = view_set + view_words;
     for (int h = 0; h < n_rays; ++h) {
-        if (((ray_set[h >> 5] >> (h & 31)) & 1u) == 0u) {
-            mine[h] = 0.0f;
-            continue;
+        floatv gains = 0.0f;
+        if (((ray_set[h >> 5] >> (h & 31)) & 1u) != 0u) {
+            march_rays(code, origins + first + lid * LANES, offsets + (size_t)h * n_samples, first_sample, n_samples,
+                       nu, inv_total, eps, mode, min_range, &gains);
         }
-        mine[h] = march_ray(code, origin, offsets + (size_t)h * n_samples, first_sample, n_samples, nu,
-                            inv_total, eps, mode, min_range);
+        LANES_AT(__local floatv, ray_gains + (size_t)h * size + lid * LANES) = gains;
     }
     barrier(CLK_LOCAL_MEM_FENCE);
+    // each work-item sums the views of its own lanes' origins (a vector of sums per view) ...
+    __local float *view_sums = ray_gains + (size_t)n_rays * size;  // [view][origin]
+    for (int w = 0; w < n_views; ++w) {
+        floatv sum = 0.0f;
+        if (((view_set[w >> 5] >> (w & 31)) & 1u) != 0u) {
+            for (int i = view_start[w]; i < view_start[w + 1]; ++i) {
+                sum += LANES_AT(__local floatv, ray_gains + (size_t)view_rays[i] * size + lid * LANES);
+            }
+        }
+        LANES_AT(__local floatv, view_sums + (size_t)w * size + lid * LANES) = sum;
+    }
+    barrier(CLK_LOCAL_MEM_FENCE);
+    // ... then the group writes them out, origin-major
     const int count = min(size, n_origins - first);
-    for (int k = lid; k < count * n_views; k += size) {
+    for (int k = lid; k < count * n_views; k += get_local_size(0)) {
         const int o = k / n_views;
         const int w = k - o * n_views;
-        if (((view_set[w >> 5] >> (w & 31)) & 1u) == 0u) {
-            out[(size_t)(first + o) * n_views + w] = 0.0f;
-            continue;
-        }
-        __local const float *gains = ray_gains + (size_t)o * n_rays;
-        float sum = 0.0f;
-        for (int i = view_start[w]; i < view_start[w + 1]; ++i) {
-            sum += gains[view_rays[i]];
-        }
-        out[(size_t)(first + o) * n_views + w] = sum;
+        out[(size_t)(first + o) * n_views + w] = view_sums[(size_t)w * size + o];
     }
 }
