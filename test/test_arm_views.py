@@ -160,6 +160,13 @@ def test_joint_state_tracker_reports_bad_states_and_waits_for_the_goal(setup):
     assert tracker.current_or(default) is default
     with pytest.raises(ValueError, match="no joint state received yet"):
         tracker.current()
+    with pytest.raises(TimeoutError, match="no joint state received on joint_states within"):
+        tracker.wait_for_first(0.05)
+    first = threading.Timer(0.1, tracker.on_joint_state, [joint_state(robot.joint_names, robot.reference_q, sec=1)])
+    first.start()
+    tracker.wait_for_first(5.0)  # returns once the timer's state arrived
+    first.join()
+    np.testing.assert_array_equal(tracker.current()[0], robot.reference_q)
     assert "unknown joint names ['elbow']" in tracker.on_joint_state(joint_state(["elbow"], [0.0]))
     with pytest.raises(ValueError, match="unknown joint names"):
         tracker.current()

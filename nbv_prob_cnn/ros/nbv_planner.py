@@ -474,6 +474,8 @@ class NbvPlanner(Node):
         fraction = 1.0
         try:
             fraction = unknown_fraction_all(msg_to_grid(self._wait_for_grid(0, self.grid_timeout_s))[0])
+            if self._joints is not None:  # the arm's first joint state may still be on its way
+                self._joints.wait_for_first(self.move_timeout_s)
             for index in range(goal.max_views):
                 if goal_handle.is_cancel_requested:
                     return "canceled", f"canceled after {index} views", fraction

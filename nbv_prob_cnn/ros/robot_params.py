@@ -121,6 +121,16 @@ class JointStateTracker:
             raise ValueError("no joint state received yet on joint_states")
         return self._q.copy(), self._stamp_ns
 
+    def wait_for_first(self, timeout_s: float) -> None:
+        """Wait until the first joint state (valid or not) has arrived.
+
+        Raises:
+            TimeoutError: none within ``timeout_s``.
+        """
+        with self._condition:
+            if not self._condition.wait_for(lambda: self._q is not None or bool(self._error), timeout_s):
+                raise TimeoutError(f"no joint state received on joint_states within {timeout_s:.0f} s")
+
     def wait_until(self, goal: np.ndarray, tolerance: float, min_stamp_ns: int, timeout_s: float) -> int:
         """Wait until a joint state stamped at or after ``min_stamp_ns`` is within ``tolerance``
         (max abs difference, rad or m) of ``goal``; returns its stamp (ns).
