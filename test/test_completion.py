@@ -365,8 +365,14 @@ def test_train_end_to_end_and_resume(tmp_path, monkeypatch):
     monkeypatch.setattr(data_mod, "current_generator_version", lambda: 1)
     out = tmp_path / "w" / "2d_cnn_prob.pt"
     kwargs = {
-        "n_train_envs": 2, "n_val_envs": 1, "n_test_envs": 1, "crop": 32, "test_crop": 32, "progress": False,
-        "threads": 2, "device": "cpu"
+        "n_train_envs": 2,
+        "n_val_envs": 1,
+        "n_test_envs": 1,
+        "crop": 32,
+        "test_crop": 32,
+        "progress": False,
+        "threads": 2,
+        "device": "cpu",
     }
     result = train("2d", 1, out, **kwargs)
     paths = side_paths(out)

@@ -280,9 +280,11 @@ def _card_markdown(card: dict) -> str:
     if card.get("crop") and card["crop"] != "none (whole grids)":
         lines += [
             "",
-            (f"Trained on random {card['crop']}-cell crops of the simulated grids: the network is fully "
-            "convolutional, so the weights apply to grids of any size (crops keep a training step "
-            "within this machine's budget)."),
+            (
+                f"Trained on random {card['crop']}-cell crops of the simulated grids: the network is fully "
+                "convolutional, so the weights apply to grids of any size (crops keep a training step "
+                "within this machine's budget)."
+            ),
         ]
     lines += ["", "Retrain with:", "", "```", card["command"], "```", ""]
     return "\n".join(lines)

@@ -153,9 +153,8 @@ def voxelize(
     local = _transform_points(np.linalg.inv(transform), centres)
     import open3d as o3d
 
-    occ = _raycasting_scene(name).compute_occupancy(
-        o3d.core.Tensor(local.astype(np.float32)), nsamples=INSIDE_RAYS  # type: ignore[call-overload]
-    )
+    points = o3d.core.Tensor(local.astype(np.float32))
+    occ = _raycasting_scene(name).compute_occupancy(points, nsamples=INSIDE_RAYS)  # type: ignore[call-overload]
     mask |= occ.numpy().reshape(box).astype(bool)
     return lo, mask
 
