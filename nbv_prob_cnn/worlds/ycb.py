@@ -153,8 +153,8 @@ def voxelize(
     local = _transform_points(np.linalg.inv(transform), centres)
     import open3d as o3d
 
-    points = o3d.core.Tensor(local.astype(np.float32))
-    occ = _raycasting_scene(name).compute_occupancy(points, nsamples=INSIDE_RAYS)  # type: ignore[call-overload]
+    points = o3d.core.Tensor(local.astype(np.float32))  # type: ignore[call-overload]
+    occ = _raycasting_scene(name).compute_occupancy(points, nsamples=INSIDE_RAYS)
     mask |= occ.numpy().reshape(box).astype(bool)
     return lo, mask
 
