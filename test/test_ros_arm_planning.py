@@ -6,7 +6,6 @@ forward kinematics and the collision checker."""
 from __future__ import annotations
 
 import os
-import threading
 import time
 
 import numpy as np
@@ -22,8 +21,8 @@ from nbv_prob_cnn_msgs.action import Explore  # noqa: E402
 from nbv_prob_cnn_msgs.msg import VoxelGrid  # noqa: E402
 from nbv_prob_cnn_msgs.srv import EvaluateViews, PlanNextBestView  # noqa: E402
 from rclpy.action import ActionClient  # noqa: E402
-from rclpy.executors import MultiThreadedExecutor  # noqa: E402
 from sensor_msgs.msg import JointState  # noqa: E402
+from test_ros_explore import spun_node  # noqa: E402
 from test_ros_explore import wait as wait_future  # noqa: E402
 
 from nbv_prob_cnn.arm.collision import CollisionChecker, GridObstacles  # noqa: E402
@@ -96,21 +95,11 @@ class GraphBench:
 def ros(tmp_path, ros_domain):
     """Domains 140..149 (this module only); a client node spun in a background thread."""
     env = ros_domain(140 + (os.getpid() + next(_counter)) % 10)
-    context = rclpy.Context()
-    rclpy.init(context=context)
-    node = rclpy.create_node("arm_planning_test", context=context)
-    bench = GraphBench(node)
-    executor = MultiThreadedExecutor(num_threads=4, context=context)
-    executor.add_node(node)
-    spinner = threading.Thread(target=executor.spin, daemon=True)
-    spinner.start()
-    graph = NodeGraph(env, log_dir=tmp_path / "logs")
-    yield node, bench, graph
-    graph.stop()
-    executor.shutdown()
-    node.destroy_node()
-    rclpy.shutdown(context=context)
-    spinner.join(timeout=5)
+    with spun_node("arm_planning_test") as node:
+        bench = GraphBench(node)
+        graph = NodeGraph(env, log_dir=tmp_path / "logs")
+        yield node, bench, graph
+        graph.stop()
 
 
 def wait(future, timeout_s: float = 120.0):

@@ -4,6 +4,7 @@ time, bad goals are refused, and the server keeps serving after each case."""
 
 from __future__ import annotations
 
+import contextlib
 import os
 import threading
 import time
@@ -67,32 +68,42 @@ class FakeCamera:
         return response
 
 
-@pytest.fixture
-def explore_graph(tmp_path, ros_domain):
-    domain = 101 + (os.getpid() + next(_counter)) % 9  # 101..109: no other test module uses these
-    env = ros_domain(domain)
+@contextlib.contextmanager
+def spun_node(name: str):
+    """A client node of the test process in its own context, spun by a 4-thread executor in a
+    background thread; shut down (node, context, thread) on exit."""
     context = rclpy.Context()
     rclpy.init(context=context)
-    node = rclpy.create_node("explore_test", context=context)
-    camera = FakeCamera(node)
+    node = rclpy.create_node(name, context=context)
     executor = MultiThreadedExecutor(num_threads=4, context=context)
     executor.add_node(node)
     spinner = threading.Thread(target=executor.spin, daemon=True)
     spinner.start()
-    graph = NodeGraph(env, log_dir=tmp_path / "logs")
-    graph.start_node(
-        "nbv_planner",
-        "nbv_planner",
-        {"dataset": "3du", "method": "prob_ig", "in_process": True, "backend": "numpy", "markers_top_k": 1},
-    )
-    client = ActionClient(node, Explore, "/nbv/explore")
-    assert client.wait_for_server(timeout_sec=60.0), "the Explore server did not come up"
-    yield client, camera, graph
-    graph.stop()
-    executor.shutdown()
-    node.destroy_node()
-    rclpy.shutdown(context=context)
-    spinner.join(timeout=5)
+    try:
+        yield node
+    finally:
+        executor.shutdown()
+        node.destroy_node()
+        rclpy.shutdown(context=context)
+        spinner.join(timeout=5)
+
+
+@pytest.fixture
+def explore_graph(tmp_path, ros_domain):
+    domain = 101 + (os.getpid() + next(_counter)) % 9  # 101..109: no other test module uses these
+    env = ros_domain(domain)
+    with spun_node("explore_test") as node:
+        camera = FakeCamera(node)
+        graph = NodeGraph(env, log_dir=tmp_path / "logs")
+        graph.start_node(
+            "nbv_planner",
+            "nbv_planner",
+            {"dataset": "3du", "method": "prob_ig", "in_process": True, "backend": "numpy", "markers_top_k": 1},
+        )
+        client = ActionClient(node, Explore, "/nbv/explore")
+        assert client.wait_for_server(timeout_sec=60.0), "the Explore server did not come up"
+        yield client, camera, graph
+        graph.stop()
 
 
 def wait(future, timeout_s: float = 60.0):
