@@ -18,7 +18,7 @@ from sensor_msgs.msg import JointState  # noqa: E402
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint  # noqa: E402
 
 from nbv_prob_cnn.arm.robot import RobotModel  # noqa: E402
-from nbv_prob_cnn.ros.graph import NodeGraph  # noqa: E402
+from nbv_prob_cnn.ros.graph import NodeGraph, call_with_resend  # noqa: E402
 
 _counter = iter(range(1000))
 
@@ -64,12 +64,10 @@ def test_arm_sim_moves_at_limited_speed_and_refuses_bad_goals(ros):
     np.testing.assert_allclose(joints.position, robot.reference_q, atol=1e-9)
 
     client = node.create_client(MoveToJoints, "/arm_sim/move_to_joints")
-    assert client.wait_for_service(timeout_sec=20.0)
 
-    def move(names, positions):
-        future = client.call_async(MoveToJoints.Request(name=names, position=positions))
-        assert spin_until(executor, future.done, 20.0)
-        return future.result()
+    def move(names, positions):  # the same goal again after 15 s without an answer (a lost request)
+        request = MoveToJoints.Request(name=names, position=positions)
+        return call_with_resend(client, request, 40.0, executor=executor, resend_s=15.0)
 
     bad = move(["elbow"], [0.1])
     assert not bad.success and "unknown joint names ['elbow']" in bad.message

@@ -36,7 +36,7 @@ from nbv_prob_cnn.planners import GAIN_METHODS, GainPlanner  # noqa: E402
 from nbv_prob_cnn.planners.requests import planning_context  # noqa: E402
 from nbv_prob_cnn.ros.common import GRID_QOS  # noqa: E402
 from nbv_prob_cnn.ros.conversions import grid_to_msg, pose_to_arrays  # noqa: E402
-from nbv_prob_cnn.ros.graph import NodeGraph  # noqa: E402
+from nbv_prob_cnn.ros.graph import NodeGraph, call_with_resend  # noqa: E402
 
 pytestmark = pytest.mark.slow  # multi-process ROS graphs
 
@@ -110,10 +110,9 @@ def wait(future, timeout_s: float = 120.0):
 def call_when_ready(node, srv_type, name: str, request, not_ready: str, timeout_s: float = 120.0):
     """Call until the answer no longer says ``not_ready`` (the node has not got the grid yet)."""
     client = node.create_client(srv_type, name)
-    assert client.wait_for_service(timeout_sec=timeout_s), f"{name} did not come up"
     deadline = time.monotonic() + timeout_s
-    while True:
-        reply = wait(client.call_async(request))
+    while True:  # planning checks IK: resend only after 30 s without an answer
+        reply = call_with_resend(client, request, timeout_s, resend_s=30.0)
         if not_ready not in reply.message or time.monotonic() > deadline:
             return client, reply
         time.sleep(0.2)
@@ -327,8 +326,8 @@ def test_sim_camera_follows_the_arm(ros):
     goal = robot.reference_q.copy()
     goal[0] += 0.5  # panda_joint1: the camera swings around the base
     move = node.create_client(MoveToJoints, "/arm_sim/move_to_joints")
-    assert move.wait_for_service(timeout_sec=30)
-    assert wait(move.call_async(MoveToJoints.Request(name=robot.joint_names, position=list(goal)))).success
+    request = MoveToJoints.Request(name=robot.joint_names, position=list(goal))
+    assert call_with_resend(move, request, 120.0, resend_s=30.0).success
     target = robot.camera_pose(goal)
     deadline = time.monotonic() + 30
 
@@ -352,6 +351,5 @@ def test_sim_camera_follows_the_arm(ros):
         p, t = arm_poses[stamp].pose.position, frame.transform.translation
         np.testing.assert_allclose([t.x, t.y, t.z], [p.x, p.y, p.z], atol=1e-9)
     camera = node.create_client(MoveCamera, "/sim_camera/move_to")
-    assert camera.wait_for_service(timeout_sec=30)
-    refused = wait(camera.call_async(MoveCamera.Request()), 30)
+    refused = call_with_resend(camera, MoveCamera.Request(), 60.0)
     assert not refused.success and "follow_arm" in refused.message

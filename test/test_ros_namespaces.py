@@ -19,7 +19,7 @@ from nbv_prob_cnn.geometry import GridGeometry  # noqa: E402
 from nbv_prob_cnn.ros import names  # noqa: E402
 from nbv_prob_cnn.ros.common import GRID_QOS  # noqa: E402
 from nbv_prob_cnn.ros.conversions import grid_to_msg  # noqa: E402
-from nbv_prob_cnn.ros.graph import NodeGraph, node_command, wait_for  # noqa: E402
+from nbv_prob_cnn.ros.graph import NodeGraph, call_with_resend, node_command, wait_for  # noqa: E402
 
 GEOMETRY = GridGeometry((0.0, 0.0, 0.0), 0.02, (24, 24, 24))
 DOCUMENTED = {
@@ -80,12 +80,10 @@ def test_two_namespaced_graphs_in_one_domain(tmp_path, ros_domain):
 
         def rank(ns: str):
             client = node.create_client(RankViews, f"{ns}/{names.RANK_VIEWS}")
-            assert client.wait_for_service(timeout_sec=60.0), f"{ns} gain_server did not come up"
-            future = client.call_async(RankViews.Request(method="prob_ig", top_k=1))
-            executor.spin_until_future_complete(future, timeout_sec=60.0)
-            node.destroy_client(client)
-            assert future.done()
-            return future.result()
+            try:  # a fresh client: its first request may be lost while DDS matches it, so resend
+                return call_with_resend(client, RankViews.Request(method="prob_ig", top_k=1), 60.0, executor=executor)
+            finally:
+                node.destroy_client(client)
 
         # only robot1 gets a grid: robot2's server has none, robot1's ranks views in its room
         robot1 = node.create_publisher(VoxelGrid, f"/robot1/{names.GRID}", GRID_QOS)

@@ -40,7 +40,13 @@ from nbv_prob_cnn.perception.bags import (  # noqa: E402
 )
 from nbv_prob_cnn.ros.common import GRID_QOS  # noqa: E402
 from nbv_prob_cnn.ros.conversions import msg_to_grid  # noqa: E402
-from nbv_prob_cnn.ros.graph import NodeGraph, leaked_segments, shm_segments, wait_for  # noqa: E402
+from nbv_prob_cnn.ros.graph import (  # noqa: E402
+    NodeGraph,
+    call_with_resend,
+    leaked_segments,
+    shm_segments,
+    wait_for,
+)
 
 pytestmark = pytest.mark.slow  # multi-process ROS graphs
 
@@ -120,11 +126,8 @@ class RosClient:
         return True
 
     def call(self, client, request, timeout_s: float = 20.0):
-        assert client.wait_for_service(timeout_sec=START_TIMEOUT_S), f"{client.srv_name} never appeared"
-        future = client.call_async(request)
-        self.executor.spin_until_future_complete(future, timeout_sec=timeout_s)
-        assert future.done(), f"{client.srv_name}: no reply within {timeout_s} s"
-        return future.result()
+        """An idempotent call on a fresh client (see :func:`call_with_resend`)."""
+        return call_with_resend(client, request, START_TIMEOUT_S + timeout_s, executor=self.executor)
 
     def wait_grid(self, min_stamp_ns: int, timeout_s: float = 20.0) -> VoxelGrid:
         ok = self.spin_until(
@@ -216,17 +219,30 @@ def test_bag_replay_matches_offline_integration(ros_env: dict, tmp_path: Path) -
     offline, _, _ = load_grid(tmp_path / "offline.npz")
     before = shm_segments()
     with NodeGraph(ros_env, log_dir=tmp_path) as graph:
-        # deterministic: every frame integrated, in stamp order (drop_when_behind false, deep queues)
-        graph.start_node(
-            "integrator",
-            "integrator",
-            {"drop_when_behind": False, "queue_size": 200, "publish_rate_hz": 5.0, "qos_reliability": "reliable"},
-        )
+        # deterministic: every frame integrated, in stamp order (drop_when_behind false, deep
+        # queues; a pose that a busy machine delivers seconds after its image still counts)
+        integrator = {
+            "drop_when_behind": False,
+            "queue_size": 200,
+            "publish_rate_hz": 5.0,
+            "qos_reliability": "reliable",
+            "pose_timeout_s": 20.0,
+        }
+        graph.start_node("integrator", "integrator", integrator)
         with RosClient(int(ros_env["ROS_DOMAIN_ID"])) as client:
+            # the replay waits for the integrator's subscriptions, then 2 s more: the integrator's
+            # readers may match the replay's writers later than the writers see them (volatile QoS
+            # loses what is published before)
             replay = graph.start_node(
                 "bag_replay",
                 "bag_replay",
-                {"bag": str(SAMPLE_BAG), "rate": 10.0, "wait_for_subscribers": 1, "queue_size": 200},
+                {
+                    "bag": str(SAMPLE_BAG),
+                    "rate": 10.0,
+                    "wait_for_subscribers": 1,
+                    "start_delay_s": 2.0,
+                    "queue_size": 200,
+                },
             )
             grid_msg = client.wait_grid(frames[-1].stamp_ns, timeout_s=START_TIMEOUT_S)
             assert stamp_ns(grid_msg.header.stamp) == frames[-1].stamp_ns
@@ -240,7 +256,7 @@ def test_bag_replay_matches_offline_integration(ros_env: dict, tmp_path: Path) -
             assert reply.success, reply.message
         assert_clean_stop(graph)
     with np.load(tmp_path / "live.npz") as saved:
-        assert int(saved["frames"]) == len(frames)  # no frame dropped
+        assert int(saved["frames"]) == len(frames), log_text(tmp_path, "integrator")  # no frame dropped
         assert np.array_equal(saved["grid"], grid)
     assert counts(grid) == counts(offline)
     assert np.array_equal(grid, offline)

@@ -25,7 +25,7 @@ from nbv_prob_cnn.planners.methods import GAIN_METHODS  # noqa: E402
 from nbv_prob_cnn.pose_scoring import INVALID_POSE, VALID, score_poses  # noqa: E402
 from nbv_prob_cnn.ros.common import GRID_QOS  # noqa: E402
 from nbv_prob_cnn.ros.conversions import grid_to_msg  # noqa: E402
-from nbv_prob_cnn.ros.graph import NodeGraph, wait_for  # noqa: E402
+from nbv_prob_cnn.ros.graph import NodeGraph, call_with_resend, wait_for  # noqa: E402
 
 pytestmark = pytest.mark.slow  # multi-process ROS graphs
 
@@ -56,25 +56,17 @@ def ros_fixture(first_domain: int, n_domains: int):
 ros = ros_fixture(221, 12)
 
 
-def try_call(node, context, srv_type, name, request, timeout_s=60.0):
-    """One request on a fresh client; the response, or None when none came within ``timeout_s``."""
+def call(node, context, srv_type, name, request, timeout_s=60.0):
+    """An idempotent request on a fresh client, sent again every 10 s until answered
+    (:func:`call_with_resend`)."""
     client = node.create_client(srv_type, name)
-    assert client.wait_for_service(timeout_sec=40.0), f"{name} did not come up"
-    future = client.call_async(request)
     executor = rclpy.executors.SingleThreadedExecutor(context=context)
     executor.add_node(node)
-    executor.spin_until_future_complete(future, timeout_sec=timeout_s)
-    executor.remove_node(node)
-    if not future.done():
-        client.remove_pending_request(future)
-    node.destroy_client(client)
-    return future.result() if future.done() else None
-
-
-def call(node, context, srv_type, name, request, timeout_s=60.0):
-    response = try_call(node, context, srv_type, name, request, timeout_s)
-    assert response is not None, f"{name} did not answer within {timeout_s} s"
-    return response
+    try:
+        return call_with_resend(client, request, timeout_s, executor=executor)
+    finally:
+        executor.remove_node(node)
+        node.destroy_client(client)
 
 
 def random_grid(seed: int = 3) -> np.ndarray:
@@ -123,10 +115,9 @@ def test_evaluate_views_matches_core_and_survives_bad_requests(ros):
     answers = []  # the successful replies, latest last
 
     def answered() -> bool:
-        # a request sent while the client is still matching a (re)started server is lost in DDS
-        # (volatile); as a manipulation stack would, ask again after a while instead of waiting forever
-        reply = try_call(node, context, EvaluateViews, "/nbv/evaluate_views", request, timeout_s=10.0)
-        if reply is not None and reply.success:
+        # false while the server answers that it has no grid yet
+        reply = call(node, context, EvaluateViews, "/nbv/evaluate_views", request)
+        if reply.success:
             answers.append(reply)
             return True
         return False

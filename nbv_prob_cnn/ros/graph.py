@@ -1,6 +1,7 @@
 """Start and stop node graphs as separate processes (there is no ``ros2 launch`` here).
 
-Imports no rclpy: used by the launch scripts and the multi-process tests. Every graph gets
+Imports no rclpy: used by the launch scripts and the multi-process tests, which also call
+services with :func:`call_with_resend`. Every graph gets
 localhost-only discovery, its own ``ROS_DOMAIN_ID`` and the Fast DDS shared-memory profile.
 """
 
@@ -210,8 +211,47 @@ def wait_for(predicate, timeout_s: float, interval_s: float = 0.1) -> bool:
     return bool(predicate())
 
 
+def call_with_resend(client, request, timeout_s: float, *, executor=None, resend_s: float = 10.0):
+    """Call an idempotent service and return its response, sending the request again every
+    ``resend_s`` seconds until an answer comes or ``timeout_s`` passes.
+
+    A request sent right after ``wait_for_service`` can be lost while DDS is still matching the
+    client with a (re)started server: ``wait_for_service`` reports the server's endpoints before
+    the server has matched the client's reply reader, and with volatile durability nothing is
+    resent. Waiting once for the whole timeout then fails although the server is up.
+
+    Args:
+        client: an rclpy ``Client``.
+        request: its request; it is sent as it is each time, so it must be safe to repeat.
+        timeout_s: longest wait in total, ``wait_for_service`` included.
+        executor: spun here until the answer comes; None when a background thread spins the
+            client's node.
+        resend_s: wait for one answer at most this long before sending again.
+
+    Raises:
+        TimeoutError: the service did not appear, or nothing answered within ``timeout_s``.
+    """
+    deadline = time.monotonic() + timeout_s
+    if not client.wait_for_service(timeout_sec=timeout_s):
+        raise TimeoutError(f"service {client.srv_name} did not appear within {timeout_s:g} s")
+    sent = 0
+    while (remaining := deadline - time.monotonic()) > 0:
+        future = client.call_async(request)
+        sent += 1
+        wait_s = min(resend_s, remaining)
+        if executor is not None:
+            executor.spin_until_future_complete(future, timeout_sec=wait_s)
+        else:
+            wait_for(future.done, wait_s, 0.01)
+        if future.done():
+            return future.result()
+        client.remove_pending_request(future)
+    raise TimeoutError(f"service {client.srv_name}: no answer within {timeout_s:g} s ({sent} request(s) sent)")
+
+
 __all__ = [
     "NodeGraph",
+    "call_with_resend",
     "leaked_segments",
     "node_command",
     "ros_environment",
