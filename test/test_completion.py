@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import argparse
 import csv
+import shutil
 
 import numpy as np
 import pytest
@@ -390,6 +391,17 @@ def test_train_end_to_end_and_resume(tmp_path, monkeypatch):
     assert [r["epoch"] for r in rows] == ["1", "2"] and result.epochs_done == 2
     with pytest.raises(ValueError, match="no-resume"):
         train("2d", 3, out, **{**kwargs, "crop": 16})
+
+    # `out` overwritten by another run: a resumed run scores and re-writes its own best epoch
+    best = torch.load(paths["last"], map_location="cpu", weights_only=True)["best_model"]
+    other = tmp_path / "other" / "2d_cnn_prob.pt"
+    train("2d", 1, other, **{**kwargs, "seed": 5})
+    shutil.copyfile(other, out)
+    again = train("2d", 2, out, **kwargs)  # nothing left to train: scoring and card only
+    assert again.epochs_done == 2 and again.test_mse == pytest.approx(result.test_mse, abs=1e-7)
+    restored = load_model(out, dataset="2d", device="cpu")
+    for key, value in restored.state_dict().items():
+        assert torch.equal(value, best[key]), key
     assert train("2d", 1, out, **{**kwargs, "crop": 16}, resume=False).epochs_done == 1
 
 

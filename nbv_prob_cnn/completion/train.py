@@ -11,7 +11,7 @@ probabilities on unknown cells (reliability table, ECE, reliability plot).
 For weights ``out = <dir>/<stem>.pt`` training writes, next to it:
 
 * ``<stem>.pt``: the best-validation weights so far, with their model card;
-* ``<stem>.last.ckpt``: the last epoch's model, optimizer, history (resumable);
+* ``<stem>.last.ckpt``: the last epoch's model, optimizer, history and the best epoch's weights (resumable);
 * ``<stem>.csv``: per-epoch train/validation MSE and wall time; ``<stem>.png``: their plot;
 * ``<stem>.calibration.png`` (completion CNN): reliability plot on the test split;
 * ``<stem>.md``: the model card (data set, seeds, versions, epochs, time, MSEs, ECE, command).
@@ -24,6 +24,7 @@ items are unrotated, on a fixed crop per environment when ``test_crop`` is set.
 
 from __future__ import annotations
 
+import copy
 import csv
 import datetime
 import os
@@ -393,6 +394,7 @@ def train(
     optimizer = torch.optim.Adam(model.parameters(), lr=LEARNING_RATE)
     history: list[dict] = []
     best = {"validation_mse": float("inf"), "epoch": 0}
+    best_state: dict[str, torch.Tensor] | None = None  # the kept epoch's weights (also in the checkpoint)
     elapsed = 0.0
     if resume and paths["last"].is_file():
         ckpt = torch.load(paths["last"], map_location="cpu", weights_only=True)
@@ -404,6 +406,7 @@ def train(
         model.load_state_dict(ckpt["model"])
         optimizer.load_state_dict(ckpt["optimizer"])
         history, best, elapsed = ckpt["history"], ckpt["best"], float(ckpt["elapsed_s"])
+        best_state = ckpt.get("best_model")  # None in checkpoints written before it was stored
 
     generator_versions = sorted({s.generator_version for s in train_samples + val_samples + test_samples})
     card_args = (dataset, method, model, run_config, generator_versions, rots, dev, command, note, zero)
@@ -449,17 +452,24 @@ def train(
         bar.set_postfix(epoch=epoch + 1, loss=f"{history[-1]['train_mse']:.4f}", val=_fmt(history))
         if val_mse < best["validation_mse"]:
             best = {"validation_mse": val_mse, "epoch": epoch + 1}
+            best_state = {k: v.detach().to("cpu", copy=True) for k, v in model.state_dict().items()}
             save_weights(model, out, dataset, _card(*card_args, history, best, elapsed), name=method)
             clear_model_cache()
         _write_history(history, paths["csv"], paths["png"], f"{method}, {dataset}")
-        _save_last(paths["last"], model, optimizer, history, best, elapsed, run_config)
+        _save_last(paths["last"], model, optimizer, history, best, elapsed, run_config, best_state)
         _update_card_file(paths, _card(*card_args, history, best, elapsed))
     bar.close()
 
-    # The kept (best-validation) weights, scored once on the test split.
-    from nbv_prob_cnn.completion.inference import load_model
+    # The kept (best-validation) weights, scored once on the test split: taken from the run's
+    # own state, not from `out`, which a resumed run may have found overwritten by another run.
+    if best_state is not None:
+        kept = copy.deepcopy(model)
+        kept.load_state_dict(best_state)
+        kept.eval()
+    else:  # a checkpoint without its best weights: `out` is assumed to hold them
+        from nbv_prob_cnn.completion.inference import load_model
 
-    kept = load_model(out, dataset, dev, model_name=method)
+        kept = load_model(out, dataset, dev, model_name=method)
     test_examples = fixed_examples(task, test_samples, crop_edge)
     test_mse = evaluate(kept, test_examples, dev, batch_size)
     zero["test_zero_mse"] = zero_output_mse(test_examples)
@@ -567,6 +577,7 @@ def _save_last(
     best: dict,
     elapsed: float,
     run_config: dict,
+    best_state: dict[str, torch.Tensor] | None,
 ) -> None:
     tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
     torch.save(
@@ -578,6 +589,7 @@ def _save_last(
             "history": history,
             "best": best,
             "elapsed_s": elapsed,
+            "best_model": best_state,
         },
         tmp,
     )
