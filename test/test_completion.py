@@ -101,6 +101,28 @@ def test_internal_padding_matches_numpy_padding(tiny2d):
     np.testing.assert_allclose(direct, padded[:13, :21], atol=1e-6)
 
 
+@pytest.mark.parametrize(
+    ("head", "out_channels", "removed", "extra"),
+    [("completion", 1, 0, 0), ("sigmoid", 1, 0, 2), ("sigmoid", 4, 1, 0), ("tanh", 3, 0, 1)],
+)
+def test_inference_layout_matches_the_training_forward(head, out_channels, removed, extra):
+    # without autograd the 3D deconvs and the 1x1 output run channels-last (a separate code path)
+    torch.manual_seed(3)
+    model = CompletionNet(3, 2, 4, out_channels=out_channels, head=head, removed_deconv=removed, extra_deconv=extra)
+    for parameter in model.parameters():  # not the sigmoid's flat start: every channel counts
+        torch.nn.init.normal_(parameter, std=0.3)
+    model.eval()
+    x = (torch.rand(2, 2, 12, 8, 9) < 0.4).float()
+    with torch.enable_grad():
+        reference = model(x)
+    assert reference.requires_grad  # the plain layers ran
+    with torch.inference_mode():
+        fast = model(x)
+    assert fast.shape == reference.shape == (2, out_channels, *model.output_shape((12, 8, 9)))
+    assert float(reference.std()) > 1e-3
+    torch.testing.assert_close(fast, reference.detach(), atol=1e-6, rtol=1e-5)
+
+
 # --- the P = U·P' + O contract ---------------------------------------------------------------
 
 

