@@ -338,6 +338,54 @@ def cnn_table(seed: int = 1000, repeats: int = 3) -> str:
     return "\n".join(lines)
 
 
+def cnn_layout_table(seed: int = 1000, repeats: int = 3) -> str:
+    """Forward time of every shipped 3D network with the layers as trained (autograd on, frozen
+    weights) against the inference path (channels-last deconvs, see ``CompletionNet._upsample``),
+    side by side on the same half-explored grid; largest output difference; markdown table."""
+    import copy
+
+    import torch
+
+    from nbv_prob_cnn.city_cnn import encode_city_input
+    from nbv_prob_cnn.completion.inference import load_model, resolve_device
+    from nbv_prob_cnn.completion.model import encode_state
+    from nbv_prob_cnn.worlds import load_or_generate
+
+    device = resolve_device(None)
+    lines = [
+        f"CNN forward, {torch.get_num_threads()} torch threads on {device}:",
+        "",
+        "| data set | network | output | as trained (s) | inference path (s) | ratio | max difference |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for dataset in ("3du", "3dt"):
+        world = load_or_generate(dataset, seed)
+        context = PlanningContext(_defaults(dataset), rng=np.random.default_rng(seed), backend="opencl")
+        state = half_explored(world, context)
+        for method in ("cnn_prob", "flat_city_cnn", "b_city_cnn", "d_city_cnn"):
+            model = copy.deepcopy(load_model(None, dataset, device, model_name=method))
+            model.requires_grad_(False)
+            encode = encode_state if method == "cnn_prob" else encode_city_input
+            x = encode(state[None]).to(device)
+
+            def plain(model=model, x=x):
+                with torch.enable_grad():  # the layers as in training; nothing to differentiate
+                    return model(x)
+
+            def inference(model=model, x=x):
+                with torch.inference_mode():
+                    return model(x)
+
+            difference = float((plain() - inference()).abs().max())  # also the warm-up
+            t_plain, t_inference = _time(plain, repeats), _time(inference, repeats)
+            out = "×".join(map(str, model.output_shape(state.shape)))
+            lines.append(
+                f"| {dataset.upper()} | {method} | {model.out_channels}×{out} | {t_plain:.3f} | {t_inference:.3f} | "
+                f"{t_plain / t_inference:.2f} | {difference:.1e} |"
+            )
+    return "\n".join(lines)
+
+
 SWEEP_VARIANTS = ("pruned", "all_views", "fused")
 
 

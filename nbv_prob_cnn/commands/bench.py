@@ -100,9 +100,11 @@ def run_ros(args: argparse.Namespace) -> None:
 
 
 def run_cnn(args: argparse.Namespace) -> None:
-    from nbv_prob_cnn.benchmark import cnn_table
+    from nbv_prob_cnn.benchmark import cnn_layout_table, cnn_table
 
     print(cnn_table(args.seed, args.repeats))
+    print()
+    print(cnn_layout_table(args.seed, args.repeats))
 
 
 def run_planning(args: argparse.Namespace) -> None:
