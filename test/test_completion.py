@@ -114,13 +114,14 @@ def test_inference_layout_matches_the_training_forward(head, out_channels, remov
     model.eval()
     x = (torch.rand(2, 2, 12, 8, 9) < 0.4).float()
     with torch.enable_grad():
-        reference = model(x)
-    assert reference.requires_grad  # the plain layers ran
+        tracked = model(x)
+    assert tracked.requires_grad  # the plain layers ran
+    reference = tracked.detach()
     with torch.inference_mode():
         fast = model(x)
     assert fast.shape == reference.shape == (2, out_channels, *model.output_shape((12, 8, 9)))
     assert float(reference.std()) > 1e-3
-    torch.testing.assert_close(fast, reference.detach(), atol=1e-6, rtol=1e-5)
+    torch.testing.assert_close(fast, reference, atol=1e-6, rtol=1e-5)
 
 
 # --- the P = U·P' + O contract ---------------------------------------------------------------
