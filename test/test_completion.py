@@ -428,6 +428,51 @@ def test_train_end_to_end_and_resume(tmp_path, monkeypatch):
     assert train("2d", 1, out, **{**kwargs, "crop": 16}, resume=False).epochs_done == 1
 
 
+def test_learning_rate_schedules():
+    from nbv_prob_cnn.completion.train import learning_rate
+
+    assert [learning_rate(1e-3, "constant", e, 4) for e in range(4)] == [1e-3] * 4
+    # cosine over 4 epochs: (1 + cos(k·45°)) / 2 = 1, 0.853553, 0.5, 0.146447
+    expected = [1e-3, 0.8535534e-3, 0.5e-3, 0.1464466e-3]
+    assert [learning_rate(1e-3, "cosine", e, 4) for e in range(4)] == pytest.approx(expected, rel=1e-6)
+    with pytest.raises(ValueError, match="schedule"):
+        learning_rate(1e-3, "step", 0, 4)
+    for bad in (0.0, -1e-3, float("nan")):
+        with pytest.raises(ValueError, match="lr"):
+            learning_rate(bad, "constant", 0, 4)
+
+
+def test_train_with_a_cosine_schedule(tmp_path, monkeypatch):
+    monkeypatch.setenv("NBV_CACHE_DIR", str(tmp_path / "cache"))
+    monkeypatch.setattr(data_mod, "load_environment", lambda dataset, seed: (random_boxes((40, 40), 6, seed), 1))
+    monkeypatch.setattr(data_mod, "current_generator_version", lambda: 1)
+    out = tmp_path / "w" / "2d_cnn_prob.pt"
+    kwargs = {
+        "n_train_envs": 1,
+        "n_val_envs": 1,
+        "n_test_envs": 1,
+        "crop": 32,
+        "test_crop": 32,
+        "progress": False,
+        "threads": 1,
+        "device": "cpu",
+        "lr": 4e-4,
+        "lr_schedule": "cosine",
+    }
+    train("2d", 2, out, **kwargs)
+    paths = side_paths(out)
+    with open(paths["csv"]) as fh:
+        assert [float(r["lr"]) for r in csv.DictReader(fh)] == pytest.approx([4e-4, 2e-4])
+    ckpt = torch.load(paths["last"], map_location="cpu", weights_only=True)
+    assert [g["lr"] for g in ckpt["optimizer"]["param_groups"]] == pytest.approx([2e-4])  # the rate Adam used last
+    card = paths["card"].read_text()
+    assert "Adam, lr 0.0004, cosine decay" in card and "--lr 0.0004 --lr-schedule cosine" in card
+    with pytest.raises(ValueError, match="no-resume"):  # another schedule is another run
+        train("2d", 2, out, **{**kwargs, "lr_schedule": "constant"})
+    with pytest.raises(ValueError, match="no-resume"):  # so is another length of a cosine run
+        train("2d", 3, out, **kwargs)
+
+
 def test_retrain_command_omits_default_out(tmp_path):
     from nbv_prob_cnn.completion.inference import default_weights_path
     from nbv_prob_cnn.completion.train import retrain_args
@@ -453,5 +498,9 @@ def test_cli_arguments():
     args = parser.parse_args(["--dataset", "3du", "--epochs", "3", "--train-envs", "4", "--crop", "32", "--no-resume"])
     assert (args.dataset, args.epochs, args.train_envs, args.crop, args.no_resume) == ("3du", 3, 4, 32, True)
     assert cmd.NAME == "train" and callable(cmd.run)
-    with pytest.raises(SystemExit):
-        parser.parse_args(["--dataset", "4d"])
+    assert (args.lr, args.lr_schedule) == (1e-3, "constant")
+    args = parser.parse_args(["--dataset", "3dt", "--lr", "3e-4", "--lr-schedule", "cosine"])
+    assert (args.lr, args.lr_schedule) == (3e-4, "cosine")
+    for bad in (["--dataset", "4d"], ["--dataset", "3dt", "--lr", "0"], ["--dataset", "3dt", "--lr-schedule", "step"]):
+        with pytest.raises(SystemExit):
+            parser.parse_args(bad)

@@ -4,9 +4,11 @@ baseline (SPEC §6)."""
 from __future__ import annotations
 
 import argparse
+import math
 from pathlib import Path
 
 from nbv_prob_cnn.completion.tasks import TRAINABLE_MODELS
+from nbv_prob_cnn.completion.train import LEARNING_RATE, LR_SCHEDULES
 from nbv_prob_cnn.datasets import DATASET_SPECS
 
 NAME = "train"
@@ -17,6 +19,13 @@ def _positive(text: str) -> int:
     value = int(text)
     if value < 1:
         raise argparse.ArgumentTypeError(f"expected a positive integer, got {text}")
+    return value
+
+
+def _positive_float(text: str) -> float:
+    value = float(text)
+    if not (math.isfinite(value) and value > 0):
+        raise argparse.ArgumentTypeError(f"expected a positive number, got {text}")
     return value
 
 
@@ -51,6 +60,18 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--batch-size", type=_positive, default=None, help=f"grids per step (default: {_defaults('batch_size')})"
     )
+    parser.add_argument(
+        "--lr",
+        type=_positive_float,
+        default=LEARNING_RATE,
+        help=f"Adam's learning rate (default: {LEARNING_RATE:g}, SPEC)",
+    )
+    parser.add_argument(
+        "--lr-schedule",
+        choices=LR_SCHEDULES,
+        default="constant",
+        help="constant, or cosine decay from --lr over the run's epochs (default: constant)",
+    )
     parser.add_argument("--workers", type=_positive, default=1, help="processes generating missing training data")
     parser.add_argument("--threads", type=_positive, default=None, help="torch threads (default: min(2, cores))")
     parser.add_argument("--device", default=None, help="torch device (default: cuda if available, else cpu)")
@@ -78,6 +99,8 @@ def run(args: argparse.Namespace) -> int:
         method=args.method,
         n_val_envs=args.val_envs,
         note=args.note,
+        lr=args.lr,
+        lr_schedule=args.lr_schedule,
     )
     ece = f", test ECE {result.ece:.4f}" if result.ece is not None else ""
     print(

@@ -1,6 +1,8 @@
 """The one training loop of the project's networks (SPEC §3, §6): the completion CNN
 (``cnn_prob``) and the City-CNN baselines (``flat_city_cnn``, ``b_city_cnn``, ``d_city_cnn``),
-Adam (lr 1e-3), MSE loss (:mod:`~nbv_prob_cnn.completion.tasks` says what each one learns).
+Adam (lr 1e-3 by default, SPEC), MSE loss (:mod:`~nbv_prob_cnn.completion.tasks` says what each one
+learns). The learning rate is constant by default; ``lr_schedule="cosine"`` decays it per epoch
+(:func:`learning_rate`), for runs that become unstable at a constant rate.
 
 Environment split (:mod:`nbv_prob_cnn.datasets`): training, validation, test. After every epoch
 the validation loss is measured; the weights kept are those of the epoch with the lowest
@@ -27,6 +29,7 @@ from __future__ import annotations
 import copy
 import csv
 import datetime
+import math
 import os
 import platform
 import time
@@ -50,6 +53,28 @@ DEFAULT_BATCH = {name: spec.training.batch_size for name, spec in DATASET_SPECS.
 #: Default validation/test crop per data set (None: whole grids).
 DEFAULT_TEST_CROP: dict[str, int | None] = {name: spec.training.test_crop for name, spec in DATASET_SPECS.items()}
 LEARNING_RATE = 1e-3
+#: Learning-rate schedules over the epochs of a run (:func:`learning_rate`).
+LR_SCHEDULES = ("constant", "cosine")
+
+
+def learning_rate(base: float, schedule: str, epoch: int, epochs: int) -> float:
+    """Learning rate of 0-based ``epoch`` of a run of ``epochs`` epochs.
+
+    ``constant``: ``base`` throughout. ``cosine``: ``base · (1 + cos(π · epoch / epochs)) / 2``,
+    from ``base`` at the first epoch down to near 0 at the last (half a cosine period, no restart).
+    """
+    if schedule not in LR_SCHEDULES:
+        raise ValueError(f"lr schedule: expected one of {', '.join(LR_SCHEDULES)}, got {schedule!r}")
+    if not (math.isfinite(base) and base > 0):
+        raise ValueError(f"lr: expected a positive finite number, got {base}")
+    if schedule == "constant":
+        return base
+    return base * 0.5 * (1.0 + math.cos(math.pi * epoch / epochs))
+
+
+def _optimizer_text(lr: float, schedule: str) -> str:
+    decay = ", cosine decay over the run's epochs" if schedule == "cosine" else ""
+    return f"Adam, lr {lr:g}{decay}, MSE"
 
 
 @dataclass
@@ -199,6 +224,8 @@ def retrain_args(
     method: str = "cnn_prob",
     n_val_envs: int | None = None,
     test_crop: int | None = None,
+    lr: float = LEARNING_RATE,
+    lr_schedule: str = "constant",
 ) -> str:
     """The ``nbv train`` command line that reproduces a run."""
     cmd = f"nbv train --dataset {dataset}"
@@ -216,16 +243,20 @@ def retrain_args(
         cmd += f" --test-crop {test_crop}"
     if batch_size != DEFAULT_BATCH[dataset]:
         cmd += f" --batch-size {batch_size}"
+    if lr != LEARNING_RATE:
+        cmd += f" --lr {lr:g}"
+    if lr_schedule != "constant":
+        cmd += f" --lr-schedule {lr_schedule}"
     return cmd
 
 
 def _write_history(history: list[dict], csv_path: Path, png_path: Path, title: str) -> None:
-    fields = ["epoch", "train_mse", "validation_mse", "epoch_seconds", "elapsed_seconds"]
+    fields = ["epoch", "train_mse", "validation_mse", "epoch_seconds", "elapsed_seconds", "lr"]
     with open(csv_path, "w", newline="") as fh:
         writer = csv.DictWriter(fh, fieldnames=fields)
         writer.writeheader()
-        for row in history:
-            writer.writerow({k: row[k] for k in fields})
+        for row in history:  # "lr" is missing from histories of checkpoints written before it was logged
+            writer.writerow({k: row.get(k, "") for k in fields})
     from matplotlib.figure import Figure
 
     fig = Figure(figsize=(6, 4))
@@ -314,6 +345,8 @@ def train(
     first_channels: int | None = None,
     backend: str = "auto",
     note: str = "",
+    lr: float = LEARNING_RATE,
+    lr_schedule: str = "constant",
 ) -> TrainResult:
     """Train the network ``method`` of ``dataset`` and write the weights to ``out``.
 
@@ -338,11 +371,14 @@ def train(
         first_channels: width of the first conv block (default 8 in 2D, 16 in 3D).
         backend: ray-casting backend of the City-CNN targets.
         note: a sentence for the model card (e.g. why a run was short).
+        lr: Adam's (initial) learning rate (default the SPEC's 1e-3).
+        lr_schedule: ``constant`` or ``cosine`` (:func:`learning_rate`).
     """
     spec = dataset_spec(dataset)
     task = TrainingTask(method, spec, backend)
     if epochs < 1:
         raise ValueError(f"epochs: expected >= 1, got {epochs}")
+    learning_rate(lr, lr_schedule, 0, epochs)  # validates both
     out = Path(out).expanduser() if out is not None else default_weights_path(dataset, method)
     paths = side_paths(out)
     out.parent.mkdir(parents=True, exist_ok=True)
@@ -360,7 +396,7 @@ def train(
     dev = resolve_device(device)
     command = retrain_args(
         dataset, epochs, out, n_train_envs, n_test_envs, crop, batch_size, method=method, n_val_envs=n_val_envs,
-        test_crop=crop_edge,
+        test_crop=crop_edge, lr=lr, lr_schedule=lr_schedule,
     )  # fmt: skip
     run_config = {
         "dataset": dataset,
@@ -374,6 +410,10 @@ def train(
         "seed": seed,
         "data_version": DATA_VERSION,
     }
+    if lr != LEARNING_RATE or lr_schedule != "constant":  # absent by default: older checkpoints still resume
+        run_config["optimizer"] = _optimizer_text(lr, lr_schedule)
+        if lr_schedule == "cosine":  # the schedule depends on the run's length
+            run_config["epochs"] = epochs
 
     n_envs = len(train_seeds) + len(val_seeds) + len(test_seeds)
     with tqdm(total=n_envs, desc=f"training data {dataset}", disable=not progress) as bar:
@@ -391,7 +431,7 @@ def train(
         first = train_samples[:8]
         boxes = [crop_box(s.state.shape, crop, init_rng, task.align) for s in first]
         start_at_mean_target(model, [task.example(s.state, s.truth, b) for s, b in zip(first, boxes, strict=True)])
-    optimizer = torch.optim.Adam(model.parameters(), lr=LEARNING_RATE)
+    optimizer = torch.optim.Adam(model.parameters(), lr=lr)
     history: list[dict] = []
     best = {"validation_mse": float("inf"), "epoch": 0}
     best_state: dict[str, torch.Tensor] | None = None  # the kept epoch's weights (also in the checkpoint)
@@ -422,6 +462,9 @@ def train(
     )
     for epoch in range(start_epoch, epochs):
         t0 = time.perf_counter()
+        epoch_lr = learning_rate(lr, lr_schedule, epoch, epochs)
+        for group_params in optimizer.param_groups:
+            group_params["lr"] = epoch_lr
         rng = np.random.default_rng([seed, epoch])
         order = rng.permutation(items_per_epoch)
         loss_sum, n_items = 0.0, 0
@@ -447,6 +490,7 @@ def train(
                 "validation_mse": val_mse,
                 "epoch_seconds": round(epoch_s, 2),
                 "elapsed_seconds": round(elapsed, 2),
+                "lr": epoch_lr,
             }
         )
         bar.set_postfix(epoch=epoch + 1, loss=f"{history[-1]['train_mse']:.4f}", val=_fmt(history))
@@ -532,7 +576,7 @@ def _card(
         "crop": run_config["crop"] or "none (whole grids)",
         "test_crop": run_config["test_crop"] or "none (whole grids)",
         "batch_size": run_config["batch_size"],
-        "optimizer": f"Adam, lr {LEARNING_RATE}, MSE",
+        "optimizer": run_config.get("optimizer", _optimizer_text(LEARNING_RATE, "constant")),
         "epochs": len(history),
         "best_epoch": best["epoch"],
         "validation_mse": round(float(best["validation_mse"]), 6),
