@@ -346,9 +346,9 @@ def cnn_layout_table(seed: int = 1000, repeats: int = 3) -> str:
 
     import torch
 
-    from nbv_prob_cnn.city_cnn import encode_city_input
     from nbv_prob_cnn.completion.inference import load_model, resolve_device
-    from nbv_prob_cnn.completion.model import encode_state
+    from nbv_prob_cnn.completion.tasks import TrainingTask
+    from nbv_prob_cnn.datasets import dataset_spec
     from nbv_prob_cnn.worlds import load_or_generate
 
     device = resolve_device(None)
@@ -365,8 +365,7 @@ def cnn_layout_table(seed: int = 1000, repeats: int = 3) -> str:
         for method in ("cnn_prob", "flat_city_cnn", "b_city_cnn", "d_city_cnn"):
             model = copy.deepcopy(load_model(None, dataset, device, model_name=method))
             model.requires_grad_(False)
-            encode = encode_state if method == "cnn_prob" else encode_city_input
-            x = encode(state[None]).to(device)
+            x = TrainingTask(method, dataset_spec(dataset)).encode(state[None]).to(device)
 
             def plain(model=model, x=x):
                 with torch.enable_grad():  # the layers as in training; nothing to differentiate

@@ -274,3 +274,17 @@ def test_gain_head_starts_at_the_mean_masked_target():
     net = build_network("flat_city_cnn", spec, 4)
     start_at_mean_target(net, [example])
     assert torch.sigmoid(net.final.bias).detach().numpy() == pytest.approx(np.full(net.out_channels, 0.1), rel=1e-5)
+
+
+def test_training_task_inputs_by_hand():
+    from nbv_prob_cnn.completion.tasks import TrainingTask
+    from nbv_prob_cnn.datasets import dataset_spec
+
+    # rows: empty, unknown, occupied / unknown, unknown, unknown (E=0, U=-1, O=1)
+    state = np.array([[0, -1, 1], [-1, -1, -1]], dtype=np.int8)
+    completion = TrainingTask("cnn_prob", dataset_spec("2d")).encode(state[None])[0].numpy()
+    assert completion.tolist() == [[[1, 0, 0], [0, 0, 0]], [[0, 0, 1], [0, 0, 0]]]  # E, O
+    for model in ("flat_city_cnn", "b_city_cnn", "d_city_cnn"):
+        city = TrainingTask(model, dataset_spec("2d")).encode(state[None])[0].numpy()
+        # E, and F: the unknown face neighbours of the one empty cell
+        assert city.tolist() == [[[1, 0, 0], [0, 0, 0]], [[0, 1, 0], [1, 0, 0]]], model

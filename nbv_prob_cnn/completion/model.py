@@ -255,7 +255,7 @@ class CompletionNet(nn.Module):
     def _final(self, h: torch.Tensor) -> torch.Tensor:
         """The 1x1 output conv; on a channels-last input without autograd, one matrix product
         over the channels (torch's 1x1 conv3d takes a slow path on that layout)."""
-        if torch.is_grad_enabled() or not h.is_contiguous(memory_format=torch.channels_last_3d) or h.ndim != 5:
+        if h.ndim != 5 or torch.is_grad_enabled() or not h.is_contiguous(memory_format=torch.channels_last_3d):
             return self.final(h)
         last = h.permute(0, 2, 3, 4, 1)  # a contiguous view: channels innermost
         out = last.reshape(-1, last.shape[-1]) @ self.final.weight.reshape(self.out_channels, -1).t()

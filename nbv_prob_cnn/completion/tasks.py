@@ -9,6 +9,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+import torch
 
 from nbv_prob_cnn.completion.model import CompletionNet, encode_state
 from nbv_prob_cnn.datasets import DatasetSpec
@@ -54,17 +55,26 @@ class TrainingTask:
 
         return build_network(self.model, self.spec, first_channels)
 
+    def encode(self, states: np.ndarray) -> torch.Tensor:
+        """The network input of a batch of ternary grids ``(N, *spatial)``: the completion CNN's
+        two channels, or the City-CNNs' empty and frontier grids."""
+        if self.is_completion:
+            return encode_state(states)
+        from nbv_prob_cnn.city_cnn import encode_city_input
+
+        return encode_city_input(states)
+
     def example(self, state: np.ndarray, truth: np.ndarray, box: tuple[slice, ...]) -> Example:
         """The example of the crop ``box`` of a grid (City-CNN targets see the whole grid)."""
         if self.is_completion:
             return Example(
-                encode_state(state[box][None])[0].numpy(),
+                self.encode(state[box][None])[0].numpy(),
                 truth[box][None].astype(np.float32),
                 np.ones((1,) * (state.ndim + 1), dtype=np.float32),
             )
-        from nbv_prob_cnn.city_cnn import CityGeometry, city_targets, encode_city_input, output_mask
+        from nbv_prob_cnn.city_cnn import CityGeometry, city_targets, output_mask
 
-        inputs = encode_city_input(state[None])[0].numpy()[(slice(None), *box)]  # frontier of the whole grid
+        inputs = self.encode(state[None])[0].numpy()[(slice(None), *box)]  # frontier of the whole grid
         target = city_targets(self.model, state, truth, self.spec, box, self.backend)
         mask = output_mask(CityGeometry.of(self.model, self.spec), state[box])[None]
         return Example(np.ascontiguousarray(inputs), target, mask)
