@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import argparse
 import csv
+import dataclasses
 import shutil
 
 import numpy as np
@@ -19,7 +20,7 @@ from nbv_prob_cnn.completion.inference import save_weights
 from nbv_prob_cnn.completion.model import encode_state
 from nbv_prob_cnn.completion.tasks import TrainingTask
 from nbv_prob_cnn.completion.train import side_paths, train, train_step
-from nbv_prob_cnn.datasets import dataset_spec
+from nbv_prob_cnn.datasets import DATASET_SPECS, dataset_spec
 from nbv_prob_cnn.grid import UNKNOWN
 
 torch.set_num_threads(2)
@@ -456,9 +457,11 @@ def test_train_with_a_cosine_schedule(tmp_path, monkeypatch):
         "progress": False,
         "threads": 1,
         "device": "cpu",
-        "lr": 4e-4,
-        "lr_schedule": "cosine",
     }
+    # the data set's defaults (DatasetSpec.training) apply where lr/lr_schedule are not given
+    spec = dataset_spec("2d")
+    training = dataclasses.replace(spec.training, lr=4e-4, lr_schedule="cosine")
+    monkeypatch.setitem(DATASET_SPECS, "2d", dataclasses.replace(spec, training=training))
     train("2d", 2, out, **kwargs)
     paths = side_paths(out)
     with open(paths["csv"]) as fh:
@@ -498,7 +501,7 @@ def test_cli_arguments():
     args = parser.parse_args(["--dataset", "3du", "--epochs", "3", "--train-envs", "4", "--crop", "32", "--no-resume"])
     assert (args.dataset, args.epochs, args.train_envs, args.crop, args.no_resume) == ("3du", 3, 4, 32, True)
     assert cmd.NAME == "train" and callable(cmd.run)
-    assert (args.lr, args.lr_schedule) == (1e-3, "constant")
+    assert (args.lr, args.lr_schedule) == (None, None)  # the data set's (DatasetSpec.training)
     args = parser.parse_args(["--dataset", "3dt", "--lr", "3e-4", "--lr-schedule", "cosine"])
     assert (args.lr, args.lr_schedule) == (3e-4, "cosine")
     for bad in (["--dataset", "4d"], ["--dataset", "3dt", "--lr", "0"], ["--dataset", "3dt", "--lr-schedule", "step"]):

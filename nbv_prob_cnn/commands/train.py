@@ -63,14 +63,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--lr",
         type=_positive_float,
-        default=LEARNING_RATE,
-        help=f"Adam's learning rate (default: {LEARNING_RATE:g}, SPEC)",
+        default=None,
+        help=f"Adam's learning rate (default: {_defaults('lr')}; SPEC {LEARNING_RATE:g})",
     )
     parser.add_argument(
         "--lr-schedule",
         choices=LR_SCHEDULES,
-        default="constant",
-        help="constant, or cosine decay from --lr over the run's epochs (default: constant)",
+        default=None,
+        help=f"constant, or cosine decay from --lr over the run's epochs (default: {_defaults('lr_schedule')})",
     )
     parser.add_argument("--workers", type=_positive, default=1, help="processes generating missing training data")
     parser.add_argument("--threads", type=_positive, default=None, help="torch threads (default: min(2, cores))")

@@ -345,8 +345,8 @@ def train(
     first_channels: int | None = None,
     backend: str = "auto",
     note: str = "",
-    lr: float = LEARNING_RATE,
-    lr_schedule: str = "constant",
+    lr: float | None = None,
+    lr_schedule: str | None = None,
 ) -> TrainResult:
     """Train the network ``method`` of ``dataset`` and write the weights to ``out``.
 
@@ -371,13 +371,16 @@ def train(
         first_channels: width of the first conv block (default 8 in 2D, 16 in 3D).
         backend: ray-casting backend of the City-CNN targets.
         note: a sentence for the model card (e.g. why a run was short).
-        lr: Adam's (initial) learning rate (default the SPEC's 1e-3).
-        lr_schedule: ``constant`` or ``cosine`` (:func:`learning_rate`).
+        lr: Adam's (initial) learning rate (default: the data set's, :mod:`nbv_prob_cnn.datasets`;
+            the SPEC's 1e-3 except on 3DT).
+        lr_schedule: ``constant`` or ``cosine`` (:func:`learning_rate`; default: the data set's).
     """
     spec = dataset_spec(dataset)
     task = TrainingTask(method, spec, backend)
     if epochs < 1:
         raise ValueError(f"epochs: expected >= 1, got {epochs}")
+    lr = spec.training.lr if lr is None else lr
+    lr_schedule = spec.training.lr_schedule if lr_schedule is None else lr_schedule
     learning_rate(lr, lr_schedule, 0, epochs)  # validates both
     out = Path(out).expanduser() if out is not None else default_weights_path(dataset, method)
     paths = side_paths(out)
