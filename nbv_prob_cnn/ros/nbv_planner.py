@@ -488,13 +488,16 @@ class NbvPlanner(Node):
                     return "aborted", f"error: planning failed: {planned.message}", fraction
                 if planned.best_gain <= goal.stop_gain:
                     return "succeeded", f"best gain {planned.best_gain:.4f} <= {goal.stop_gain}", fraction
+                moving = time.perf_counter()
                 if self.move_mode == "arm":
                     frame_ns = self._move_arm(planned.joint_goal)
                 else:
                     frame_ns = self._move_camera(planned.best_pose)
                 if self._arm is not None:
                     self._took_planned_view()
+                waiting = time.perf_counter()
                 grid = self._wait_for_grid(frame_ns, self.grid_timeout_s)
+                done = time.perf_counter()
                 fraction = unknown_fraction_all(msg_to_grid(grid)[0])
                 result.poses.append(planned.best_pose)
                 feedback = Explore.Feedback(
@@ -503,13 +506,28 @@ class NbvPlanner(Node):
                 if self.move_mode == "arm":
                     feedback.joint_goal, feedback.joint_travel = planned.joint_goal, planned.joint_path_length
                 goal_handle.publish_feedback(feedback)
-                self.get_logger().info(f"view {index}: gain {planned.best_gain:.4f}, unknown fraction {fraction:.4f}")
+                self.get_logger().info(
+                    f"view {index}: gain {planned.best_gain:.4f}, unknown fraction {fraction:.4f}; "
+                    f"{stage_times(planned, waiting - moving, done - waiting)}"
+                )
         except (ValueError, TimeoutError, RuntimeError) as exc:
             self.get_logger().error(f"explore: {exc}")
             return "aborted", f"error: {exc}", fraction
         if goal_handle.is_cancel_requested:
             return "canceled", f"canceled after {goal.max_views} views", fraction
         return "succeeded", f"reached {goal.max_views} views", fraction
+
+
+def stage_times(planned: PlanNextBestView.Response, move_s: float, grid_wait_s: float) -> str:
+    """Where one exploration step's time went, for the log: planning (its CNN, ray casting and
+    view search, the rest being message conversion and, with the arm, the IK/collision
+    selection), the move, and the wait for a grid that includes a frame from the new pose."""
+    parts = (planned.time_cnn_s, planned.time_raycast_s, planned.time_views_s)
+    rest = max(0.0, planned.time_total_s - sum(parts))
+    return (
+        f"plan {planned.time_total_s:.2f} s (CNN {parts[0]:.2f}, ray casting {parts[1]:.2f}, views {parts[2]:.2f}, "
+        f"other {rest:.2f}), move {move_s:.2f} s, grid wait {grid_wait_s:.2f} s"
+    )
 
 
 def unreachable_message(report: FeasibilityReport) -> str:

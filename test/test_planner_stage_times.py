@@ -1,0 +1,19 @@
+"""The exploration log line of ``nbv_planner``: where one step's time went (no ROS graph needed)."""
+
+import pytest
+
+pytest.importorskip("nbv_prob_cnn_msgs")
+
+
+def test_stage_times_by_hand():
+    from nbv_prob_cnn_msgs.srv import PlanNextBestView
+
+    from nbv_prob_cnn.ros.nbv_planner import stage_times
+
+    planned = PlanNextBestView.Response(time_total_s=10.0, time_cnn_s=2.5, time_raycast_s=0.25, time_views_s=0.05)
+    assert stage_times(planned, 1.5, 0.25) == (
+        "plan 10.00 s (CNN 2.50, ray casting 0.25, views 0.05, other 7.20), move 1.50 s, grid wait 0.25 s"
+    )
+    # parts measured on another clock may exceed the total: "other" is never negative
+    planned.time_total_s = 2.7
+    assert "other 0.00)" in stage_times(planned, 0.0, 0.0)
