@@ -28,6 +28,10 @@ TEST_SEEDS: tuple[int, ...] = tuple(range(120, 180))
 USER_SEED_START = 1000
 #: Environments of the full evaluation protocol (SPEC §9): the first 40 test environments.
 EVALUATION_SEEDS: tuple[int, ...] = TEST_SEEDS[:40]
+#: Adam's learning rate of SPEC §3 (``nbv train``'s default on every data set but 3DT).
+SPEC_LEARNING_RATE = 1e-3
+#: Learning-rate schedules over the epochs of a run (``completion.train.learning_rate``).
+LR_SCHEDULES = ("constant", "cosine")
 
 
 @dataclass(frozen=True)
@@ -38,8 +42,8 @@ class TrainingDefaults:
     crop: int | None  # random training crop edge in cells (None: whole grids)
     batch_size: int
     test_crop: int | None  # fixed validation/test crop edge (None: whole grids)
-    lr: float = 1e-3  # Adam's (initial) learning rate; SPEC §3: 1e-3
-    lr_schedule: str = "constant"  # or "cosine" (``completion.train.learning_rate``)
+    lr: float = SPEC_LEARNING_RATE  # Adam's (initial) learning rate
+    lr_schedule: str = "constant"  # one of LR_SCHEDULES
 
 
 @dataclass(frozen=True)

@@ -8,8 +8,7 @@ import math
 from pathlib import Path
 
 from nbv_prob_cnn.completion.tasks import TRAINABLE_MODELS
-from nbv_prob_cnn.completion.train import LEARNING_RATE, LR_SCHEDULES
-from nbv_prob_cnn.datasets import DATASET_SPECS
+from nbv_prob_cnn.datasets import DATASET_SPECS, LR_SCHEDULES, SPEC_LEARNING_RATE
 
 NAME = "train"
 HELP = "Train a network (completion CNN or City-CNN) of a data set: weights, loss CSV/plot, model card."
@@ -64,7 +63,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--lr",
         type=_positive_float,
         default=None,
-        help=f"Adam's learning rate (default: {_defaults('lr')}; SPEC {LEARNING_RATE:g})",
+        help=f"Adam's learning rate (default: {_defaults('lr')}; SPEC {SPEC_LEARNING_RATE:g})",
     )
     parser.add_argument(
         "--lr-schedule",

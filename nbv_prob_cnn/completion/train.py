@@ -46,15 +46,12 @@ from nbv_prob_cnn.completion.data import DATA_VERSION, TrainingSample, crop_box,
 from nbv_prob_cnn.completion.inference import clear_model_cache, default_weights_path, resolve_device, save_weights
 from nbv_prob_cnn.completion.model import CompletionNet, count_parameters
 from nbv_prob_cnn.completion.tasks import Example, TrainingTask
-from nbv_prob_cnn.datasets import DATASET_SPECS, dataset_spec
+from nbv_prob_cnn.datasets import DATASET_SPECS, LR_SCHEDULES, SPEC_LEARNING_RATE, dataset_spec
 
 #: Default mini-batch size per data set (from :mod:`nbv_prob_cnn.datasets`).
 DEFAULT_BATCH = {name: spec.training.batch_size for name, spec in DATASET_SPECS.items()}
 #: Default validation/test crop per data set (None: whole grids).
 DEFAULT_TEST_CROP: dict[str, int | None] = {name: spec.training.test_crop for name, spec in DATASET_SPECS.items()}
-LEARNING_RATE = 1e-3
-#: Learning-rate schedules over the epochs of a run (:func:`learning_rate`).
-LR_SCHEDULES = ("constant", "cosine")
 
 
 def learning_rate(base: float, schedule: str, epoch: int, epochs: int) -> float:
@@ -224,7 +221,7 @@ def retrain_args(
     method: str = "cnn_prob",
     n_val_envs: int | None = None,
     test_crop: int | None = None,
-    lr: float = LEARNING_RATE,
+    lr: float = SPEC_LEARNING_RATE,
     lr_schedule: str = "constant",
 ) -> str:
     """The ``nbv train`` command line that reproduces a run."""
@@ -243,7 +240,7 @@ def retrain_args(
         cmd += f" --test-crop {test_crop}"
     if batch_size != DEFAULT_BATCH[dataset]:
         cmd += f" --batch-size {batch_size}"
-    if lr != LEARNING_RATE:
+    if lr != SPEC_LEARNING_RATE:
         cmd += f" --lr {lr:g}"
     if lr_schedule != "constant":
         cmd += f" --lr-schedule {lr_schedule}"
@@ -413,7 +410,7 @@ def train(
         "seed": seed,
         "data_version": DATA_VERSION,
     }
-    if lr != LEARNING_RATE or lr_schedule != "constant":  # absent by default: older checkpoints still resume
+    if lr != SPEC_LEARNING_RATE or lr_schedule != "constant":  # absent by default: older checkpoints still resume
         run_config["optimizer"] = _optimizer_text(lr, lr_schedule)
         if lr_schedule == "cosine":  # the schedule depends on the run's length
             run_config["epochs"] = epochs
@@ -579,7 +576,7 @@ def _card(
         "crop": run_config["crop"] or "none (whole grids)",
         "test_crop": run_config["test_crop"] or "none (whole grids)",
         "batch_size": run_config["batch_size"],
-        "optimizer": run_config.get("optimizer", _optimizer_text(LEARNING_RATE, "constant")),
+        "optimizer": run_config.get("optimizer", _optimizer_text(SPEC_LEARNING_RATE, "constant")),
         "epochs": len(history),
         "best_epoch": best["epoch"],
         "validation_mse": round(float(best["validation_mse"]), 6),
