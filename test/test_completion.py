@@ -384,11 +384,12 @@ def test_seed_split():
     assert max(train + val + test) < data_mod.USER_SEED_START
 
 
-def test_train_end_to_end_and_resume(tmp_path, monkeypatch):
+def _tiny_2d_training(tmp_path, monkeypatch, **overrides) -> dict:
+    """Fake 2D environments (random boxes on 40² maps) in a private cache; the ``train`` keyword
+    arguments of a tiny run on them (``overrides`` replace single ones)."""
     monkeypatch.setenv("NBV_CACHE_DIR", str(tmp_path / "cache"))
     monkeypatch.setattr(data_mod, "load_environment", lambda dataset, seed: (random_boxes((40, 40), 6, seed), 1))
     monkeypatch.setattr(data_mod, "current_generator_version", lambda: 1)
-    out = tmp_path / "w" / "2d_cnn_prob.pt"
     kwargs = {
         "n_train_envs": 2,
         "n_val_envs": 1,
@@ -399,6 +400,12 @@ def test_train_end_to_end_and_resume(tmp_path, monkeypatch):
         "threads": 2,
         "device": "cpu",
     }
+    return {**kwargs, **overrides}
+
+
+def test_train_end_to_end_and_resume(tmp_path, monkeypatch):
+    kwargs = _tiny_2d_training(tmp_path, monkeypatch)
+    out = tmp_path / "w" / "2d_cnn_prob.pt"
     result = train("2d", 1, out, **kwargs)
     paths = side_paths(out)
     for key in ("weights", "last", "csv", "png", "card", "calibration"):
@@ -444,20 +451,8 @@ def test_learning_rate_schedules():
 
 
 def test_train_with_a_cosine_schedule(tmp_path, monkeypatch):
-    monkeypatch.setenv("NBV_CACHE_DIR", str(tmp_path / "cache"))
-    monkeypatch.setattr(data_mod, "load_environment", lambda dataset, seed: (random_boxes((40, 40), 6, seed), 1))
-    monkeypatch.setattr(data_mod, "current_generator_version", lambda: 1)
+    kwargs = _tiny_2d_training(tmp_path, monkeypatch, n_train_envs=1, threads=1)
     out = tmp_path / "w" / "2d_cnn_prob.pt"
-    kwargs = {
-        "n_train_envs": 1,
-        "n_val_envs": 1,
-        "n_test_envs": 1,
-        "crop": 32,
-        "test_crop": 32,
-        "progress": False,
-        "threads": 1,
-        "device": "cpu",
-    }
     # the data set's defaults (DatasetSpec.training) apply where lr/lr_schedule are not given
     spec = dataset_spec("2d")
     training = dataclasses.replace(spec.training, lr=4e-4, lr_schedule="cosine")
