@@ -13,7 +13,8 @@ setup(
     version="0.1.0",
     packages=find_packages(exclude=["test", "test.*"]),
     package_data={
-        PACKAGE: ["*.cl", "gain/*.cl", "ros/*.xml", "weights/*.pt", "weights/*.md", "weights/*.csv", "weights/*.png"]
+        PACKAGE: ["sensing/*.cl", "gain/*.cl", "bench/*.cl", "ros/*.xml"]
+        + [f"weights/*.{ext}" for ext in ("pt", "md", "csv", "png")]
     },
     data_files=[
         ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),

@@ -16,7 +16,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from nbv_prob_cnn.camera import dataset_defaults
+from nbv_prob_cnn.basics.camera import dataset_defaults
 from nbv_prob_cnn.ros.graph import NodeGraph, ros_environment, run_graph
 
 

@@ -37,7 +37,7 @@ TARGET_ABOVE_TABLE_M = 0.05
 def ring_poses(frames: int, table_height_m: float) -> list[np.ndarray]:
     """``world_from_optical`` poses: one turn around the table, alternating two heights, looking at
     points near the table centre (slightly jittered so views are not all centred alike)."""
-    from nbv_prob_cnn.camera import look_rotation
+    from nbv_prob_cnn.basics.camera import look_rotation
 
     poses = []
     for i in range(frames):

@@ -16,7 +16,7 @@ if [ -f "$stamp" ] && [ "$(cat "$stamp")" = "$want" ]; then
 # The OpenCL kernels need a device that compiles them. pip's pocl (pyopencl[pocl]) fails on CPUs
 # its LLVM does not know ("unknown target CPU 'generic'", e.g. some virtualised AMD EPYC); then the
 # Debian build of pocl (pocl-opencl-icd), which the bundled ICD loader also finds, is installed.
-probe_opencl() { "$venv/bin/python" -c "from nbv_prob_cnn.cl_device import cl_runtime; cl_runtime()" 2>"$venv/.nbv_opencl.log"; }
+probe_opencl() { "$venv/bin/python" -c "from nbv_prob_cnn.basics.cl_device import cl_runtime; cl_runtime()" 2>"$venv/.nbv_opencl.log"; }
 if ! probe_opencl; then
   echo "[setup] no OpenCL device compiles kernels with pip's pocl; installing Debian's pocl-opencl-icd"
   apt_install pocl-opencl-icd
@@ -52,7 +52,7 @@ VIRTUAL_ENV="$venv" bash "$repo/launch_scripts/build_interfaces.sh"
 # The OpenCL kernels need a device that compiles them. pip's pocl (pyopencl[pocl]) fails on CPUs
 # its LLVM does not know ("unknown target CPU 'generic'", e.g. some virtualised AMD EPYC); then the
 # Debian build of pocl (pocl-opencl-icd), which the bundled ICD loader also finds, is installed.
-probe_opencl() { "$venv/bin/python" -c "from nbv_prob_cnn.cl_device import cl_runtime; cl_runtime()" 2>"$venv/.nbv_opencl.log"; }
+probe_opencl() { "$venv/bin/python" -c "from nbv_prob_cnn.basics.cl_device import cl_runtime; cl_runtime()" 2>"$venv/.nbv_opencl.log"; }
 if ! probe_opencl; then
   echo "[setup] no OpenCL device compiles kernels with pip's pocl; installing Debian's pocl-opencl-icd"
   apt_install pocl-opencl-icd

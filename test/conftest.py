@@ -57,6 +57,6 @@ def chain(robot):
 def checker(robot):
     """Collision checker with sample points 0.75 cells of the 3DT grid apart."""
     from nbv_prob_cnn.arm.collision import CollisionChecker
-    from nbv_prob_cnn.camera import DATASETS
+    from nbv_prob_cnn.basics.camera import DATASETS
 
     return CollisionChecker(robot, spacing=0.75 * DATASETS["3dt"].resolution_m)

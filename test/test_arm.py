@@ -24,9 +24,9 @@ from nbv_prob_cnn.arm.collision import CollisionChecker, GridObstacles, body_mes
 from nbv_prob_cnn.arm.feasibility import ArmFeasibility  # noqa: E402
 from nbv_prob_cnn.arm.ik import DEFAULT_IK, rotation_error, solve_camera_pose  # noqa: E402
 from nbv_prob_cnn.arm.robot import RobotConfig, RobotModel, translation  # noqa: E402
-from nbv_prob_cnn.camera import DATASETS, look_rotation  # noqa: E402
-from nbv_prob_cnn.geometry import GridGeometry  # noqa: E402
-from nbv_prob_cnn.grid import OCCUPIED, UNKNOWN  # noqa: E402
+from nbv_prob_cnn.basics.camera import DATASETS, look_rotation  # noqa: E402
+from nbv_prob_cnn.basics.geometry import GridGeometry  # noqa: E402
+from nbv_prob_cnn.basics.grid import OCCUPIED, UNKNOWN  # noqa: E402
 from nbv_prob_cnn.planners import PlanningContext, ViewChoice  # noqa: E402
 
 GEOMETRY_3DT = GridGeometry((0.0, 0.0, 0.0), DATASETS["3dt"].resolution_m, DATASETS["3dt"].shape)

@@ -16,7 +16,7 @@ from nbv_prob_cnn.arm.comparison import STAGE_COUNTS  # noqa: E402
 from nbv_prob_cnn.arm.ik import DEFAULT_IK  # noqa: E402
 from nbv_prob_cnn.arm.kinematics import CameraChain  # noqa: E402
 from nbv_prob_cnn.arm.robot import RobotModel  # noqa: E402
-from nbv_prob_cnn.camera import matrix_from_quaternion  # noqa: E402
+from nbv_prob_cnn.basics.camera import matrix_from_quaternion  # noqa: E402
 from nbv_prob_cnn.cli import main  # noqa: E402
 
 SEED = 1000
@@ -96,9 +96,9 @@ def test_arm_log_is_consistent_with_kinematics(compared, config):
 
 @pytest.mark.parametrize("config", CONFIGS)
 def test_unknown_fraction_replays(compared, config):
-    from nbv_prob_cnn.grid import unknown_fraction
-    from nbv_prob_cnn.observe import observe
+    from nbv_prob_cnn.basics.grid import unknown_fraction
     from nbv_prob_cnn.planners import PlanningContext
+    from nbv_prob_cnn.sensing.observe import observe
     from nbv_prob_cnn.worlds import load_or_generate
 
     world = load_or_generate("3dt", SEED)

@@ -16,10 +16,10 @@ from nbv_prob_cnn.arm.collision import GridObstacles  # noqa: E402
 from nbv_prob_cnn.arm.feasibility import ArmFeasibility  # noqa: E402
 from nbv_prob_cnn.arm.ik import DEFAULT_IK, alternative_solutions, solve_camera_pose  # noqa: E402
 from nbv_prob_cnn.arm.swept import SweptVolume  # noqa: E402
-from nbv_prob_cnn.camera import DatasetDefaults, Sensor, matrix_from_quaternion  # noqa: E402
+from nbv_prob_cnn.basics.camera import DatasetDefaults, Sensor, matrix_from_quaternion  # noqa: E402
+from nbv_prob_cnn.basics.geometry import GridGeometry  # noqa: E402
+from nbv_prob_cnn.basics.grid import EMPTY, OCCUPIED, UNKNOWN, probability_with_constant  # noqa: E402
 from nbv_prob_cnn.gain import ray_gains  # noqa: E402
-from nbv_prob_cnn.geometry import GridGeometry  # noqa: E402
-from nbv_prob_cnn.grid import EMPTY, OCCUPIED, UNKNOWN, probability_with_constant  # noqa: E402
 from nbv_prob_cnn.planners import GAIN_METHODS, GainPlanner, PlanningContext, ViewChoice  # noqa: E402
 from nbv_prob_cnn.planners.base import search_views  # noqa: E402
 

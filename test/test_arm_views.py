@@ -13,8 +13,8 @@ pytest.importorskip("pinocchio")
 
 from nbv_prob_cnn.arm.robot import RobotConfig  # noqa: E402
 from nbv_prob_cnn.arm.views import ArmPlanningSetup, arm_polyline, reachable_poses  # noqa: E402
-from nbv_prob_cnn.camera import quaternion_from_matrix  # noqa: E402
-from nbv_prob_cnn.geometry import GridGeometry  # noqa: E402
+from nbv_prob_cnn.basics.camera import quaternion_from_matrix  # noqa: E402
+from nbv_prob_cnn.basics.geometry import GridGeometry  # noqa: E402
 
 #: 0.96 × 1.28 × 0.96 m in front of the Panda's default base (x = -0.1, y = 0.742): a floor and an
 #: unknown box on it, the rest known empty.

@@ -2,10 +2,10 @@
 
 import numpy as np
 
-from nbv_prob_cnn.benchmark import baseline_view_search
-from nbv_prob_cnn.camera import DatasetDefaults, Sensor
+from nbv_prob_cnn.basics.camera import DatasetDefaults, Sensor
+from nbv_prob_cnn.basics.grid import probability_with_constant
+from nbv_prob_cnn.bench.planning import baseline_view_search
 from nbv_prob_cnn.gain import ray_gains
-from nbv_prob_cnn.grid import probability_with_constant
 from nbv_prob_cnn.planners import PlanningContext, search_best_view
 
 SMALL_3D = DatasetDefaults("3du", 3, (18, 16, 14), 0.01, Sensor(60.0, 46.0, 8), 4, 3)
@@ -31,7 +31,7 @@ def test_baselines_find_the_reference_best_view(rng):
 def test_planning_time_sweep_writes_csv_and_png(tmp_path):
     """A short timed exploration: one row per planned view, the three searches agree, the
     explored fraction grows; CSV and PNG are written."""
-    from nbv_prob_cnn.benchmark import planning_time_sweep, write_sweep
+    from nbv_prob_cnn.bench.planning import planning_time_sweep, write_sweep
 
     rows = planning_time_sweep("3du", 4, 3, progress=False)
     assert len(rows) == 2 and all(r[-1] for r in rows)  # same best view in every variant

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from nbv_prob_cnn.camera import orientations
+from nbv_prob_cnn.basics.camera import orientations
 from nbv_prob_cnn.gain import best_origin_view, origin_view_gains, ray_directions, view_membership
 from nbv_prob_cnn.gain.directions import distance_weights, sample_offsets
 from nbv_prob_cnn.gain.opencl import encode_grid, get_ray_caster

@@ -5,7 +5,7 @@ import math
 import numpy as np
 import pytest
 
-from nbv_prob_cnn.camera import (
+from nbv_prob_cnn.basics.camera import (
     in_frustum,
     matrix_from_quaternion,
     optical_axis,

@@ -7,8 +7,10 @@ import numpy as np
 import pytest
 import torch
 
-from nbv_prob_cnn.camera import Sensor, orientations
-from nbv_prob_cnn.city_cnn import (
+from nbv_prob_cnn.basics.camera import Sensor, orientations
+from nbv_prob_cnn.basics.datasets import DatasetSpec
+from nbv_prob_cnn.gain import ray_directions
+from nbv_prob_cnn.planners.city_cnn import (
     CityGeometry,
     boundary_subcells,
     build_network,
@@ -17,8 +19,6 @@ from nbv_prob_cnn.city_cnn import (
     encode_city_input,
     output_mask,
 )
-from nbv_prob_cnn.datasets import DatasetSpec
-from nbv_prob_cnn.gain import ray_directions
 
 # 2D, range 3 cells, 4 sub-cells per side for every variant: 12 rays, small enough to work by hand.
 TINY_2D = DatasetSpec("2d", 2, (8, 6), 1.0, Sensor(60.0, None, 3), 4, 2, city_n_rays=4)
@@ -227,7 +227,7 @@ def test_city_networks_learn_a_tiny_dataset(rng, method):
 
 
 def test_frontier_is_unknown_next_to_empty_by_a_face():
-    from nbv_prob_cnn.grid import frontier_mask
+    from nbv_prob_cnn.basics.grid import frontier_mask
 
     state = np.array([[-1, -1, -1, -1], [-1, 0, -1, 1], [-1, -1, 1, -1]], dtype=np.int8)
     expected = np.array([[0, 1, 0, 0], [1, 0, 1, 0], [0, 1, 0, 0]], dtype=bool)
@@ -239,7 +239,7 @@ def test_untrained_gain_heads_start_near_the_typical_gain(method):
     """The sigmoid gain heads start near the mean gain target (~0.1), not at 0.5: from 0.5 the
     first Adam steps drove a 2D D-City-CNN into a saturated all-zero output (its validation MSE
     then equalled the all-zero output's to six digits)."""
-    from nbv_prob_cnn.city_cnn import build_network
+    from nbv_prob_cnn.planners.city_cnn import build_network
 
     torch.manual_seed(0)
     spec = DatasetSpec("2d", 2, (32, 32), 1.0, Sensor(60.0, None, 12), 4, 2, city_n_rays=4)
@@ -263,9 +263,9 @@ def test_zero_output_mse_by_hand():
 
 def test_gain_head_starts_at_the_mean_masked_target():
     """By hand: targets 0.2 and 0.0 on kept cells (0.9 on a masked one is ignored): mean 0.1."""
-    from nbv_prob_cnn.city_cnn import build_network
     from nbv_prob_cnn.completion.tasks import Example
     from nbv_prob_cnn.completion.train import mean_masked_target, start_at_mean_target
+    from nbv_prob_cnn.planners.city_cnn import build_network
 
     inputs = np.zeros((2, 1, 3), np.float32)
     example = Example(inputs, np.array([[[0.2, 0.0, 0.9]]], np.float32), np.array([[[1.0, 1.0, 0.0]]], np.float32))
@@ -277,8 +277,8 @@ def test_gain_head_starts_at_the_mean_masked_target():
 
 
 def test_training_task_inputs_by_hand():
+    from nbv_prob_cnn.basics.datasets import dataset_spec
     from nbv_prob_cnn.completion.tasks import TrainingTask
-    from nbv_prob_cnn.datasets import dataset_spec
 
     # rows: empty, unknown, occupied / unknown, unknown, unknown (E=0, U=-1, O=1)
     state = np.array([[0, -1, 1], [-1, -1, -1]], dtype=np.int8)

@@ -1,4 +1,4 @@
-"""Device choice of :mod:`nbv_prob_cnn.cl_device` with a stand-in pyopencl module (no OpenCL needed)."""
+"""Device choice of :mod:`nbv_prob_cnn.basics.cl_device` with a stand-in pyopencl module (no OpenCL needed)."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ from types import SimpleNamespace
 
 import pytest
 
-from nbv_prob_cnn.cl_device import _pick_device
+from nbv_prob_cnn.basics.cl_device import _pick_device
 
 GPU, CPU = 4, 2
 

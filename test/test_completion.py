@@ -13,6 +13,8 @@ import pytest
 import torch
 from torch import nn
 
+from nbv_prob_cnn.basics.datasets import DATASET_SPECS, dataset_spec
+from nbv_prob_cnn.basics.grid import UNKNOWN
 from nbv_prob_cnn.completion import CompletionNet, WeightsError, complete, load_model, pad_to_multiple
 from nbv_prob_cnn.completion import data as data_mod
 from nbv_prob_cnn.completion.data import ROTATIONS, crop_box, rotations
@@ -20,8 +22,6 @@ from nbv_prob_cnn.completion.inference import save_weights
 from nbv_prob_cnn.completion.model import encode_state
 from nbv_prob_cnn.completion.tasks import TrainingTask
 from nbv_prob_cnn.completion.train import side_paths, train, train_step
-from nbv_prob_cnn.datasets import DATASET_SPECS, dataset_spec
-from nbv_prob_cnn.grid import UNKNOWN
 
 torch.set_num_threads(2)
 

@@ -6,7 +6,7 @@ import shutil
 
 import numpy as np
 
-from nbv_prob_cnn.evaluation import (
+from nbv_prob_cnn.exploration.evaluation import (
     WEIGHTS_KEY,
     evaluate,
     read_run,

@@ -20,7 +20,7 @@ import pytest
 
 ray = pytest.importorskip("ray")
 
-from nbv_prob_cnn.evaluation import evaluate, read_run, run_path  # noqa: E402
+from nbv_prob_cnn.exploration.evaluation import evaluate, read_run, run_path  # noqa: E402
 
 
 def _free_port() -> int:

@@ -5,8 +5,8 @@ import csv
 import numpy as np
 import pytest
 
-from nbv_prob_cnn.camera import DatasetDefaults, Sensor
-from nbv_prob_cnn.explore import CSV_COLUMNS, explore, write_csv
+from nbv_prob_cnn.basics.camera import DatasetDefaults, Sensor
+from nbv_prob_cnn.exploration.explore import CSV_COLUMNS, explore, write_csv
 from nbv_prob_cnn.planners import PlanningContext, make_planner
 from nbv_prob_cnn.worlds.world import World
 

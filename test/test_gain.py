@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from nbv_prob_cnn.camera import orientations
+from nbv_prob_cnn.basics.camera import orientations
 from nbv_prob_cnn.gain import origin_view_gains, ray_directions, ray_gains, view_gains, view_membership
 from nbv_prob_cnn.gain.directions import distance_weights
 from nbv_prob_cnn.gain.reference import ray_terms

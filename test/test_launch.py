@@ -17,7 +17,7 @@ import pytest
 pytest.importorskip("rclpy")
 pytest.importorskip("nbv_prob_cnn_msgs")
 
-from nbv_prob_cnn.geometry import GridGeometry  # noqa: E402
+from nbv_prob_cnn.basics.geometry import GridGeometry  # noqa: E402
 from nbv_prob_cnn.ros.graph import leaked_segments, shm_segments  # noqa: E402
 
 pytestmark = pytest.mark.slow  # multi-process ROS graphs

@@ -5,8 +5,8 @@ import math
 import numpy as np
 import pytest
 
-from nbv_prob_cnn.camera import Sensor, orientations
-from nbv_prob_cnn.observe import camera_rays, observe
+from nbv_prob_cnn.basics.camera import Sensor, orientations
+from nbv_prob_cnn.sensing.observe import camera_rays, observe
 
 SENSOR_2D = Sensor(60.0, None, 30)
 BACKENDS = ["numpy", "opencl"]

@@ -13,8 +13,8 @@ trimesh = pytest.importorskip("trimesh")
 pytest.importorskip("rosbags")
 
 from nbv_prob_cnn import cli  # noqa: E402
-from nbv_prob_cnn.camera import look_rotation  # noqa: E402
-from nbv_prob_cnn.grid import EMPTY, OCCUPIED, UNKNOWN  # noqa: E402
+from nbv_prob_cnn.basics.camera import look_rotation  # noqa: E402
+from nbv_prob_cnn.basics.grid import EMPTY, OCCUPIED, UNKNOWN  # noqa: E402
 from nbv_prob_cnn.perception import (  # noqa: E402
     BagError,
     BagWriter,
@@ -442,7 +442,7 @@ def test_integrate_command_matches_in_process(scene: dict, tmp_path: Path, capsy
 
 
 def test_tsdf_grid_matches_a_generated_3dt_world() -> None:
-    from nbv_prob_cnn.perception.benchmark import tsdf_quality
+    from nbv_prob_cnn.bench.fusion import tsdf_quality
 
     quality = tsdf_quality(seed=1000, views=6)
     assert quality["empty_cells"] > 100_000 and quality["seen_surface_cells"] > 5_000

@@ -3,9 +3,9 @@
 import numpy as np
 import pytest
 
-from nbv_prob_cnn.camera import DatasetDefaults, Sensor
+from nbv_prob_cnn.basics.camera import DatasetDefaults, Sensor
+from nbv_prob_cnn.basics.grid import probability_with_constant
 from nbv_prob_cnn.gain import ray_gains
-from nbv_prob_cnn.grid import probability_with_constant
 from nbv_prob_cnn.planners import PlanningContext, base, search_best_view
 from nbv_prob_cnn.planners.base import search_views
 

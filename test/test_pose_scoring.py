@@ -2,12 +2,12 @@
 
 import numpy as np
 
-from nbv_prob_cnn.camera import DatasetDefaults, Sensor
-from nbv_prob_cnn.geometry import GridGeometry
-from nbv_prob_cnn.grid import probability_with_constant
+from nbv_prob_cnn.basics.camera import DatasetDefaults, Sensor
+from nbv_prob_cnn.basics.geometry import GridGeometry
+from nbv_prob_cnn.basics.grid import probability_with_constant
 from nbv_prob_cnn.planners import PlanningContext
 from nbv_prob_cnn.planners.base import search_views
-from nbv_prob_cnn.pose_scoring import (
+from nbv_prob_cnn.planners.pose_scoring import (
     IN_OCCUPIED_CELL,
     IN_UNKNOWN_CELL,
     INVALID_POSE,

@@ -9,7 +9,7 @@ import pytest
 pytest.importorskip("pinocchio")
 
 from nbv_prob_cnn.arm.robot import RobotModel, robot_config  # noqa: E402
-from nbv_prob_cnn.camera import look_rotation  # noqa: E402
+from nbv_prob_cnn.basics.camera import look_rotation  # noqa: E402
 from nbv_prob_cnn.perception.depth_camera import DepthCamera, Intrinsics  # noqa: E402
 
 #: A robot of one 0.2 m cube sliding along world x (prismatic joint "slide"); the collision box

@@ -30,8 +30,8 @@ from nbv_prob_cnn.arm.robot import RobotConfig, RobotModel  # noqa: E402
 from nbv_prob_cnn.arm.selection import ArmViewSelector  # noqa: E402
 from nbv_prob_cnn.arm.swept import SweptVolume  # noqa: E402
 from nbv_prob_cnn.arm.views import ArmPlanningSetup  # noqa: E402
-from nbv_prob_cnn.camera import matrix_from_quaternion, quaternion_from_matrix  # noqa: E402
-from nbv_prob_cnn.geometry import GridGeometry  # noqa: E402
+from nbv_prob_cnn.basics.camera import matrix_from_quaternion, quaternion_from_matrix  # noqa: E402
+from nbv_prob_cnn.basics.geometry import GridGeometry  # noqa: E402
 from nbv_prob_cnn.planners import GAIN_METHODS, GainPlanner  # noqa: E402
 from nbv_prob_cnn.planners.requests import planning_context  # noqa: E402
 from nbv_prob_cnn.ros.common import GRID_QOS  # noqa: E402

@@ -38,7 +38,7 @@ from test_ros_perception import (  # noqa: E402
     ros_env,  # noqa: F401 - the fixture
 )
 
-from nbv_prob_cnn.camera import look_rotation  # noqa: E402
+from nbv_prob_cnn.basics.camera import look_rotation  # noqa: E402
 from nbv_prob_cnn.perception import Intrinsics  # noqa: E402
 from nbv_prob_cnn.perception.bags import (  # noqa: E402
     MSG_CAMERA_INFO,
@@ -202,7 +202,7 @@ def test_planning_battery(tmp_path: Path, ros_domain) -> None:
     from nbv_prob_cnn_msgs.srv import CompleteGrid, PlanNextBestView, RankViews
     from test_ros_perception import domain_id
 
-    from nbv_prob_cnn.geometry import GridGeometry
+    from nbv_prob_cnn.basics.geometry import GridGeometry
     from nbv_prob_cnn.ros.common import GRID_QOS
     from nbv_prob_cnn.ros.conversions import grid_to_msg
 

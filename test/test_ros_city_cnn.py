@@ -26,9 +26,9 @@ def weights_dir(tmp_path, monkeypatch):
     """Untrained (seeded) weights of the three City-CNNs for 3du, in a folder the nodes are pointed to."""
     import torch
 
-    from nbv_prob_cnn.city_cnn import CITY_METHODS, build_network
+    from nbv_prob_cnn.basics.datasets import dataset_spec
     from nbv_prob_cnn.completion.inference import clear_model_cache, save_weights
-    from nbv_prob_cnn.datasets import dataset_spec
+    from nbv_prob_cnn.planners.city_cnn import CITY_METHODS, build_network
 
     torch.manual_seed(0)
     folder = tmp_path / "weights"
@@ -41,8 +41,8 @@ def weights_dir(tmp_path, monkeypatch):
 
 
 def test_city_cnn_plans_through_the_servers(weights_dir, ros):
-    from nbv_prob_cnn.city_cnn import CITY_METHODS
     from nbv_prob_cnn.planners import PlanningContext, make_planner
+    from nbv_prob_cnn.planners.city_cnn import CITY_METHODS
 
     node, graph, context = ros
     graph.start_node("gain_server", "gain_server", {"dataset": "3du", "backend": "opencl"})

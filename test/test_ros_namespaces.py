@@ -15,7 +15,7 @@ from nbv_prob_cnn_msgs.msg import VoxelGrid  # noqa: E402
 from nbv_prob_cnn_msgs.srv import RankViews  # noqa: E402
 from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 
-from nbv_prob_cnn.geometry import GridGeometry  # noqa: E402
+from nbv_prob_cnn.basics.geometry import GridGeometry  # noqa: E402
 from nbv_prob_cnn.ros import names  # noqa: E402
 from nbv_prob_cnn.ros.common import GRID_QOS  # noqa: E402
 from nbv_prob_cnn.ros.conversions import grid_to_msg  # noqa: E402

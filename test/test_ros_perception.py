@@ -28,8 +28,8 @@ from nbv_prob_cnn_msgs.srv import MoveCamera, SaveGrid  # noqa: E402
 from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 
 from nbv_prob_cnn import cli  # noqa: E402
-from nbv_prob_cnn.camera import look_rotation, quaternion_from_matrix  # noqa: E402
-from nbv_prob_cnn.grid import EMPTY, OCCUPIED, UNKNOWN  # noqa: E402
+from nbv_prob_cnn.basics.camera import look_rotation, quaternion_from_matrix  # noqa: E402
+from nbv_prob_cnn.basics.grid import EMPTY, OCCUPIED, UNKNOWN  # noqa: E402
 from nbv_prob_cnn.perception import load_grid  # noqa: E402
 from nbv_prob_cnn.perception.bags import (  # noqa: E402
     TOPIC_CAMERA_INFO,

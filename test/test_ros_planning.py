@@ -17,12 +17,12 @@ from geometry_msgs.msg import PoseStamped  # noqa: E402
 from nbv_prob_cnn_msgs.msg import VoxelGrid  # noqa: E402
 from nbv_prob_cnn_msgs.srv import EvaluateViews, PlanNextBestView, RankViews  # noqa: E402
 
-from nbv_prob_cnn.camera import dataset_defaults  # noqa: E402
-from nbv_prob_cnn.geometry import GridGeometry  # noqa: E402
-from nbv_prob_cnn.grid import probability_with_constant  # noqa: E402
+from nbv_prob_cnn.basics.camera import dataset_defaults  # noqa: E402
+from nbv_prob_cnn.basics.geometry import GridGeometry  # noqa: E402
+from nbv_prob_cnn.basics.grid import probability_with_constant  # noqa: E402
 from nbv_prob_cnn.planners import GainPlanner, PlanningContext  # noqa: E402
 from nbv_prob_cnn.planners.methods import GAIN_METHODS  # noqa: E402
-from nbv_prob_cnn.pose_scoring import INVALID_POSE, VALID, score_poses  # noqa: E402
+from nbv_prob_cnn.planners.pose_scoring import INVALID_POSE, VALID, score_poses  # noqa: E402
 from nbv_prob_cnn.ros.common import GRID_QOS  # noqa: E402
 from nbv_prob_cnn.ros.conversions import grid_to_msg  # noqa: E402
 from nbv_prob_cnn.ros.graph import NodeGraph, call_with_resend, wait_for  # noqa: E402

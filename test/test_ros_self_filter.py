@@ -26,7 +26,7 @@ from test_ros_perception import START_TIMEOUT_S, RosClient, assert_clean_stop, l
 from nbv_prob_cnn.arm.collision import hull_points  # noqa: E402
 from nbv_prob_cnn.arm.robot import RobotModel  # noqa: E402
 from nbv_prob_cnn.arm.robot_scene import RobotScene  # noqa: E402
-from nbv_prob_cnn.grid import OCCUPIED  # noqa: E402
+from nbv_prob_cnn.basics.grid import OCCUPIED  # noqa: E402
 from nbv_prob_cnn.ros.common import GRID_QOS  # noqa: E402
 from nbv_prob_cnn.ros.conversions import arrays_to_pose_stamped, msg_to_grid  # noqa: E402
 from nbv_prob_cnn.ros.graph import NodeGraph  # noqa: E402

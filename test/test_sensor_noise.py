@@ -1,4 +1,4 @@
-"""The depth-sensor noise models (nbv_prob_cnn.sensor_noise), on images and in grid-level observe()."""
+"""The depth-sensor noise models (nbv_prob_cnn.sensing.sensor_noise), on images and in grid-level observe()."""
 
 from __future__ import annotations
 
@@ -7,9 +7,9 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from nbv_prob_cnn.camera import dataset_defaults, look_rotation, quaternion_from_matrix
-from nbv_prob_cnn.observe import observe
-from nbv_prob_cnn.sensor_noise import PRESETS, SensorNoise, sensor_noise
+from nbv_prob_cnn.basics.camera import dataset_defaults, look_rotation, quaternion_from_matrix
+from nbv_prob_cnn.sensing.observe import observe
+from nbv_prob_cnn.sensing.sensor_noise import PRESETS, SensorNoise, sensor_noise
 
 
 def test_presets_and_bad_parameters():

@@ -25,7 +25,7 @@ def typed_modules() -> list[str]:
 def test_mypy_on_the_core():
     pytest.importorskip("mypy")
     modules = typed_modules()
-    assert len(modules) > 30 and "nbv_prob_cnn/sensor_noise.py" in modules
+    assert len(modules) > 30 and "nbv_prob_cnn/sensing/sensor_noise.py" in modules
     run = subprocess.run(
         [sys.executable, "-m", "mypy", "--no-error-summary", *modules],
         cwd=REPO, capture_output=True, text=True, timeout=600,
@@ -34,8 +34,8 @@ def test_mypy_on_the_core():
 
 
 def test_mode_literals_match_the_accepted_values():
+    from nbv_prob_cnn.basics.modes import BACKEND_NAMES, GAIN_MODES, PROBABILITY_SOURCES
     from nbv_prob_cnn.gain import BACKENDS
-    from nbv_prob_cnn.modes import BACKEND_NAMES, GAIN_MODES, PROBABILITY_SOURCES
     from nbv_prob_cnn.planners.methods import GAIN_METHODS
 
     assert tuple(BACKENDS) == BACKEND_NAMES

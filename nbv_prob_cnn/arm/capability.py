@@ -29,8 +29,8 @@ from tqdm import tqdm
 from nbv_prob_cnn.arm.ik import IkSettings, solve_batch
 from nbv_prob_cnn.arm.kinematics import CameraChain
 from nbv_prob_cnn.arm.robot import RobotModel, arm_cache_dir
-from nbv_prob_cnn.camera import matrix_from_quaternion, orientations
-from nbv_prob_cnn.geometry import GridGeometry
+from nbv_prob_cnn.basics.camera import matrix_from_quaternion, orientations
+from nbv_prob_cnn.basics.geometry import GridGeometry
 
 MAP_VERSION = 1
 #: Targets solved per IK batch while building (bounds memory).

@@ -21,8 +21,8 @@ import numpy as np
 from scipy import ndimage
 
 from nbv_prob_cnn.arm.robot import RobotModel
-from nbv_prob_cnn.geometry import GridGeometry
-from nbv_prob_cnn.grid import EMPTY, OCCUPIED, check_state
+from nbv_prob_cnn.basics.geometry import GridGeometry
+from nbv_prob_cnn.basics.grid import EMPTY, OCCUPIED, check_state
 
 
 def body_mesh(obj):

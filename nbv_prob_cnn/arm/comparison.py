@@ -1,5 +1,5 @@
 """Free-flying camera against the arm-constrained camera (λ = 0 and λ > 0) on simulated 3DT
-explorations: the exploration loop of :mod:`nbv_prob_cnn.explore` with an arm-aware planner,
+explorations: the exploration loop of :mod:`nbv_prob_cnn.exploration.explore` with an arm-aware planner,
 per-run CSV logs (resumable), a summary CSV / markdown table and a PNG.
 
 All configurations of a scene start from the same first view: a random (cell, orientation) that
@@ -18,7 +18,7 @@ import numpy as np
 from nbv_prob_cnn.arm.feasibility import ArmFeasibility, FeasibilityReport
 from nbv_prob_cnn.arm.selection import ArmViewSelector
 from nbv_prob_cnn.arm.swept import SweptVolume
-from nbv_prob_cnn.explore import ExplorationResult
+from nbv_prob_cnn.exploration.explore import ExplorationResult
 from nbv_prob_cnn.planners import GainPlanner, PlanningContext, ViewChoice
 from nbv_prob_cnn.planners.base import OriginFilter
 

@@ -25,8 +25,8 @@ from nbv_prob_cnn.arm.collision import CollisionChecker, GridObstacles
 from nbv_prob_cnn.arm.ik import DEFAULT_IK, IkSettings, alternative_solutions, solve_camera_pose
 from nbv_prob_cnn.arm.kinematics import CameraChain
 from nbv_prob_cnn.arm.robot import RobotModel
-from nbv_prob_cnn.camera import matrix_from_quaternion
-from nbv_prob_cnn.geometry import GridGeometry
+from nbv_prob_cnn.basics.camera import matrix_from_quaternion
+from nbv_prob_cnn.basics.geometry import GridGeometry
 from nbv_prob_cnn.planners import GainPlanner, PlanningContext, ViewChoice
 from nbv_prob_cnn.planners.requests import view_pose
 

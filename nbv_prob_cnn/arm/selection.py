@@ -15,8 +15,8 @@ import numpy as np
 
 from nbv_prob_cnn.arm.feasibility import ArmFeasibility, ArmView, FeasibilityReport, plan_with_arm
 from nbv_prob_cnn.arm.swept import SweptVolume
-from nbv_prob_cnn.camera import orientations
-from nbv_prob_cnn.geometry import GridGeometry
+from nbv_prob_cnn.basics.camera import orientations
+from nbv_prob_cnn.basics.geometry import GridGeometry
 from nbv_prob_cnn.planners import PlanningContext, ViewChoice
 
 

@@ -17,8 +17,8 @@ from __future__ import annotations
 import numpy as np
 
 from nbv_prob_cnn.arm.collision import CollisionChecker
-from nbv_prob_cnn.geometry import GridGeometry
-from nbv_prob_cnn.grid import EMPTY, UNKNOWN, check_state
+from nbv_prob_cnn.basics.geometry import GridGeometry
+from nbv_prob_cnn.basics.grid import EMPTY, UNKNOWN, check_state
 
 
 class SweptVolume:

@@ -14,8 +14,8 @@ from nbv_prob_cnn.arm.collision import CollisionChecker, GridObstacles
 from nbv_prob_cnn.arm.feasibility import ArmFeasibility
 from nbv_prob_cnn.arm.ik import solve_camera_pose
 from nbv_prob_cnn.arm.robot import RobotConfig, RobotModel
-from nbv_prob_cnn.camera import matrix_from_quaternion
-from nbv_prob_cnn.geometry import GridGeometry
+from nbv_prob_cnn.basics.camera import matrix_from_quaternion
+from nbv_prob_cnn.basics.geometry import GridGeometry
 
 #: Grid-collision sample spacing, in cells (as ``nbv arm-compare``).
 SAMPLE_SPACING_CELLS = 0.75

@@ -67,8 +67,8 @@ def run(args: argparse.Namespace) -> int:
     from nbv_prob_cnn.arm.feasibility import ArmFeasibility
     from nbv_prob_cnn.arm.robot import RobotModel
     from nbv_prob_cnn.arm.swept import SweptVolume
-    from nbv_prob_cnn.camera import dataset_defaults
-    from nbv_prob_cnn.explore import explore
+    from nbv_prob_cnn.basics.camera import dataset_defaults
+    from nbv_prob_cnn.exploration.explore import explore
     from nbv_prob_cnn.planners import GAIN_METHODS, GainPlanner, Planner, PlanningContext
     from nbv_prob_cnn.worlds import load_or_generate
 

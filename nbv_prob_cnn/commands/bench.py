@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 import os
 
-from nbv_prob_cnn.benchmark import DEFAULT_CASES, format_table, run_case
+from nbv_prob_cnn.bench.planning import DEFAULT_CASES, format_table, run_case
 
 NAME = "bench"
 HELP = (
@@ -53,7 +53,7 @@ def run_sweep(args: argparse.Namespace) -> None:
     """View search time against explored fraction, per case of ``--cases`` (default 3du:16)."""
     from pathlib import Path
 
-    from nbv_prob_cnn.benchmark import planning_time_sweep, write_sweep
+    from nbv_prob_cnn.bench.planning import planning_time_sweep, write_sweep
 
     for case in (_parse_case(c) for c in (args.cases or ["3du:16"])):
         rows = planning_time_sweep(case.dataset, case.n_rays, args.views, args.seed, every=args.every)
@@ -65,8 +65,8 @@ def run_sweep(args: argparse.Namespace) -> None:
 
 
 def run_integrator(args: argparse.Namespace) -> None:
-    from nbv_prob_cnn.perception.benchmark import integrator_benchmark, tsdf_quality
-    from nbv_prob_cnn.sensor_noise import PRESETS
+    from nbv_prob_cnn.bench.fusion import integrator_benchmark, tsdf_quality
+    from nbv_prob_cnn.sensing.sensor_noise import PRESETS
 
     print(integrator_benchmark(seed=args.seed))
     print("\n| grid quality, 3DT world, 8 views, 640×480 | empty precision | seen-surface recall | "
@@ -82,25 +82,25 @@ def run_integrator(args: argparse.Namespace) -> None:
 
 
 def run_arm(args: argparse.Namespace) -> None:
-    from nbv_prob_cnn.arm.benchmark import arm_benchmark
+    from nbv_prob_cnn.bench.arm import arm_benchmark
 
     print(arm_benchmark(seed=args.seed, iterations=args.repeats))
 
 
 def run_arm_render(args: argparse.Namespace) -> None:
-    from nbv_prob_cnn.arm.render_benchmark import arm_render_benchmark
+    from nbv_prob_cnn.bench.render import arm_render_benchmark
 
     print(arm_render_benchmark(seed=args.seed, repeats=max(args.repeats, 10)))
 
 
 def run_ros(args: argparse.Namespace) -> None:
-    from nbv_prob_cnn.ros.latency_benchmark import ros_latency_benchmark
+    from nbv_prob_cnn.bench.ros_latency import ros_latency_benchmark
 
     print(ros_latency_benchmark(seed=args.seed))
 
 
 def run_cnn(args: argparse.Namespace) -> None:
-    from nbv_prob_cnn.benchmark import cnn_layout_table, cnn_table
+    from nbv_prob_cnn.bench.planning import cnn_layout_table, cnn_table
 
     print(cnn_table(args.seed, args.repeats))
     print()
@@ -136,7 +136,7 @@ def run_planning(args: argparse.Namespace) -> None:
 
 
 def _parse_case(text: str):
-    from nbv_prob_cnn.benchmark import BenchCase
+    from nbv_prob_cnn.bench.planning import BenchCase
 
     parts = text.split(":")
     try:

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from nbv_prob_cnn.datasets import DATASET_SPECS, EVALUATION_SEEDS
+from nbv_prob_cnn.basics.datasets import DATASET_SPECS, EVALUATION_SEEDS
 
 NAME = "evaluate"
 HELP = "Compare NBV methods on held-out environments as Ray tasks: per-run CSVs, summary table, plots (resumable)."
@@ -41,7 +41,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from nbv_prob_cnn.evaluation import evaluate, save_plots, summary_table, write_summary_csv
+    from nbv_prob_cnn.exploration.evaluation import evaluate, save_plots, summary_table, write_summary_csv
 
     at = args.at or sorted({min(20, args.views), min(50, args.views), args.views})
     if args.views < 1 or any(a < 1 or a > args.views for a in at):

@@ -6,8 +6,8 @@ import argparse
 
 import numpy as np
 
-from nbv_prob_cnn.camera import DATASETS
-from nbv_prob_cnn.explore import explore, write_csv
+from nbv_prob_cnn.basics.camera import DATASETS
+from nbv_prob_cnn.exploration.explore import explore, write_csv
 from nbv_prob_cnn.gain import BACKENDS
 from nbv_prob_cnn.planners import METHODS, PlanningContext, make_planner
 
@@ -49,14 +49,14 @@ def run(args: argparse.Namespace) -> int:
         backend=args.backend,
         n_rays=args.n_rays,
     )
-    from nbv_prob_cnn.sensor_noise import sensor_noise
+    from nbv_prob_cnn.sensing.sensor_noise import sensor_noise
 
     result = explore(world, planner, context, args.views, progress=not args.quiet, noise=sensor_noise(args.noise),
                      room_margin_m=args.room_margin)  # fmt: skip
     write_csv(result.records, args.log)
     written = [args.log]
     if args.png:
-        from nbv_prob_cnn.visualize import save_exploration_png
+        from nbv_prob_cnn.viz.exploration import save_exploration_png
 
         title = f"{args.dataset} seed {world.seed}, {planner.name}, {len(result.records)} views"
         save_exploration_png(result, world, args.png, title)

@@ -59,7 +59,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Integrate every frame of the bag and write the grid."""
-    from nbv_prob_cnn.grid import EMPTY, OCCUPIED, UNKNOWN
+    from nbv_prob_cnn.basics.grid import EMPTY, OCCUPIED, UNKNOWN
     from nbv_prob_cnn.perception.bags import read_frames
     from nbv_prob_cnn.perception.tsdf import TsdfIntegrator
 

@@ -7,8 +7,8 @@ import argparse
 import math
 from pathlib import Path
 
+from nbv_prob_cnn.basics.datasets import DATASET_SPECS, LR_SCHEDULES, SPEC_LEARNING_RATE
 from nbv_prob_cnn.completion.tasks import TRAINABLE_MODELS
-from nbv_prob_cnn.datasets import DATASET_SPECS, LR_SCHEDULES, SPEC_LEARNING_RATE
 
 NAME = "train"
 HELP = "Train a network (completion CNN or City-CNN) of a data set: weights, loss CSV/plot, model card."

@@ -20,7 +20,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from nbv_prob_cnn.perception.bags import BagError
-    from nbv_prob_cnn.visualize_run import load_run, render_run
+    from nbv_prob_cnn.viz.recorded_run import load_run, render_run
 
     try:
         run_data = load_run(args.bag)

@@ -18,9 +18,9 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from nbv_prob_cnn.camera import DATASETS
+from nbv_prob_cnn.basics.camera import DATASETS
+from nbv_prob_cnn.basics.grid import OCCUPIED, UNKNOWN, check_state
 from nbv_prob_cnn.completion.model import CompletionNet, encode_state
-from nbv_prob_cnn.grid import OCCUPIED, UNKNOWN, check_state
 
 _CONFIG_KEYS = ("dims", "n_conv", "first_channels", "dataset")
 _ARCHITECTURE_KEYS = ("out_channels", "head", "removed_deconv", "extra_deconv")

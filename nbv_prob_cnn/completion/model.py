@@ -37,7 +37,7 @@ import torch
 from torch import nn
 from torch.nn import functional
 
-from nbv_prob_cnn.grid import EMPTY, OCCUPIED, UNKNOWN
+from nbv_prob_cnn.basics.grid import EMPTY, OCCUPIED, UNKNOWN
 
 #: Negative slope of every LeakyReLU (the paper gives none; 0.3 is the Keras default the
 #: original implementation ran with).

@@ -11,8 +11,8 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
+from nbv_prob_cnn.basics.datasets import DatasetSpec
 from nbv_prob_cnn.completion.model import CompletionNet, encode_state
-from nbv_prob_cnn.datasets import DatasetSpec
 
 #: Model names ``nbv train --method`` accepts (the ``weights`` of the registry's methods).
 TRAINABLE_MODELS = ("cnn_prob", "flat_city_cnn", "b_city_cnn", "d_city_cnn")
@@ -51,7 +51,7 @@ class TrainingTask:
     def build(self, first_channels: int | None = None) -> CompletionNet:
         if self.is_completion:
             return CompletionNet(self.spec.dims, self.spec.n_conv, first_channels)
-        from nbv_prob_cnn.city_cnn import build_network
+        from nbv_prob_cnn.planners.city_cnn import build_network
 
         return build_network(self.model, self.spec, first_channels)
 
@@ -60,7 +60,7 @@ class TrainingTask:
         two channels, or the City-CNNs' empty and frontier grids."""
         if self.is_completion:
             return encode_state(states)
-        from nbv_prob_cnn.city_cnn import encode_city_input
+        from nbv_prob_cnn.planners.city_cnn import encode_city_input
 
         return encode_city_input(states)
 
@@ -72,7 +72,7 @@ class TrainingTask:
                 truth[box][None].astype(np.float32),
                 np.ones((1,) * (state.ndim + 1), dtype=np.float32),
             )
-        from nbv_prob_cnn.city_cnn import CityGeometry, city_targets, output_mask
+        from nbv_prob_cnn.planners.city_cnn import CityGeometry, city_targets, output_mask
 
         inputs = self.encode(state[None])[0].numpy()[(slice(None), *box)]  # frontier of the whole grid
         target = city_targets(self.model, state, truth, self.spec, box, self.backend)

@@ -4,7 +4,7 @@ Adam (lr 1e-3 by default, SPEC), MSE loss (:mod:`~nbv_prob_cnn.completion.tasks`
 learns). The learning rate is constant by default; ``lr_schedule="cosine"`` decays it per epoch
 (:func:`learning_rate`), for runs that become unstable at a constant rate.
 
-Environment split (:mod:`nbv_prob_cnn.datasets`): training, validation, test. After every epoch
+Environment split (:mod:`nbv_prob_cnn.basics.datasets`): training, validation, test. After every epoch
 the validation loss is measured; the weights kept are those of the epoch with the lowest
 validation loss (the test split never chooses anything). When training ends, the kept weights
 are scored once on the test split: test MSE and, for the completion CNN, the calibration of its
@@ -41,14 +41,14 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
+from nbv_prob_cnn.basics.datasets import DATASET_SPECS, LR_SCHEDULES, SPEC_LEARNING_RATE, dataset_spec
 from nbv_prob_cnn.completion.calibration import Reliability, reliability, save_reliability_plot
 from nbv_prob_cnn.completion.data import DATA_VERSION, TrainingSample, crop_box, load_samples, rotations
 from nbv_prob_cnn.completion.inference import clear_model_cache, default_weights_path, resolve_device, save_weights
 from nbv_prob_cnn.completion.model import CompletionNet, count_parameters
 from nbv_prob_cnn.completion.tasks import Example, TrainingTask
-from nbv_prob_cnn.datasets import DATASET_SPECS, LR_SCHEDULES, SPEC_LEARNING_RATE, dataset_spec
 
-#: Default mini-batch size per data set (from :mod:`nbv_prob_cnn.datasets`).
+#: Default mini-batch size per data set (from :mod:`nbv_prob_cnn.basics.datasets`).
 DEFAULT_BATCH = {name: spec.training.batch_size for name, spec in DATASET_SPECS.items()}
 #: Default validation/test crop per data set (None: whole grids).
 DEFAULT_TEST_CROP: dict[str, int | None] = {name: spec.training.test_crop for name, spec in DATASET_SPECS.items()}
@@ -363,12 +363,12 @@ def train(
         seed: seed of initialisation, shuffling and crops.
         progress: show tqdm progress bars.
         train_seeds, validation_seeds, test_seeds: override the environment split (default:
-            the data set's, :mod:`nbv_prob_cnn.datasets`).
+            the data set's, :mod:`nbv_prob_cnn.basics.datasets`).
         method: ``cnn_prob`` (completion CNN) or a City-CNN variant.
         first_channels: width of the first conv block (default 8 in 2D, 16 in 3D).
         backend: ray-casting backend of the City-CNN targets.
         note: a sentence for the model card (e.g. why a run was short).
-        lr: Adam's (initial) learning rate (default: the data set's, :mod:`nbv_prob_cnn.datasets`;
+        lr: Adam's (initial) learning rate (default: the data set's, :mod:`nbv_prob_cnn.basics.datasets`;
             the SPEC's 1e-3 except on 3DT).
         lr_schedule: ``constant`` or ``cosine`` (:func:`learning_rate`; default: the data set's).
     """

@@ -14,13 +14,13 @@ from __future__ import annotations
 
 import numpy as np
 
-from nbv_prob_cnn.camera import in_frustum
+from nbv_prob_cnn.basics.camera import in_frustum
+from nbv_prob_cnn.basics.grid import check_probability, check_state
+from nbv_prob_cnn.basics.modes import BACKEND_NAMES
 from nbv_prob_cnn.gain.directions import check_directions, distance_weights, ray_directions, sample_offsets
 from nbv_prob_cnn.gain.reference import ig_gains_reference, ray_gains_reference
-from nbv_prob_cnn.grid import check_probability, check_state
-from nbv_prob_cnn.modes import BACKEND_NAMES
 
-#: Ray-casting backends (defined once, in :mod:`nbv_prob_cnn.modes`).
+#: Ray-casting backends (defined once, in :mod:`nbv_prob_cnn.basics.modes`).
 BACKENDS = BACKEND_NAMES
 
 __all__ = [
@@ -236,7 +236,7 @@ def _check_gain_inputs(state, prob, directions, r_max, origins, backend, mode, e
     directions = check_directions(directions, state.ndim)
     origins = _check_origins(origins, state)
     if backend == "auto":
-        from nbv_prob_cnn.cl_device import opencl_available
+        from nbv_prob_cnn.basics.cl_device import opencl_available
 
         backend = "opencl" if opencl_available() else "numpy"
     return state, prob, directions, origins, backend

@@ -1,5 +1,5 @@
 """OpenCL backend of the ray gain: one ray-marching function (``raycast.cl``) for every method,
-on the device of :mod:`nbv_prob_cnn.cl_device` (a GPU if present, else the CPU through pocl).
+on the device of :mod:`nbv_prob_cnn.basics.cl_device` (a GPU if present, else the CPU through pocl).
 
 Two kernels call it: ``view_gain`` sums the ray gains of each origin into its candidate views
 in local memory (the planners' path: no per-ray gains in global memory), ``ray_gain`` returns
@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 from scipy.ndimage import distance_transform_cdt
 
-from nbv_prob_cnn.cl_device import cl_runtime
+from nbv_prob_cnn.basics.cl_device import cl_runtime
 
 KERNEL_SOURCE = Path(__file__).with_name("raycast.cl")
 MODES = {"prob": 0, "ig": 1}

@@ -19,7 +19,7 @@ from typing import Any
 
 import numpy as np
 
-from nbv_prob_cnn.sensor_noise import SensorNoise
+from nbv_prob_cnn.sensing.sensor_noise import SensorNoise
 
 __all__ = ["DepthCamera", "DepthNoise", "Intrinsics", "MeshScene", "check_pose"]
 
@@ -171,7 +171,7 @@ class DepthCamera:
             ``open3d.t.geometry.TriangleMesh`` or ``(vertices, faces)`` pairs), or a
             :class:`MeshScene` built before (used as it is).
         intrinsics: image size and pinhole parameters (default 640×480, 60° HFOV).
-        noise: optional :class:`~nbv_prob_cnn.sensor_noise.SensorNoise` (a sensor model, e.g.
+        noise: optional :class:`~nbv_prob_cnn.sensing.sensor_noise.SensorNoise` (a sensor model, e.g.
             ``sensor_noise("kinect_v1")``; grazing angles use the ray-cast surface normals) or
             the older :class:`DepthNoise`; off by default (exact depth).
         noise_seed: seed of the generator of a ``SensorNoise`` (same seed, same noisy images).

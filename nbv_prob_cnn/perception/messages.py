@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from nbv_prob_cnn.camera import matrix_from_quaternion, quaternion_from_matrix
+from nbv_prob_cnn.basics.camera import matrix_from_quaternion, quaternion_from_matrix
 from nbv_prob_cnn.perception.depth_camera import Intrinsics, check_pose
 
 WORLD_FRAME = "world"

@@ -29,8 +29,8 @@ from pathlib import Path
 
 import numpy as np
 
-from nbv_prob_cnn.camera import DATASETS
-from nbv_prob_cnn.grid import EMPTY, OCCUPIED, UNKNOWN
+from nbv_prob_cnn.basics.camera import DATASETS
+from nbv_prob_cnn.basics.grid import EMPTY, OCCUPIED, UNKNOWN
 from nbv_prob_cnn.perception.depth_camera import Intrinsics, check_pose
 
 __all__ = [

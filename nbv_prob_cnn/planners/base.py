@@ -9,7 +9,7 @@ from typing import Protocol
 
 import numpy as np
 
-from nbv_prob_cnn.camera import DatasetDefaults, Sensor, dataset_defaults, orientations, yaw_quaternion
+from nbv_prob_cnn.basics.camera import DatasetDefaults, Sensor, dataset_defaults, orientations, yaw_quaternion
 from nbv_prob_cnn.gain import best_origin_view, empty_origins, origin_view_gains, ray_directions, view_membership
 
 #: Upper bound on origins × views per gain call (bounds the (origins, views) gains in memory).
@@ -205,7 +205,7 @@ def search_views(
 
 def _uses_opencl(backend: str) -> bool:
     if backend == "auto":
-        from nbv_prob_cnn.cl_device import opencl_available
+        from nbv_prob_cnn.basics.cl_device import opencl_available
 
         return opencl_available()
     return backend == "opencl"

@@ -23,8 +23,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from nbv_prob_cnn.grid import probability_from_truth, probability_with_constant
-from nbv_prob_cnn.modes import GainMode, ProbabilitySource
+from nbv_prob_cnn.basics.grid import probability_from_truth, probability_with_constant
+from nbv_prob_cnn.basics.modes import GainMode, ProbabilitySource
 from nbv_prob_cnn.planners.base import (
     OriginFilter,
     PlanningContext,

@@ -9,8 +9,8 @@ from dataclasses import replace
 
 import numpy as np
 
-from nbv_prob_cnn.camera import dataset_defaults
-from nbv_prob_cnn.geometry import GridGeometry
+from nbv_prob_cnn.basics.camera import dataset_defaults
+from nbv_prob_cnn.basics.geometry import GridGeometry
 from nbv_prob_cnn.planners import GAIN_METHODS, GainMethod, PlanningContext, ViewChoice, make_planner, ros_method
 from nbv_prob_cnn.planners.base import OriginFilter
 

@@ -30,7 +30,7 @@ from trajectory_msgs.msg import JointTrajectory
 
 from nbv_prob_cnn.arm.motion import JointMotion
 from nbv_prob_cnn.arm.robot import RobotModel
-from nbv_prob_cnn.camera import quaternion_from_matrix
+from nbv_prob_cnn.basics.camera import quaternion_from_matrix
 from nbv_prob_cnn.ros import names
 from nbv_prob_cnn.ros.common import declare_config, param, run_node
 from nbv_prob_cnn.ros.robot_params import RobotParams

@@ -26,7 +26,7 @@ from rclpy.node import Node
 from sensor_msgs.msg import CameraInfo, Image
 from visualization_msgs.msg import MarkerArray
 
-from nbv_prob_cnn.grid import OCCUPIED
+from nbv_prob_cnn.basics.grid import OCCUPIED
 from nbv_prob_cnn.perception.bags import (
     MSG_CAMERA_INFO,
     MSG_IMAGE,

@@ -13,7 +13,7 @@ from dataclasses import dataclass
 from nbv_prob_cnn_msgs.srv import CompleteGrid
 from rclpy.node import Node
 
-from nbv_prob_cnn.camera import DATASETS
+from nbv_prob_cnn.basics.camera import DATASETS
 from nbv_prob_cnn.ros import names
 from nbv_prob_cnn.ros.common import declare_config, param, run_node
 from nbv_prob_cnn.ros.conversions import msg_to_grid, probability_to_msg

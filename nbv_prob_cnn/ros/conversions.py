@@ -15,7 +15,7 @@ from builtin_interfaces.msg import Time
 from geometry_msgs.msg import Pose, PoseStamped
 from nbv_prob_cnn_msgs.msg import ProbabilityGrid, VoxelGrid
 
-from nbv_prob_cnn.geometry import GridGeometry
+from nbv_prob_cnn.basics.geometry import GridGeometry
 from nbv_prob_cnn.perception.messages import stamp_parts
 
 #: Largest grid accepted from the wire (cells); bigger requests are refused with a reason.

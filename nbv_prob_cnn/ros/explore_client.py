@@ -19,7 +19,7 @@ from nbv_prob_cnn_msgs.msg import VoxelGrid
 from rclpy.action import ActionClient
 from rclpy.executors import SingleThreadedExecutor
 
-from nbv_prob_cnn.grid import unknown_fraction_all
+from nbv_prob_cnn.basics.grid import unknown_fraction_all
 from nbv_prob_cnn.ros import names
 from nbv_prob_cnn.ros.common import GRID_QOS
 from nbv_prob_cnn.ros.conversions import msg_to_grid, pose_to_arrays
@@ -105,7 +105,7 @@ def write_outputs(client: ExploreClient, result: Explore.Result, out_dir: Path, 
     """Per-view CSV and a PNG of the last grid with the chosen views; when the planner drove the
     arm (feedback with joint goals) the CSV adds the joint travel and goal of each view and the
     PNG the arm at each view (default robot description)."""
-    from nbv_prob_cnn.visualize import plot_views
+    from nbv_prob_cnn.viz.exploration import plot_views
 
     out_dir.mkdir(parents=True, exist_ok=True)
     csv_path = out_dir / "views.csv"

@@ -25,11 +25,12 @@ from rclpy.node import Node
 from sensor_msgs.msg import JointState
 
 from nbv_prob_cnn.arm.views import ArmPlanningSetup, reachable_poses
-from nbv_prob_cnn.camera import DATASETS
-from nbv_prob_cnn.geometry import GridGeometry
-from nbv_prob_cnn.modes import BACKEND_NAMES, Backend
+from nbv_prob_cnn.basics.camera import DATASETS
+from nbv_prob_cnn.basics.geometry import GridGeometry
+from nbv_prob_cnn.basics.modes import BACKEND_NAMES, Backend
 from nbv_prob_cnn.planners import PlanningContext, check_ros_method
 from nbv_prob_cnn.planners.methods import cnn_completion, probability_map
+from nbv_prob_cnn.planners.pose_scoring import INVALID_POSE, score_poses
 from nbv_prob_cnn.planners.requests import (
     allowed_origins_filter,
     gain_method,
@@ -38,7 +39,6 @@ from nbv_prob_cnn.planners.requests import (
     rank_for_request,
     view_pose,
 )
-from nbv_prob_cnn.pose_scoring import INVALID_POSE, score_poses
 from nbv_prob_cnn.ros import names
 from nbv_prob_cnn.ros.common import GRID_QOS, call_service, declare_config, param, positive_seconds, run_node
 from nbv_prob_cnn.ros.conversions import (

@@ -74,8 +74,8 @@ from sensor_msgs.msg import CameraInfo, Image, JointState
 from std_srvs.srv import Trigger
 
 from nbv_prob_cnn.arm.robot_scene import BODIES
-from nbv_prob_cnn.geometry import GridGeometry
-from nbv_prob_cnn.grid import EMPTY, OCCUPIED, UNKNOWN
+from nbv_prob_cnn.basics.geometry import GridGeometry
+from nbv_prob_cnn.basics.grid import EMPTY, OCCUPIED, UNKNOWN
 from nbv_prob_cnn.perception.messages import (
     ENCODINGS,
     MAX_PENDING,

@@ -9,7 +9,7 @@ from geometry_msgs.msg import Point
 from std_msgs.msg import ColorRGBA
 from visualization_msgs.msg import Marker, MarkerArray
 
-from nbv_prob_cnn.camera import matrix_from_quaternion
+from nbv_prob_cnn.basics.camera import matrix_from_quaternion
 
 
 def _gain_colour(value: float) -> ColorRGBA:

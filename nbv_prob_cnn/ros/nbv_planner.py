@@ -40,9 +40,9 @@ from nbv_prob_cnn.arm.feasibility import ArmView, FeasibilityReport, takes_view_
 from nbv_prob_cnn.arm.selection import ArmViewSelector
 from nbv_prob_cnn.arm.swept import SweptVolume
 from nbv_prob_cnn.arm.views import ArmPlanningSetup
-from nbv_prob_cnn.camera import DATASETS
-from nbv_prob_cnn.grid import unknown_fraction_all
-from nbv_prob_cnn.modes import BACKEND_NAMES, MOVE_MODES, Backend, MoveMode
+from nbv_prob_cnn.basics.camera import DATASETS
+from nbv_prob_cnn.basics.grid import unknown_fraction_all
+from nbv_prob_cnn.basics.modes import BACKEND_NAMES, MOVE_MODES, Backend, MoveMode
 from nbv_prob_cnn.perception.messages import stamp_ns
 from nbv_prob_cnn.planners import check_ros_method, make_planner, ros_method
 from nbv_prob_cnn.planners.requests import choice_from_pose, flat_cells, origin_filter, planning_context, view_pose

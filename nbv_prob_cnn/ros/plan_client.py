@@ -16,7 +16,7 @@ import rclpy
 from nbv_prob_cnn_msgs.msg import VoxelGrid
 from nbv_prob_cnn_msgs.srv import PlanNextBestView
 
-from nbv_prob_cnn.grid import unknown_fraction_all
+from nbv_prob_cnn.basics.grid import unknown_fraction_all
 from nbv_prob_cnn.ros import names
 from nbv_prob_cnn.ros.common import GRID_QOS
 from nbv_prob_cnn.ros.conversions import msg_to_grid, pose_to_arrays
@@ -62,7 +62,7 @@ def main(argv: list[str] | None = None) -> int:
             for rank, (view, (p, q)) in enumerate(zip(reply.ranked, poses, strict=True), start=1):
                 writer.writerow([rank, f"{view.gain:.6g}", *(f"{v:.5f}" for v in p), *(f"{v:.6f}" for v in q)])
                 print(f"[plan] #{rank}: gain {view.gain:.4f} at ({p[0]:.3f}, {p[1]:.3f}, {p[2]:.3f})", flush=True)
-        from nbv_prob_cnn.visualize import plot_views
+        from nbv_prob_cnn.viz.exploration import plot_views
 
         cells = np.array([geometry.to_index(p) for p, _ in poses])
         plot_views(state, cells, np.array([q for _, q in poses]), out / "ranked_views.png", "ranked next best views")

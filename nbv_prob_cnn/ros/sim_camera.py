@@ -44,7 +44,7 @@ from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import CameraInfo, Image, JointState
 
-from nbv_prob_cnn.camera import look_rotation, matrix_from_quaternion, quaternion_from_matrix
+from nbv_prob_cnn.basics.camera import look_rotation, matrix_from_quaternion, quaternion_from_matrix
 from nbv_prob_cnn.perception.depth_camera import DepthCamera, DepthNoise, Intrinsics, room_mesh
 from nbv_prob_cnn.perception.messages import (
     ENCODINGS,

@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from nbv_prob_cnn.datasets import DATASET_SPECS
+from nbv_prob_cnn.basics.datasets import DATASET_SPECS
 from nbv_prob_cnn.worlds.city2d import crop, generate_city_map
 from nbv_prob_cnn.worlds.world import PlacedMesh, World
 
@@ -40,7 +40,7 @@ __all__ = [
 #: Bump whenever a generator's output for a given seed changes (invalidates the cache).
 GENERATOR_VERSION = 2  # 2: 3DT table at the bottom of the grid, table mesh matches the grid
 
-#: Data set names accepted by :func:`generate_world` (from :data:`nbv_prob_cnn.datasets.DATASET_SPECS`).
+#: Data set names accepted by :func:`generate_world` (from :data:`nbv_prob_cnn.basics.datasets.DATASET_SPECS`).
 DATASETS: tuple[str, ...] = tuple(DATASET_SPECS)
 
 CITY_CROP = DATASET_SPECS["2d"].shape[0]

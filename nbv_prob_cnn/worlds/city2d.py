@@ -24,7 +24,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from nbv_prob_cnn.datasets import DATASET_SPECS
+from nbv_prob_cnn.basics.datasets import DATASET_SPECS
 
 MAP_SIZE: int = (DATASET_SPECS["2d"].map_shape or (0,))[0]
 CELL_M: float = DATASET_SPECS["2d"].resolution_m

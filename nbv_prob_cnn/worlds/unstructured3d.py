@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from nbv_prob_cnn.datasets import DATASET_SPECS
+from nbv_prob_cnn.basics.datasets import DATASET_SPECS
 from nbv_prob_cnn.worlds import ycb
 from nbv_prob_cnn.worlds.world import PlacedMesh, World
 

@@ -57,8 +57,8 @@ class World:
 
     @property
     def geometry(self):
-        """The grid's :class:`~nbv_prob_cnn.geometry.GridGeometry` (origin padded to 3D with 0)."""
-        from nbv_prob_cnn.geometry import GridGeometry
+        """The grid's :class:`~nbv_prob_cnn.basics.geometry.GridGeometry` (origin padded to 3D with 0)."""
+        from nbv_prob_cnn.basics.geometry import GridGeometry
 
         origin = np.zeros(3)
         origin[: self.dims] = np.asarray(self.origin, dtype=np.float64)[: self.dims]
@@ -72,7 +72,7 @@ class World:
 
         meshes = [placed_mesh(m.name, m.transform) for m in self.meshes]
         if self.table and self.dims == 3:
-            from nbv_prob_cnn.worlds.tabletop3d import table_surface_mesh
+            from nbv_prob_cnn.worlds.table_mesh import table_surface_mesh  # trimesh only when asked
 
             meshes.append(table_surface_mesh(self))
         return meshes

@@ -34,14 +34,14 @@ from typing import Any
 
 import numpy as np
 
+from nbv_prob_cnn.basics.grid import probability_with_constant, unknown_fraction
 from nbv_prob_cnn.gain.directions import distance_weights, sample_offsets
-from nbv_prob_cnn.grid import probability_with_constant, unknown_fraction
-from nbv_prob_cnn.observe import observe
 from nbv_prob_cnn.planners import PlanningContext, make_planner
 from nbv_prob_cnn.planners.base import search_best_view, search_views
+from nbv_prob_cnn.sensing.observe import observe
 from nbv_prob_cnn.worlds.world import World
 
-BASELINE_SOURCE = Path(__file__).with_name("benchmark_baselines.cl")
+BASELINE_SOURCE = Path(__file__).with_name("baselines.cl")
 #: Origins × rays per baseline launch (the previous planners' block size).
 BASELINE_RAYS_PER_CALL = 8_000_000
 VARIANTS = ("iteration", "pruned", "all_views", "fused", "two_step", "naive", "numpy")
@@ -138,7 +138,7 @@ def _measure(fn, repeats: int, device_bytes: int = 0) -> Timing:
 
 @functools.lru_cache(maxsize=1)
 def _baseline_kernels():
-    from nbv_prob_cnn.cl_device import cl_runtime
+    from nbv_prob_cnn.basics.cl_device import cl_runtime
 
     runtime = cl_runtime()
     program = runtime.build(BASELINE_SOURCE)
@@ -279,7 +279,7 @@ def run_case(case: BenchCase, world: World, repeats: int = 3, numpy_origins: int
 
 
 def _defaults(dataset: str):
-    from nbv_prob_cnn.camera import dataset_defaults
+    from nbv_prob_cnn.basics.camera import dataset_defaults
 
     return dataset_defaults(dataset)
 
@@ -346,9 +346,9 @@ def cnn_layout_table(seed: int = 1000, repeats: int = 3) -> str:
 
     import torch
 
+    from nbv_prob_cnn.basics.datasets import dataset_spec
     from nbv_prob_cnn.completion.inference import load_model, resolve_device
     from nbv_prob_cnn.completion.tasks import TrainingTask
-    from nbv_prob_cnn.datasets import dataset_spec
     from nbv_prob_cnn.worlds import load_or_generate
 
     device = resolve_device(None)
@@ -399,8 +399,8 @@ def planning_time_sweep(
     origins, then wall and CPU seconds per variant, same best view)."""
     from tqdm import tqdm
 
-    from nbv_prob_cnn.explore import first_view
-    from nbv_prob_cnn.grid import unknown_fraction_all
+    from nbv_prob_cnn.basics.grid import unknown_fraction_all
+    from nbv_prob_cnn.exploration.explore import first_view
     from nbv_prob_cnn.worlds import load_or_generate
 
     world = load_or_generate(dataset, seed)

@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 from matplotlib.figure import Figure
 
-from nbv_prob_cnn.camera import matrix_from_quaternion
+from nbv_prob_cnn.basics.camera import matrix_from_quaternion
 
 _AXES = ("x", "y", "z")
 
@@ -99,7 +99,7 @@ def plot_views(
 
 
 def save_exploration_png(result, world, path: str | Path, title: str = "") -> None:
-    """Plot a simulated exploration (:class:`nbv_prob_cnn.explore.ExplorationResult`)."""
+    """Plot a simulated exploration (:class:`nbv_prob_cnn.exploration.explore.ExplorationResult`)."""
     records = result.records
     plot_views(
         result.state,

@@ -12,10 +12,10 @@ from typing import TextIO
 import numpy as np
 from tqdm import tqdm
 
-from nbv_prob_cnn.grid import unknown_fraction, unknown_fraction_all
-from nbv_prob_cnn.observe import observe
+from nbv_prob_cnn.basics.grid import unknown_fraction, unknown_fraction_all
 from nbv_prob_cnn.planners import Planner, PlanningContext, ViewChoice
-from nbv_prob_cnn.sensor_noise import SensorNoise
+from nbv_prob_cnn.sensing.observe import observe
+from nbv_prob_cnn.sensing.sensor_noise import SensorNoise
 from nbv_prob_cnn.worlds.world import World
 
 CSV_COLUMNS = [

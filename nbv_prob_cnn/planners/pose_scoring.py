@@ -9,9 +9,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from nbv_prob_cnn.camera import in_frustum
+from nbv_prob_cnn.basics.camera import in_frustum
+from nbv_prob_cnn.basics.geometry import GridGeometry
 from nbv_prob_cnn.gain import ray_gains
-from nbv_prob_cnn.geometry import GridGeometry
 from nbv_prob_cnn.planners.base import PlanningContext
 
 VALID = 0

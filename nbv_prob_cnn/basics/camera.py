@@ -15,10 +15,10 @@ import math
 
 import numpy as np
 
-from nbv_prob_cnn.datasets import DATASET_SPECS, DatasetSpec, dataset_spec
-from nbv_prob_cnn.sensor import Sensor as Sensor  # re-exported
+from nbv_prob_cnn.basics.datasets import DATASET_SPECS, DatasetSpec, dataset_spec
+from nbv_prob_cnn.basics.sensor import Sensor as Sensor  # re-exported
 
-#: The data sets' parameters now live in :mod:`nbv_prob_cnn.datasets`; these names are kept for callers.
+#: The data sets' parameters now live in :mod:`nbv_prob_cnn.basics.datasets`; these names are kept for callers.
 DatasetDefaults = DatasetSpec
 DATASETS: dict[str, DatasetSpec] = DATASET_SPECS
 

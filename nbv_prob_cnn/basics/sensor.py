@@ -1,4 +1,4 @@
-"""Depth sensor parameters (SPEC §2, §7). Re-exported by :mod:`nbv_prob_cnn.camera`."""
+"""Depth sensor parameters (SPEC §2, §7). Re-exported by :mod:`nbv_prob_cnn.basics.camera`."""
 
 from __future__ import annotations
 

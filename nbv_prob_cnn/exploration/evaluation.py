@@ -30,8 +30,8 @@ import numpy as np
 from matplotlib.figure import Figure
 from tqdm import tqdm
 
-from nbv_prob_cnn.datasets import EVALUATION_SEEDS, dataset_spec
-from nbv_prob_cnn.explore import explore, write_csv
+from nbv_prob_cnn.basics.datasets import EVALUATION_SEEDS, dataset_spec
+from nbv_prob_cnn.exploration.explore import explore, write_csv
 from nbv_prob_cnn.planners import PlanningContext, make_planner, method_spec
 
 #: Evaluation environments of a quick comparison: the first ten of the protocol's (test split).

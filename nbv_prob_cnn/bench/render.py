@@ -12,7 +12,7 @@ import numpy as np
 from nbv_prob_cnn.arm.robot import RobotModel
 from nbv_prob_cnn.arm.robot_scene import RobotScene
 from nbv_prob_cnn.arm.self_filter import RobotSelfFilter
-from nbv_prob_cnn.camera import look_rotation
+from nbv_prob_cnn.basics.camera import look_rotation
 from nbv_prob_cnn.perception.depth_camera import DepthCamera, Intrinsics, room_mesh
 
 #: External views (eye, target) of the 3DT table with the arm beside its x = 0 face (inside the room

@@ -2,7 +2,7 @@
 (SPEC §3, §5, §7, §8): grid shape and resolution, sensor, ray/view parameters, environment
 splits and training defaults.
 
-:data:`nbv_prob_cnn.camera.DATASETS` and :data:`nbv_prob_cnn.worlds.DATASETS` are derived from
+:data:`nbv_prob_cnn.basics.camera.DATASETS` and :data:`nbv_prob_cnn.worlds.DATASETS` are derived from
 :data:`DATASET_SPECS` (kept for existing callers).
 
 Environment split (by environment, never by sample; 180 environments per data set):
@@ -17,7 +17,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from nbv_prob_cnn.sensor import Sensor
+from nbv_prob_cnn.basics.sensor import Sensor
 
 #: Number of environments per data set (SPEC §8).
 N_ENVIRONMENTS = 180

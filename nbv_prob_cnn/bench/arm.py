@@ -77,7 +77,7 @@ def arm_benchmark(
     strict_capability: bool = True,
 ) -> str:
     """Run the arm benchmark on the 3DT world ``seed``; return a printable report."""
-    from nbv_prob_cnn.benchmark import half_explored
+    from nbv_prob_cnn.bench.planning import half_explored
     from nbv_prob_cnn.planners import GAIN_METHODS, GainPlanner, PlanningContext
     from nbv_prob_cnn.worlds import load_or_generate
 

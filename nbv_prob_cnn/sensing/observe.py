@@ -22,10 +22,10 @@ from pathlib import Path
 
 import numpy as np
 
-from nbv_prob_cnn.camera import Sensor, matrix_from_quaternion
-from nbv_prob_cnn.grid import check_ground_truth, check_state
-from nbv_prob_cnn.modes import Backend
-from nbv_prob_cnn.sensor_noise import SensorNoise
+from nbv_prob_cnn.basics.camera import Sensor, matrix_from_quaternion
+from nbv_prob_cnn.basics.grid import check_ground_truth, check_state
+from nbv_prob_cnn.basics.modes import Backend
+from nbv_prob_cnn.sensing.sensor_noise import SensorNoise
 
 #: Largest spacing (cells) between neighbouring simulated rays at ``R_max``.
 RAY_SPACING_CELLS = 0.5
@@ -128,7 +128,7 @@ def traverse(
 
 @functools.lru_cache(maxsize=1)
 def _traverse_kernel():
-    from nbv_prob_cnn.cl_device import cl_runtime
+    from nbv_prob_cnn.basics.cl_device import cl_runtime
 
     runtime = cl_runtime()
     options = ("-DUSE_DOUBLE",) if runtime.has_fp64 else ()
@@ -184,7 +184,7 @@ def observe(
         orientation: yaw (2D, radians) or quaternion ``(x, y, z, w)`` (3D).
         sensor: field of view and range (cells).
         backend: ``"opencl"``, ``"numpy"`` or ``"auto"`` (OpenCL if a device works).
-        noise: a depth-sensor model (:mod:`nbv_prob_cnn.sensor_noise`, the one the simulated
+        noise: a depth-sensor model (:mod:`nbv_prob_cnn.sensing.sensor_noise`, the one the simulated
             depth camera uses); ``None`` or ``ideal`` = exact observation of every traversed
             cell. Otherwise each ray measures the distance to its first occupied cell, the
             model perturbs it (axial noise, range limits, grazing angles from the grid's surface
@@ -212,7 +212,7 @@ def observe(
     if backend not in ("auto", "opencl", "numpy"):
         raise ValueError(f"backend: expected 'auto', 'opencl' or 'numpy', got {backend!r}")
     if backend == "auto":
-        from nbv_prob_cnn.cl_device import opencl_available
+        from nbv_prob_cnn.basics.cl_device import opencl_available
 
         backend = "opencl" if opencl_available() else "numpy"
     rays = world_rays(orientation, sensor, state.ndim)

@@ -21,7 +21,7 @@ def benchmark_poses(
 ) -> list[np.ndarray]:
     """``world_from_optical`` poses on a ring around the table of the 3DT box, 0.40 / 0.57 m above
     the table top (alternating), looking at a point 5 cm above the table centre."""
-    from nbv_prob_cnn.camera import look_rotation
+    from nbv_prob_cnn.basics.camera import look_rotation
 
     target = np.array([centre_xy[0], centre_xy[1], table_height_m + 0.05])
     poses = []
@@ -107,7 +107,7 @@ def tsdf_quality(
 ) -> dict[str, float]:
     """How well the integrated grid of a generated 3DT world matches its ground truth.
 
-    ``noise`` names a :mod:`nbv_prob_cnn.sensor_noise` preset for the rendered depth (the
+    ``noise`` names a :mod:`nbv_prob_cnn.sensing.sensor_noise` preset for the rendered depth (the
     *seen* surface cells always come from the exact depth, so the presets are compared on the
     same reference).
 
@@ -119,13 +119,13 @@ def tsdf_quality(
         ``surface_recall`` (seen ground-truth occupied cells labelled occupied),
         ``occupied_precision``, ``observed_fraction`` and the cell counts behind them.
     """
-    from nbv_prob_cnn.grid import EMPTY, OCCUPIED, UNKNOWN
+    from nbv_prob_cnn.basics.grid import EMPTY, OCCUPIED, UNKNOWN
     from nbv_prob_cnn.perception import DepthCamera, Intrinsics, TsdfIntegrator
     from nbv_prob_cnn.worlds import load_or_generate
 
     world = load_or_generate("3dt", seed)
     intrinsics = Intrinsics.from_hfov(width, height, 60.0)
-    from nbv_prob_cnn.sensor_noise import sensor_noise
+    from nbv_prob_cnn.sensing.sensor_noise import sensor_noise
 
     camera = DepthCamera(world.triangle_meshes(), intrinsics)
     noisy_camera = DepthCamera(world.triangle_meshes(), intrinsics, noise=sensor_noise(noise), noise_seed=noise_seed)

@@ -9,8 +9,8 @@ import time
 
 import numpy as np
 
-from nbv_prob_cnn.benchmark import half_explored
-from nbv_prob_cnn.camera import dataset_defaults
+from nbv_prob_cnn.basics.camera import dataset_defaults
+from nbv_prob_cnn.bench.planning import half_explored
 from nbv_prob_cnn.planners import GAIN_METHODS, GainPlanner, PlanningContext
 from nbv_prob_cnn.ros import names
 from nbv_prob_cnn.ros.graph import NodeGraph, ros_environment, wait_for

@@ -1,0 +1,1 @@
+"""Pictures (matplotlib, Agg backend): an exploration's result and a recorded ROS run."""
