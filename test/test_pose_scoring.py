@@ -58,3 +58,33 @@ def test_invalid_poses_get_reasons(rng):
     )
     assert scores.gains[[0, 1, 3, 4, 5]].sum() == 0
     assert "occupied" in scores.reasons[0] and scores.reasons[2] == "" and "outside" in scores.reasons[5]
+
+
+def test_huge_and_tiny_finite_quaternions_are_scored_like_their_unit_quaternion(rng):
+    """(1e200, 0, 0, 1e200) overflows a plain norm; it is the rotation of (1, 0, 0, 1) / sqrt(2). Every
+    other pose of the request is scored whatever one pose holds."""
+    state, prob = _grid(rng, SMALL_3D.shape)
+    state[5, 5, 5] = 0
+    geometry = GridGeometry((0.0, 0.0, 0.0), SMALL_3D.resolution_m, SMALL_3D.shape)
+    context = PlanningContext(SMALL_3D)
+    position = geometry.cell_centre(np.array([[5, 5, 5]]))[0]
+    unit = np.array([1.0, 0.0, 0.0, 1.0]) / np.sqrt(2.0)
+    quats = np.array([unit, [1e200, 0, 0, 1e200], [1e-200, 0, 0, 1e-200], [np.inf, 0, 0, 1], [0, 0, 0, 0]])
+    scores = score_poses(state, prob, geometry, np.tile(position, (5, 1)), quats, context)
+    np.testing.assert_array_equal(scores.validity, [VALID, VALID, INVALID_POSE, INVALID_POSE, INVALID_POSE])
+    assert scores.gains[0] > 0
+    assert scores.gains[1] == scores.gains[0]
+    assert scores.gains[2:].sum() == 0
+
+
+def test_unit_quaternions_against_hand_values():
+    from nbv_prob_cnn.basics.camera import matrix_from_quaternion, unit_quaternions
+
+    unit, ok = unit_quaternions(np.array([[0, 0, 3e300, 4e300], [0, 0, 0, 2], [np.nan, 0, 0, 1], [0, 0, 0, 0]]))
+    np.testing.assert_array_equal(ok, [True, True, False, False])
+    np.testing.assert_allclose(unit[:2], [[0, 0, 0.6, 0.8], [0, 0, 0, 1]])
+    np.testing.assert_array_equal(unit[2:], 0.0)
+    # a rotation of 2*atan2(0.6, 0.8) ~ 73.74 deg about z, from the huge finite components
+    angle = 2 * np.arctan2(0.6, 0.8)
+    expected = [[np.cos(angle), -np.sin(angle), 0], [np.sin(angle), np.cos(angle), 0], [0, 0, 1]]
+    np.testing.assert_allclose(matrix_from_quaternion(np.array([0, 0, 3e300, 4e300])), expected, atol=1e-12)

@@ -49,6 +49,25 @@ def quaternion_from_matrix(rot: np.ndarray) -> np.ndarray:
     return quat if quat[3] >= 0 else -quat
 
 
+def unit_quaternions(quats: np.ndarray, tiny: float = 1e-9) -> tuple[np.ndarray, np.ndarray]:
+    """Each row of ``(N, 4)`` quaternions scaled to unit length, and whether it could be.
+
+    Rows are divided by their largest absolute component before the norm is taken, so huge finite
+    components (``1e200``) do not overflow and tiny ones do not underflow. A row with a NaN or
+    infinite component, or whose norm is below ``tiny``, is not valid; its output row is 0.
+    """
+    q = np.asarray(quats, dtype=np.float64).reshape(-1, 4)
+    finite = np.all(np.isfinite(q), axis=1)
+    safe = np.where(finite[:, None], q, 0.0)
+    scale = np.max(np.abs(safe), axis=1)
+    scaled = safe / np.where(scale > 0, scale, 1.0)[:, None]
+    norm = np.linalg.norm(scaled, axis=1)
+    ok = finite & (scale > 0) & (norm * scale >= tiny)
+    unit = np.zeros_like(q)
+    unit[ok] = scaled[ok] / norm[ok, None]
+    return unit, ok
+
+
 def matrix_from_quaternion(quat: np.ndarray) -> np.ndarray:
     """3×3 rotation matrix of a quaternion ``(x, y, z, w)`` (normalised first).
 
@@ -56,10 +75,10 @@ def matrix_from_quaternion(quat: np.ndarray) -> np.ndarray:
         ValueError: NaN/inf components or a (near) zero quaternion.
     """
     q = np.asarray(quat, dtype=np.float64).reshape(4)
-    norm = np.linalg.norm(q)
-    if not np.all(np.isfinite(q)) or norm < 1e-9:
+    unit, ok = unit_quaternions(q[None])
+    if not ok[0]:
         raise ValueError(f"orientation: expected a finite non-zero quaternion (x, y, z, w), got {q.tolist()}")
-    x, y, z, w = q / norm
+    x, y, z, w = unit[0]
     return np.array(
         [
             [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],

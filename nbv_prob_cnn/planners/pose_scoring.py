@@ -9,7 +9,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from nbv_prob_cnn.basics.camera import in_frustum
+from nbv_prob_cnn.basics.camera import in_frustum, unit_quaternions
 from nbv_prob_cnn.basics.geometry import GridGeometry
 from nbv_prob_cnn.gain import ray_gains
 from nbv_prob_cnn.planners.base import PlanningContext
@@ -52,9 +52,8 @@ def classify_poses(
     quats = np.asarray(quats, dtype=np.float64).reshape(-1, 4)
     n = positions.shape[0]
     validity = np.full(n, VALID, dtype=np.uint8)
-    finite = np.all(np.isfinite(positions), axis=1) & np.all(np.isfinite(quats), axis=1)
-    norms = np.linalg.norm(np.where(np.isfinite(quats), quats, 0.0), axis=1)
-    validity[~finite | (norms < 1e-6)] = INVALID_POSE
+    _, quat_ok = unit_quaternions(quats, tiny=1e-6)
+    validity[~np.all(np.isfinite(positions), axis=1) | ~quat_ok] = INVALID_POSE
     safe_positions = np.where(np.isfinite(positions), positions, 0.0)
     cells, inside = geometry.containing_cell(safe_positions)
     validity[(validity == VALID) & ~inside] = OUTSIDE_GRID
@@ -91,8 +90,7 @@ def score_poses(
             state, prob, context.directions, sensor.r_max, unique_cells, context.backend,
             mode=mode, eps=context.eps, min_range=sensor.min_range,
         )  # fmt: skip
-        q = np.asarray(quats, dtype=np.float64).reshape(-1, 4)[ok]
-        q = q / np.linalg.norm(q, axis=1, keepdims=True)
+        q = unit_quaternions(quats, tiny=1e-6)[0][ok]
         orientations = np.array([yaw_of(v) for v in q]) if state.ndim == 2 else q
         member = in_frustum(context.directions, orientations, sensor.hfov_deg, sensor.vfov_deg)  # (R, P)
         gains[ok] = np.einsum("pr,rp->p", per_ray[which.reshape(-1)], member.astype(np.float32))
