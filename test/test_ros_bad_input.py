@@ -239,6 +239,14 @@ def test_planning_battery(tmp_path: Path, ros_domain) -> None:
         good = PlanNextBestView.Request(top_k=1)
         assert client.spin_until(lambda: client.call(plan, good, timeout_s=60.0).success, 60.0)
 
+        # dataset '' picks the weights by the grid's shape: a 2D grid on a node that defaults to 3du
+        flat = np.zeros((48, 40), dtype=np.int8)
+        flat[::3, ::2] = -1
+        flat_msg = grid_to_msg(flat, GridGeometry((0.0, 0.0, 0.0), 1.2, flat.shape))
+        reply = client.call(complete, CompleteGrid.Request(grid=flat_msg, dataset=""), timeout_s=60.0)
+        assert reply.success, reply.message
+        assert (reply.probability.size_x, reply.probability.size_y) == (48, 40)
+
         # completion_server dies while the planner waits on it (stopped first, so the request
         # is surely in flight, then killed): the plan fails with a reason, the planner lives on
         os.killpg(server.pid, signal.SIGSTOP)

@@ -221,3 +221,16 @@ def test_3dt_table_mesh_matches_the_grid(worlds):
     table_only = ~under_objects.ravel()
     assert table_only.sum() > 0.8 * nx * ny
     np.testing.assert_allclose(hit_z[table_only] / res, column_top[table_only], atol=1e-3)
+
+
+def test_dataset_for_grid_picks_by_shape():
+    from nbv_prob_cnn.basics.datasets import dataset_for_grid
+
+    assert dataset_for_grid((400, 400), "3du") == "2d"  # exact shape, whatever the node's default
+    assert dataset_for_grid((64, 64, 64), "3dt") == "3du"
+    assert dataset_for_grid((128, 128, 96), "3du") == "3dt"
+    assert dataset_for_grid((50, 60), "3dt") == "2d"  # no exact match: the only 2D data set
+    assert dataset_for_grid((40, 40, 40), "3dt") == "3dt"  # no exact match: the preferred 3D one
+    assert dataset_for_grid((40, 40, 40), "2d") == "3du"  # preferred is 2D: the first 3D one
+    with pytest.raises(ValueError, match="no data set has 4D grids"):
+        dataset_for_grid((2, 2, 2, 2), "3dt")

@@ -125,3 +125,23 @@ def dataset_spec(name: str) -> DatasetSpec:
         return DATASET_SPECS[name]
     except KeyError:
         raise ValueError(f"dataset: unknown data set {name!r}; expected one of {sorted(DATASET_SPECS)}") from None
+
+
+def dataset_for_grid(shape: tuple[int, ...], preferred: str) -> str:
+    """The data set whose weights suit a grid of ``shape`` when none is named: the one whose grid
+    shape is exactly ``shape``; else ``preferred`` if it has as many dimensions; else the first data
+    set (in :data:`DATASET_SPECS` order) with as many dimensions.
+
+    Raises:
+        ValueError: no data set has ``len(shape)`` dimensions.
+    """
+    dims = len(shape)
+    for name, spec in DATASET_SPECS.items():
+        if tuple(spec.shape) == tuple(shape):
+            return name
+    if preferred in DATASET_SPECS and DATASET_SPECS[preferred].dims == dims:
+        return preferred
+    for name, spec in DATASET_SPECS.items():
+        if spec.dims == dims:
+            return name
+    raise ValueError(f"grid: no data set has {dims}D grids (shape {tuple(shape)})")

@@ -14,6 +14,7 @@ from nbv_prob_cnn_msgs.srv import CompleteGrid
 from rclpy.node import Node
 
 from nbv_prob_cnn.basics.camera import DATASETS
+from nbv_prob_cnn.basics.datasets import dataset_for_grid
 from nbv_prob_cnn.ros import names
 from nbv_prob_cnn.ros.common import declare_config, param, run_node
 from nbv_prob_cnn.ros.conversions import msg_to_grid, probability_to_msg
@@ -54,7 +55,7 @@ class CompletionServer(Node):
 
         try:
             state, geometry = msg_to_grid(request.grid)
-            dataset = request.dataset or self.dataset
+            dataset = request.dataset or dataset_for_grid(state.shape, self.dataset)
             if dataset not in DATASETS:
                 raise ValueError(f"dataset: unknown data set {dataset!r}; expected one of {sorted(DATASETS)}")
             if DATASETS[dataset].dims != geometry.dims:
