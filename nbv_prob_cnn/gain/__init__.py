@@ -17,6 +17,7 @@ import numpy as np
 from nbv_prob_cnn.basics.camera import in_frustum
 from nbv_prob_cnn.basics.grid import check_probability, check_state
 from nbv_prob_cnn.basics.modes import BACKEND_NAMES
+from nbv_prob_cnn.gain.best_view import BestOriginView
 from nbv_prob_cnn.gain.directions import check_directions, distance_weights, ray_directions, sample_offsets
 from nbv_prob_cnn.gain.reference import ig_gains_reference, ray_gains_reference
 
@@ -25,7 +26,7 @@ BACKENDS = BACKEND_NAMES
 
 __all__ = [
     "BACKENDS", "ray_directions", "ray_gains", "origin_view_gains", "view_gains", "view_membership",
-    "empty_origins", "best_origin_view",
+    "empty_origins", "best_origin_view", "BestOriginView",
 ]  # fmt: skip
 
 
@@ -160,9 +161,12 @@ def best_origin_view(
     min_range: float = 0.0,
     block_size: int | None = None,
     prune_views: bool = True,
-) -> tuple[int, int, float]:
+) -> BestOriginView:
     """The argmax of :func:`origin_view_gains` (the first of equal maxima, origin-major):
     ``(origin position in origins, view, gain)``; position -1 when there are no origins.
+    The result unpacks as that 3-tuple and also carries the origin's ``cell``;
+    ``result.pose(geometry)`` gives the camera position in metres and its quaternion
+    (:class:`~nbv_prob_cnn.gain.best_view.BestOriginView`).
 
     On OpenCL a coarse-to-fine search that is exact for the argmax (bounds per 2-cell block of
     origins prune the origins that cannot reach the best gain; see
@@ -177,12 +181,13 @@ def best_origin_view(
     )
     member = _check_membership(membership, directions)
     if origins.shape[0] == 0:
-        return -1, 0, 0.0
+        return BestOriginView(-1, 0, 0.0)
     if backend == "numpy":
         gains = origin_view_gains(state, prob, directions, r_max, member, origins, "numpy", mode=mode,
                                   min_range=min_range)  # fmt: skip
         flat = int(np.argmax(gains))
-        return flat // gains.shape[1], flat % gains.shape[1], float(gains.flat[flat])
+        index = flat // gains.shape[1]
+        return BestOriginView(index, flat % gains.shape[1], float(gains.flat[flat]), origins[index])
     from nbv_prob_cnn.gain.opencl import BOUND_BLOCK, get_ray_caster
 
     if block_size is not None and (not isinstance(block_size, (int, np.integer)) or block_size < 1):
@@ -192,7 +197,7 @@ def best_origin_view(
         code, origins, offsets, member, total, mode, eps, min_range, block_size=block_size or BOUND_BLOCK,
         prune_views=prune_views,
     )  # fmt: skip
-    return origin, view, gain
+    return BestOriginView(origin, view, gain, origins[origin] if origin >= 0 else None)
 
 
 def _reference_ray_gains(state, prob, directions, r_max, origins, mode, min_range) -> np.ndarray:

@@ -10,6 +10,8 @@ from typing import Protocol
 import numpy as np
 
 from nbv_prob_cnn.basics.camera import DatasetDefaults, Sensor, dataset_defaults, orientations, yaw_quaternion
+from nbv_prob_cnn.basics.geometry import GridGeometry
+from nbv_prob_cnn.basics.view_pose import ViewPose, view_pose
 from nbv_prob_cnn.gain import best_origin_view, empty_origins, origin_view_gains, ray_directions, view_membership
 
 #: Upper bound on origins × views per gain call (bounds the (origins, views) gains in memory).
@@ -94,6 +96,11 @@ class ViewChoice:
     view_index: int
     gain: float
     times: dict[str, float] = field(default_factory=lambda: {"cnn": 0.0, "raycast": 0.0, "views": 0.0})
+
+    def pose(self, geometry: GridGeometry, orientations: np.ndarray | None = None) -> ViewPose:
+        """This view as a pose: the cell centre in metres and the quaternion ``(x, y, z, w)`` in the
+        frame of a grid placed by ``geometry`` (:func:`~nbv_prob_cnn.basics.view_pose.view_pose`)."""
+        return view_pose(np.asarray(self.cell), self.view_index, geometry, orientations, gain=self.gain)
 
 
 class Planner(Protocol):
