@@ -12,15 +12,15 @@ from nbv_prob_cnn.basics.view_pose import ViewPose, view_pose
 
 
 class _IndexViewGain(NamedTuple):
-    index: int
+    origin_index: int
     view: int
     gain: float
 
 
 class BestOriginView(_IndexViewGain):
-    """``(index, view, gain)``: position of the best origin in the ``origins`` that were searched
-    (-1 when there were none), candidate-orientation index and gain. Unpacks and compares as a
-    3-tuple; ``cell`` is the origin's grid index (None when ``index`` is -1).
+    """``(origin_index, view, gain)``: position of the best origin in the ``origins`` that were
+    searched (-1 when there were none), candidate-orientation index and gain. Unpacks and compares
+    as a 3-tuple; ``cell`` is the origin's grid index (None when ``origin_index`` is -1).
 
     Example::
 
@@ -41,7 +41,7 @@ class BestOriginView(_IndexViewGain):
         """The view as a pose in metres with a quaternion (see :func:`~nbv_prob_cnn.basics.view_pose.view_pose`).
 
         Raises:
-            ValueError: there was no origin (``index`` -1), or the cell/view does not fit ``geometry``.
+            ValueError: there was no origin (``origin_index`` -1), or the cell/view does not fit ``geometry``.
         """
         if self.cell is None:
             raise ValueError("best view: there was no candidate origin, so there is no pose")
