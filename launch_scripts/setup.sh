@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # Idempotent set-up: Debian packages the wheels need (libusb for open3d; pocl where pip's pocl
 # cannot compile for this CPU), a virtual environment at .venv with the pinned dependencies, this
-# package installed in editable mode, and the interface package msg_defs/ built into the environment.
+# package installed in editable mode, and the interface packages under msg_defs/ (one folder per
+# package: nbv_prob_cnn_msgs, tf2_msgs, ...) built into the environment by build_interfaces.sh.
 # Fast when nothing changed (a stamp file records the hash of the inputs).
 set -euo pipefail
 repo="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
