@@ -64,7 +64,7 @@ def test_simulated_graph_explores_a_small_scene(tmp_path):
         grid, origin, resolution = data["grid"], data["origin"], float(data["resolution"])
     geometry = GridGeometry(tuple(origin), resolution, grid.shape)
     for r in rows:
-        cell, inside = geometry.containing_cell(np.array([float(r["x"]), float(r["y"]), float(r["z"])]))
+        cell, inside = geometry.containing_cell(np.array([float(r["x_m"]), float(r["y_m"]), float(r["z_m"])]))
         assert inside and grid[tuple(cell)] == 0, f"view pose {r} is not in known empty space"
     assert (out / "explored.png").stat().st_size > 10_000
 
@@ -89,7 +89,7 @@ def test_simulated_graph_with_the_arm_explores_the_table(tmp_path):
     for r in rows:
         q = np.array([float(r[name]) for name in robot.joint_names])
         camera = robot.camera_pose(q)
-        np.testing.assert_allclose(camera[:3, 3], [float(r["x"]), float(r["y"]), float(r["z"])], atol=2e-3)
+        np.testing.assert_allclose(camera[:3, 3], [float(r["x_m"]), float(r["y_m"]), float(r["z_m"])], atol=2e-3)
         if previous is not None:
             assert float(r["joint_travel"]) == pytest.approx(np.linalg.norm(q[:7] - previous[:7]), abs=1e-5)
         previous = q

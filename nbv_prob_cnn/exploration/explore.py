@@ -21,8 +21,10 @@ from nbv_prob_cnn.worlds.world import World
 CSV_COLUMNS = [
     "iteration", "unknown_fraction", "unknown_fraction_all", "gain",
     "time_total_s", "time_cnn_s", "time_raycast_s", "time_views_s",
-    "x", "y", "z", "qx", "qy", "qz", "qw",
+    "x_m", "y_m", "z_m", "qx", "qy", "qz", "qw",
 ]  # fmt: skip
+#: Units of the columns: fractions and gains are ratios; times in seconds (``_s``); the camera
+#: position in metres of the grid frame (``_m``); the quaternion (x, y, z, w) of the camera.
 
 
 @dataclass

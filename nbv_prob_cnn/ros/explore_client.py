@@ -112,7 +112,7 @@ def write_outputs(client: ExploreClient, result: Explore.Result, out_dir: Path, 
     joint_names = next((list(fb.joint_goal.name) for _, fb in client.feedback if fb.joint_goal.name), [])
     with open(csv_path, "w", newline="") as handle:
         writer = csv.writer(handle)
-        header = ["view", "elapsed_s", "gain", "unknown_fraction", "x", "y", "z", "qx", "qy", "qz", "qw"]
+        header = ["view", "elapsed_s", "gain", "unknown_fraction", "x_m", "y_m", "z_m", "qx", "qy", "qz", "qw"]
         writer.writerow(header + (["joint_travel", *joint_names] if joint_names else []))
         for elapsed, fb in client.feedback:
             position, quat = pose_to_arrays(fb.pose.pose)
@@ -132,7 +132,8 @@ def write_outputs(client: ExploreClient, result: Explore.Result, out_dir: Path, 
         png = out_dir / "explored.png"
         arms = arm_polylines([fb.joint_goal for _, fb in client.feedback], geometry) if joint_names else None
         plot_views(
-            state, cells, quats, png, f"{title} (unknown {unknown_fraction_all(state):.3f})", curve=curve, arms=arms
+            state, cells, quats, png, f"{title} (unknown {unknown_fraction_all(state):.3f})", curve=curve, arms=arms,
+            geometry=geometry,
         )
         np.savez_compressed(
             out_dir / "grid.npz", grid=state, origin=np.array(geometry.origin), resolution=geometry.resolution

@@ -58,14 +58,15 @@ def main(argv: list[str] | None = None) -> int:
         poses = [pose_to_arrays(v.pose.pose) for v in reply.ranked]
         with open(out / "ranked_views.csv", "w", newline="") as handle:
             writer = csv.writer(handle)
-            writer.writerow(["rank", "gain", "x", "y", "z", "qx", "qy", "qz", "qw"])
+            writer.writerow(["rank", "gain", "x_m", "y_m", "z_m", "qx", "qy", "qz", "qw"])
             for rank, (view, (p, q)) in enumerate(zip(reply.ranked, poses, strict=True), start=1):
                 writer.writerow([rank, f"{view.gain:.6g}", *(f"{v:.5f}" for v in p), *(f"{v:.6f}" for v in q)])
                 print(f"[plan] #{rank}: gain {view.gain:.4f} at ({p[0]:.3f}, {p[1]:.3f}, {p[2]:.3f})", flush=True)
         from nbv_prob_cnn.viz.exploration import plot_views
 
         cells = np.array([geometry.to_index(p) for p, _ in poses])
-        plot_views(state, cells, np.array([q for _, q in poses]), out / "ranked_views.png", "ranked next best views")
+        plot_views(state, cells, np.array([q for _, q in poses]), out / "ranked_views.png", "ranked next best views",
+                   geometry=geometry)  # fmt: skip
         print(
             f"[plan] cnn {reply.time_cnn_s:.3f} s, ray casting {reply.time_raycast_s:.3f} s, views "
             f"{reply.time_views_s:.3f} s, total {reply.time_total_s:.3f} s; wrote {out / 'ranked_views.csv'}, "
