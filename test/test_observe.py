@@ -1,12 +1,14 @@
 """Simulated observation (SPEC §2)."""
 
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
 
-from nbv_prob_cnn.basics.camera import Sensor, orientations
-from nbv_prob_cnn.sensing.observe import camera_rays, observe
+from nbv_prob_cnn.basics.camera import Sensor, dataset_defaults, look_rotation, orientations, quaternion_from_matrix
+from nbv_prob_cnn.sensing.observe import camera_rays, measure_rays, observe, wall_distance, world_rays
+from nbv_prob_cnn.sensing.sensor_noise import SensorNoise, sensor_noise
 
 SENSOR_2D = Sensor(60.0, None, 30)
 BACKENDS = ["numpy", "opencl"]
@@ -118,3 +120,102 @@ def test_backends_mark_identical_cells(rng, shape, sensor):
         total_seen += np.count_nonzero(a != -1)
         np.testing.assert_array_equal(a, b)
     assert total_seen > 400  # the views saw enough to make the comparison meaningful
+
+
+# -- the noisy path: the same traversal, labelled from the measured depth ----------------------------
+
+OFF = SensorNoise("off")  # every noise effect off (observe() itself would take the exact path for it)
+
+
+def _measured_state(truth, cell, orientation, sensor, noise, backend, margin_cells=None, seed=0, resolution_m=1.0):
+    """The labels of one view through measure_rays (the noisy path), merged into an unknown grid."""
+    state = np.full(truth.shape, -1, dtype=np.int8)
+    rays = world_rays(orientation, sensor, truth.ndim)
+    empty, occupied = measure_rays(truth, np.asarray(cell, float), rays, noise, np.random.default_rng(seed),
+                                   resolution_m, margin_cells, backend)  # fmt: skip
+    state.reshape(-1)[empty] = 0
+    state.reshape(-1)[occupied] = 1
+    return state
+
+
+@pytest.mark.parametrize("backend", BACKENDS)
+@pytest.mark.parametrize("walls", [False, True])
+@pytest.mark.parametrize("shape", [(50, 40), (30, 26, 22)])
+def test_noise_free_measurement_labels_exactly_the_exact_cells(rng, backend, walls, shape):
+    """Every ray returns (a closed box, or the room's walls): the noisy path with every effect off
+    labels the cells of the exact observation, cell for cell."""
+    truth = (rng.random(shape) < 0.03).astype(np.uint8)
+    if not walls:  # a closed box: the grid's outer layer is occupied
+        border = np.ones(shape, dtype=bool)
+        border[tuple(slice(1, -1) for _ in shape)] = False
+        truth[border] = 1
+    # R_max beyond the grid's diagonal: the exact observation is bounded by the grid alone
+    sensor = Sensor(60.0, None if len(shape) == 2 else 46.0, int(math.ceil(math.hypot(*shape))) + 2)
+    free = np.argwhere(truth == 0)
+    views = orientations(len(shape))
+    seen = 0
+    for _ in range(6):
+        cell = free[rng.integers(free.shape[0])]
+        orientation = views[rng.integers(views.shape[0])]
+        exact = np.full(shape, -1, dtype=np.int8)
+        observe(exact, truth, cell, orientation, sensor, backend)
+        measured = _measured_state(truth, cell, orientation, sensor, OFF, backend, 5.0 if walls else None)
+        np.testing.assert_array_equal(measured, exact)
+        seen += np.count_nonzero(exact != -1)
+    assert seen > 1000
+
+
+def test_noisy_backends_label_identical_cells(rng):
+    """The OpenCL kernels repeat the numpy reference (same traversal, same drawn noise)."""
+    shape = (40, 36, 30)
+    truth = (rng.random(shape) < 0.02).astype(np.uint8)
+    sensor = Sensor(60.0, 46.0, 16)
+    free = np.argwhere(truth == 0)
+    views = orientations(3)
+    # cm-level noise on 2 cm cells: measured ends move across cells, also behind the surfaces
+    noisy = replace(sensor_noise("kinect_v1"), axial_a=0.02, axial_b=0.01, min_range_m=0.1)
+    seen = 0
+    for seed in range(5):
+        cell = free[rng.integers(free.shape[0])]
+        orientation = views[rng.integers(views.shape[0])]
+        a = _measured_state(truth, cell, orientation, sensor, noisy, "numpy", 8.0, seed, 0.02)
+        b = _measured_state(truth, cell, orientation, sensor, noisy, "opencl", 8.0, seed, 0.02)
+        seen += np.count_nonzero(a != -1)
+        np.testing.assert_array_equal(a, b)
+    assert seen > 3000
+
+
+def test_view_along_the_diagonal_adds_nearly_all_exact_depth_cells():
+    """A Kinect view along a 3DT grid's diagonal (rays longer than the planner's R_max, most of
+    them leaving the grid for the room's walls) labels >= 95 % of the cells its exact depths
+    label, and more than the exact observation within R_max."""
+    defaults = dataset_defaults("3dt")
+    shape, resolution = defaults.shape, defaults.resolution_m
+    truth = np.zeros(shape, dtype=np.uint8)
+    truth[60:70, 60:70, 40:56] = 1  # a box in the middle of the view
+    cell = np.array([3, 3, 3])
+    quat = quaternion_from_matrix(look_rotation(np.array(shape, dtype=float) - 1 - cell))
+    margin = 0.3 / resolution
+    kinect = sensor_noise("kinect_v1")
+    exact_depth = _measured_state(
+        truth, cell, quat, defaults.sensor, replace(OFF, max_range_m=4.0), "numpy", margin, resolution_m=resolution
+    )
+    noisy = np.full(shape, -1, dtype=np.int8)
+    observe(noisy, truth, cell, quat, defaults.sensor, noise=kinect, rng=np.random.default_rng(3),
+            resolution_m=resolution, room_margin_m=0.3)  # fmt: skip
+    within_r_max = np.full(shape, -1, dtype=np.int8)
+    observe(within_r_max, truth, cell, quat, defaults.sensor)
+    n_exact = np.count_nonzero(exact_depth != -1)
+    assert np.count_nonzero(noisy != -1) >= 0.95 * n_exact
+    assert n_exact > 1.5 * np.count_nonzero(within_r_max != -1)  # the diagonal is ~205 cells, R_max 128
+    # every cell the noisy view labels empty is empty in the ground truth but for the surface cells
+    assert np.count_nonzero((noisy == 0) & (truth == 1)) <= 0.01 * np.count_nonzero(noisy == 0)
+
+
+def test_wall_distance_by_hand():
+    # a 10 x 10 grid spans -0.5 .. 9.5; walls 2 cells out: x = 11.5, y = -2.5 ...
+    rays = np.array([[1.0, 0.0], [0.0, -1.0], [math.sqrt(0.5), math.sqrt(0.5)], [0.6, 0.8]])
+    t, cos = wall_distance((10, 10), np.array([4.0, 4.0]), rays, 2.0)
+    # +x: 7.5; -y: 6.5; diagonal: x and y walls both at 7.5 -> 7.5 / sqrt(0.5); (0.6, 0.8): y wall at 7.5 / 0.8
+    np.testing.assert_allclose(t, [7.5, 6.5, 7.5 / math.sqrt(0.5), 7.5 / 0.8])
+    np.testing.assert_allclose(cos, [1.0, 1.0, math.sqrt(0.5), 0.8])

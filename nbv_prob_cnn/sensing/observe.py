@@ -9,15 +9,20 @@ the grid stops the ray.
 
 Positions are in grid index coordinates: the centre of cell ``i`` is at ``i``.
 
-Two backends trace the rays: :func:`traverse` (numpy, the reference) and the OpenCL kernel
+Two backends trace the rays: :func:`trace_rays` (numpy, the reference) and the OpenCL kernel
 ``traverse.cl``, which repeats the same operations in the same precision (double where the
 device has it) and is used by default when an OpenCL device exists.
+
+With a depth-noise model the same traversal runs to the sensor's maximum range (not ``R_max``)
+or out of the grid, and the cells are labelled from the measured depth of each ray
+(:func:`measure_rays`); see ``docs/sensing.md``.
 """
 
 from __future__ import annotations
 
 import functools
 import math
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -67,17 +72,54 @@ def world_rays(orientation: np.ndarray | float, sensor: Sensor, dims: int) -> np
     return rays @ rot.T
 
 
-def traverse(
-    shape: tuple[int, ...], origin: np.ndarray, directions: np.ndarray, r_max: float, stop: np.ndarray | None
-) -> np.ndarray:
-    """Flat indices of the cells the rays traverse (Amanatides–Woo), with repeats.
+@dataclass
+class RayTrace:
+    """The cells rays traverse (Amanatides–Woo), one record per (ray, cell), in traversal order
+    per ray, and how each ray ended.
+
+    Attributes:
+        ray: ``(R,)`` ray index of each record.
+        cell: ``(R,)`` flat cell index of each record.
+        t_enter: ``(R,)`` distance at which the ray enters the cell (0 for the origin's cell).
+        t_exit: ``(R,)`` distance at which it leaves the cell (= ``t_enter`` of the next record).
+        hit: ``(K,)`` whether the ray stopped at a ``stop`` cell within its limit.
+        depth: ``(K,)`` where the ray ended: ``t_enter`` of its stop cell when ``hit``, else the
+            distance at which it left the grid or, when the limit came first, the limit.
+        left_grid: ``(K,)`` whether the ray ended by leaving the grid within its limit.
+        hit_cell: ``(K, dims)`` index of the stop cell (-1 where none).
+    """
+
+    ray: np.ndarray
+    cell: np.ndarray
+    t_enter: np.ndarray
+    t_exit: np.ndarray
+    hit: np.ndarray
+    depth: np.ndarray
+    left_grid: np.ndarray
+    hit_cell: np.ndarray
+
+
+def trace_rays(
+    shape: tuple[int, ...],
+    origin: np.ndarray,
+    directions: np.ndarray,
+    limit: float | np.ndarray,
+    stop: np.ndarray | None,
+) -> RayTrace:
+    """Exact voxel traversal (Amanatides–Woo) of rays from one origin, all rays at once.
+
+    The one traversal of the simulated sensor: the exact observation keeps the cells entered
+    within ``R_max``; the noisy one traces to the sensor's maximum range and labels the cells up
+    to the measured depth.
 
     Args:
         shape: grid shape.
         origin: ray origin in index coordinates (cell ``i`` spans ``[i-0.5, i+0.5]``).
         directions: ``(K, dims)`` unit vectors.
-        r_max: a cell is included if the ray enters it at distance ``<= r_max``.
-        stop: flat boolean grid; a ray includes the first ``True`` cell and stops there.
+        limit: a cell is included if the ray enters it at distance ``<= limit`` (one value, or
+            one per ray).
+        stop: flat boolean grid; a ray includes the first ``True`` cell and stops there
+            (None: rays stop only at the grid's border or their limit).
     """
     dims = len(shape)
     shape_arr = np.array(shape, dtype=np.int64)
@@ -85,6 +127,7 @@ def traverse(
     p = np.asarray(origin, dtype=np.float64) + 0.5
     d = np.asarray(directions, dtype=np.float64)
     k = d.shape[0]
+    limits = np.broadcast_to(np.asarray(limit, dtype=np.float64), (k,)).copy()
     cell = np.broadcast_to(np.floor(p).astype(np.int64), (k, dims)).copy()
     step = np.where(d > 0, 1, -1).astype(np.int64)
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -93,47 +136,69 @@ def traverse(
     t_delta = np.abs(inv)
     t_enter = np.zeros(k)
     rows = np.arange(k)
-    visited = []
+    hit = np.zeros(k, dtype=bool)
+    depth = limits.copy()
+    left_grid = np.zeros(k, dtype=bool)
+    hit_cell = np.full((k, dims), -1, dtype=np.int64)
+    records: list[tuple[np.ndarray, ...]] = []
     while rows.size:
-        inside = np.all((cell >= 0) & (cell < shape_arr), axis=1) & (t_enter <= r_max)
+        in_grid = np.all((cell >= 0) & (cell < shape_arr), axis=1)
+        in_range = t_enter <= limits[rows]
+        gone = ~in_grid & in_range  # left the grid before reaching the limit
+        depth[rows[gone]] = t_enter[gone]
+        left_grid[rows[gone]] = True
+        keep = in_grid & in_range
         rows, cell, t_max, t_delta, t_enter, step = (
-            rows[inside],
-            cell[inside],
-            t_max[inside],
-            t_delta[inside],
-            t_enter[inside],
-            step[inside],
-        )
+            rows[keep], cell[keep], t_max[keep], t_delta[keep], t_enter[keep], step[keep],
+        )  # fmt: skip
         if not rows.size:
             break
         flat = cell @ strides
-        visited.append(flat)
+        t_exit = t_max.min(axis=1)
+        records.append((rows, flat, t_enter, t_exit))
         if stop is not None:
-            go = ~stop[flat]
+            stopped = stop[flat]
+            hit[rows[stopped]] = True
+            depth[rows[stopped]] = t_enter[stopped]
+            hit_cell[rows[stopped]] = cell[stopped]
+            go = ~stopped
             rows, cell, t_max, t_delta, t_enter, step = (
-                rows[go],
-                cell[go],
-                t_max[go],
-                t_delta[go],
-                t_enter[go],
-                step[go],
-            )
+                rows[go], cell[go], t_max[go], t_delta[go], t_enter[go], step[go],
+            )  # fmt: skip
         axis = np.argmin(t_max, axis=1)
         idx = np.arange(rows.size)
         t_enter = t_max[idx, axis]
         cell[idx, axis] += step[idx, axis]
         t_max[idx, axis] += t_delta[idx, axis]
-    return np.concatenate(visited) if visited else np.zeros(0, dtype=np.int64)
+    if records:
+        ray, flat_cells, enter, leave = (np.concatenate(parts) for parts in zip(*records, strict=True))
+    else:
+        ray, flat_cells = np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
+        enter, leave = np.zeros(0), np.zeros(0)
+    return RayTrace(ray, flat_cells, enter, leave, hit, depth, left_grid, hit_cell)
+
+
+def traverse(
+    shape: tuple[int, ...], origin: np.ndarray, directions: np.ndarray, r_max: float, stop: np.ndarray | None
+) -> np.ndarray:
+    """Flat indices of the cells the rays traverse within ``r_max`` (:func:`trace_rays`), with repeats."""
+    return trace_rays(shape, origin, directions, r_max, stop).cell
 
 
 @functools.lru_cache(maxsize=1)
-def _traverse_kernel():
+def _traverse_program():
+    """The built ``traverse.cl`` (runtime, program, real dtype: float64 where the device has it)."""
     from nbv_prob_cnn.basics.cl_device import cl_runtime
 
     runtime = cl_runtime()
     options = ("-DUSE_DOUBLE",) if runtime.has_fp64 else ()
     program = runtime.build(Path(__file__).with_name("traverse.cl"), options)
-    return runtime, runtime.cl.Kernel(program, "traverse"), np.float64 if runtime.has_fp64 else np.float32
+    return runtime, program, np.float64 if runtime.has_fp64 else np.float32
+
+
+def _traverse_kernel():
+    runtime, program, real = _traverse_program()
+    return runtime, runtime.cl.Kernel(program, "traverse"), real
 
 
 def traverse_opencl(
@@ -186,16 +251,19 @@ def observe(
         backend: ``"opencl"``, ``"numpy"`` or ``"auto"`` (OpenCL if a device works).
         noise: a depth-sensor model (:mod:`nbv_prob_cnn.sensing.sensor_noise`, the one the simulated
             depth camera uses); ``None`` or ``ideal`` = exact observation of every traversed
-            cell. Otherwise each ray measures the distance to its first occupied cell, the
-            model perturbs it (axial noise, range limits, grazing angles from the grid's surface
-            normal, dropouts; no lateral/edge terms at this level), and the ray labels the cells
-            before the measured depth empty and the cell at it occupied (a ray without a
-            return labels nothing). Runs on numpy.
+            cell within ``sensor.r_max``. Otherwise (:func:`measure_rays`, numpy) each ray is
+            traced with the same traversal to the model's maximum range or out of the grid; its
+            depth (first occupied cell, or the room's wall) is perturbed by the model (axial
+            noise, range limits, grazing angles from the grid's surface normal, dropouts; no
+            lateral/edge terms at this level); the ray labels empty the cells before the
+            measured depth and occupied the cell at it. A ray without a return labels nothing.
+            ``sensor.r_max`` (the planner's range) does not limit a noisy ray.
         rng: generator of the noise (seed it for repeatable runs); needed with ``noise``.
         resolution_m: cell size in metres; needed with ``noise`` (its parameters are metric).
         room_margin_m: with ``noise``, walls this far outside the grid (as ``sim_camera``'s
-            room): a ray that leaves the grid within range returns from the wall, so the cells
-            it crossed are measured empty. ``None``: no walls (such rays return nothing).
+            room, all sides): a ray that leaves the grid returns from the wall it meets, if that
+            lies within range, so the cells it crossed are measured empty. ``None``: no walls
+            (such rays return nothing).
 
     Returns:
         The number of cells that were unknown and are now known.
@@ -221,7 +289,7 @@ def observe(
         if rng is None or resolution_m is None or not resolution_m > 0:
             raise ValueError("observe: a noise model needs rng and a positive resolution_m")
         margin = None if room_margin_m is None else float(room_margin_m) / float(resolution_m)
-        return _observe_noisy(state, truth, pos, rays, sensor.r_max, noise, rng, float(resolution_m), margin)
+        return _observe_noisy(state, truth, pos, rays, noise, rng, float(resolution_m), margin, backend)
     if backend == "opencl":
         cells = traverse_opencl(state.shape, pos, rays, sensor.r_max, flat_truth)
     else:
@@ -237,20 +305,19 @@ def _observe_noisy(
     truth: np.ndarray,
     pos: np.ndarray,
     rays: np.ndarray,
-    r_max: float,
     noise: SensorNoise,
     rng: np.random.Generator,
     resolution_m: float,
     margin_cells: float | None = None,
-    chunk: int = 1024,
+    backend: str = "numpy",
+    chunk: int = 16384,
 ) -> int:
-    """:func:`observe` with a noise model: rays sampled every quarter cell (numpy, ``chunk`` rays at a time)."""
-    shape = np.array(state.shape)
-    t = np.arange(0.0, float(r_max) + 1e-9, 0.25)  # distances along the ray [cells]
+    """:func:`observe` with a noise model, ``chunk`` rays at a time (see :func:`measure_rays`)."""
     empty_parts, occupied_parts = [], []
     for first_ray in range(0, len(rays), chunk):
-        part = rays[first_ray : first_ray + chunk]
-        empty, occupied = _noisy_rays(state.shape, shape, truth, pos, part, t, noise, rng, resolution_m, margin_cells)
+        empty, occupied = measure_rays(
+            truth, pos, rays[first_ray : first_ray + chunk], noise, rng, resolution_m, margin_cells, backend
+        )
         empty_parts.append(empty)
         occupied_parts.append(occupied)
     empty_cells = np.unique(np.concatenate(empty_parts))
@@ -263,50 +330,162 @@ def _observe_noisy(
     return newly
 
 
-def _noisy_rays(
-    dims: tuple[int, ...],
-    shape: np.ndarray,
+def wall_distance(shape: tuple[int, ...], pos: np.ndarray, rays: np.ndarray, margin_cells: float) -> tuple:
+    """Distance along each ray to the walls of a room ``margin_cells`` outside the grid (an
+    axis-aligned box around cells ``-0.5 - margin .. n - 0.5 + margin``), and the cosine of the
+    incidence there (the ray's component along the normal of the wall it meets)."""
+    upper = np.array(shape, dtype=np.float64) - 0.5 + margin_cells
+    lower = np.full(len(shape), -0.5 - margin_cells)
+    bound = np.where(rays > 0, upper, lower)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t_axis = np.where(rays != 0, (bound - pos) / rays, np.inf)
+    axis = np.argmin(t_axis, axis=1)
+    index = np.arange(len(rays))
+    return t_axis[index, axis], np.abs(rays[index, axis])
+
+
+def surface_cosine(truth: np.ndarray, cells: np.ndarray, rays: np.ndarray) -> np.ndarray:
+    """Cosine between each ray and the surface normal at its hit cell, the normal being the
+    (negative) central-difference gradient of the occupancy (1 where the gradient vanishes)."""
+    shape = np.array(truth.shape)
+    normal = np.zeros(rays.shape)
+    for axis in range(truth.ndim):
+        up, down = cells.copy(), cells.copy()
+        up[:, axis] = np.minimum(up[:, axis] + 1, shape[axis] - 1)
+        down[:, axis] = np.maximum(down[:, axis] - 1, 0)
+        normal[:, axis] = truth[tuple(down.T)].astype(float) - truth[tuple(up.T)].astype(float)
+    norm = np.linalg.norm(normal, axis=1)
+    return np.where(norm > 0, np.abs(np.sum(normal * rays, axis=1)) / np.maximum(norm, 1e-12), 1.0)
+
+
+def measure_rays(
     truth: np.ndarray,
     pos: np.ndarray,
     rays: np.ndarray,
-    t: np.ndarray,
     noise: SensorNoise,
     rng: np.random.Generator,
     resolution_m: float,
     margin_cells: float | None = None,
+    backend: str = "numpy",
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Flat indices of the cells some of ``rays`` measure empty, and of those they measure occupied."""
-    cells = np.floor(pos[None, None, :] + rays[:, None, :] * t[None, :, None] + 0.5).astype(np.int64)
-    inside = np.all((cells >= 0) & (cells < shape), axis=-1)
-    inside &= np.cumprod(inside, axis=1).astype(bool)  # a ray that left the grid stays out
-    flat = np.where(inside, np.ravel_multi_index(tuple(np.clip(cells, 0, shape - 1).transpose(2, 0, 1)), dims), 0)
-    occupied = inside & truth.reshape(-1)[flat].astype(bool)
-    hit = occupied.any(axis=1)
-    first = np.argmax(occupied, axis=1)
-    # surface normal at the hit cell: the (negative) gradient of the occupancy
-    hit_cells = cells[np.arange(len(rays)), first]
-    normal = np.zeros(rays.shape)
-    for axis in range(len(dims)):
-        up, down = hit_cells.copy(), hit_cells.copy()
-        up[:, axis] = np.clip(up[:, axis] + 1, 0, shape[axis] - 1)
-        down[:, axis] = np.clip(down[:, axis] - 1, 0, shape[axis] - 1)
-        up, down = np.clip(up, 0, shape - 1), np.clip(down, 0, shape - 1)
-        normal[:, axis] = truth[tuple(down.T)].astype(float) - truth[tuple(up.T)].astype(float)
-    norm = np.linalg.norm(normal, axis=1)
-    cos_incidence = np.where(norm > 0, np.abs(np.sum(normal * rays, axis=1)) / np.maximum(norm, 1e-12), 1.0)
-    depth_cells = np.where(hit, t[first], 0.0)
-    if margin_cells is not None:  # a wall outside the grid: rays that leave it see the wall
-        n_inside = inside.sum(axis=1)
-        left = ~hit & (n_inside < len(t))
-        t_exit = t[np.minimum(n_inside, len(t) - 1)]
-        depth_cells = np.where(left, t_exit + margin_cells, depth_cells)
-        wall_cos = np.max(np.abs(rays), axis=1)  # an axis-aligned wall: the largest direction component
-        cos_incidence = np.where(left, wall_cos, cos_incidence)
+    """Flat indices of the cells ``rays`` measure empty, and of those they measure occupied.
+
+    Each ray is traced exactly (:func:`trace_rays`, as the exact observation) to the sensor's
+    maximum range or out of the grid, where it meets the room's walls when ``margin_cells`` is
+    given. Its depth (the entry distance of the first occupied cell, or the wall's distance) goes
+    through the noise model (range limits, grazing incidence, dropouts, axial noise); a ray
+    without a return labels nothing. A returned ray labels empty the cells it leaves at or before
+    the measured depth and occupied the cell that contains the measured point (none when that
+    point lies outside the grid). With every noise effect off and every ray returning, this
+    labels exactly the cells of the exact observation (the measured depth is the exact one).
+
+    ``backend`` ``"numpy"`` (the reference) or ``"opencl"`` (kernels ``trace_end`` and
+    ``label_measured`` of ``traverse.cl``, the same operations in the same precision); the noise
+    is drawn here in both cases, so a seeded generator gives both the same labels.
+    """
+    shape = truth.shape
+    flat_truth = truth.reshape(-1).astype(bool)
+    limit = noise.max_range_m / resolution_m  # [cells]; inf: the grid's border ends the rays
+    if backend == "opencl":
+        trace = None
+        depth, hit, left_grid, hit_cell = _trace_end_opencl(shape, pos, rays, limit, flat_truth)
+    else:
+        trace = trace_rays(shape, pos, rays, limit, flat_truth)
+        depth, hit, left_grid, hit_cell = trace.depth, trace.hit, trace.left_grid, trace.hit_cell
+    depth_cells = np.where(hit, depth, 0.0)
+    cos_incidence = np.ones(len(rays))
+    cos_incidence[hit] = surface_cosine(truth, hit_cell[hit], rays[hit])
+    if margin_cells is not None:  # walls outside the grid: rays that leave it see them
+        to_wall, wall_cos = wall_distance(shape, pos, rays, margin_cells)
+        walls = left_grid & (to_wall <= limit)
+        depth_cells = np.where(walls, to_wall, depth_cells)
+        cos_incidence = np.where(walls, wall_cos, cos_incidence)
     depth_m = depth_cells * resolution_m
-    measured = noise.perturb_ranges(depth_m, rng, cos_incidence) / resolution_m  # [cells], 0 = no return
+    measured_m = noise.perturb_ranges(depth_m, rng, cos_incidence)  # 0 = no return
+    # unperturbed depths keep their exact value in cells (no rounding through metres)
+    measured = np.where(measured_m == depth_m, depth_cells, measured_m / resolution_m)
+    if trace is None:
+        return _label_measured_opencl(shape, pos, rays, measured)
     returned = measured > 0
-    before = inside & returned[:, None] & (t[None, :] < measured[:, None] - 0.5)
-    end = np.floor(pos[None, :] + rays * measured[:, None] + 0.5).astype(np.int64)
-    end_ok = returned & np.all((end >= 0) & (end < shape), axis=1)
-    occupied_cells = np.ravel_multi_index(tuple(end[end_ok].T), dims).astype(np.int64)
-    return flat[before].astype(np.int64), occupied_cells
+    m = measured[trace.ray]
+    take = returned[trace.ray]
+    empty = trace.cell[take & (trace.t_exit <= m)]
+    end = trace.cell[take & (trace.t_enter <= m) & (m < trace.t_exit)]
+    # a return behind the traced part of a ray (noise beyond its surface): trace it on, through it
+    beyond = returned & trace.hit & (measured >= _last_exit(trace, len(rays)))
+    if beyond.any():
+        rows = np.flatnonzero(beyond)
+        extra = trace_rays(shape, pos, rays[rows], measured[rows], None)
+        m_extra = measured[rows][extra.ray]
+        empty = np.concatenate([empty, extra.cell[extra.t_exit <= m_extra]])
+        end = np.concatenate([end, extra.cell[(extra.t_enter <= m_extra) & (m_extra < extra.t_exit)]])
+    return np.unique(empty).astype(np.int64), np.unique(end).astype(np.int64)
+
+
+def _last_exit(trace: RayTrace, n_rays: int) -> np.ndarray:
+    """Per ray, the exit distance of its last traced cell (-inf for a ray without records)."""
+    last = np.full(n_rays, -np.inf)
+    np.maximum.at(last, trace.ray, trace.t_exit)
+    return last
+
+
+def _kernel_geometry(shape: tuple[int, ...], origin: np.ndarray, directions: np.ndarray, real) -> tuple:
+    """The kernels' 3D view of a 2D/3D grid: padded shape, origin (+0.5) and directions."""
+    shape3 = tuple(shape) + (1,) * (3 - len(shape))
+    p = np.zeros(3)
+    p[: len(shape)] = np.asarray(origin, dtype=np.float64) + 0.5
+    p[len(shape) :] = 0.5
+    dirs = np.zeros((directions.shape[0], 3), dtype=real)
+    dirs[:, : directions.shape[1]] = directions
+    return shape3, p, dirs
+
+
+def _trace_end_opencl(
+    shape: tuple[int, ...], origin: np.ndarray, directions: np.ndarray, limit: float, stop: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`trace_rays`' ``depth, hit, left_grid, hit_cell`` on the OpenCL device."""
+    runtime, program, real = _traverse_program()
+    cl, mf = runtime.cl, runtime.cl.mem_flags
+    shape3, p, dirs = _kernel_geometry(shape, origin, directions, real)
+    k = dirs.shape[0]
+    depth, status, hit = np.zeros(k, dtype=real), np.zeros(k, dtype=np.int32), np.zeros(k, dtype=np.int64)
+    stop_buf = cl.Buffer(runtime.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=np.ascontiguousarray(stop, np.uint8))
+    dir_buf = cl.Buffer(runtime.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=dirs)
+    out = [cl.Buffer(runtime.context, mf.WRITE_ONLY, a.nbytes) for a in (depth, status, hit)]
+    kernel = cl.Kernel(program, "trace_end")
+    kernel.set_args(
+        stop_buf, *(np.int32(n) for n in shape3), *(real(v) for v in p), dir_buf, np.int32(k),
+        real(min(limit, np.finfo(real).max)), *out,
+    )  # fmt: skip
+    cl.enqueue_nd_range_kernel(runtime.queue, kernel, (k,), None)
+    for host, buf in zip((depth, status, hit), out, strict=True):
+        cl.enqueue_copy(runtime.queue, host, buf)
+    runtime.queue.finish()
+    hit_cell = np.full((k, len(shape)), -1, dtype=np.int64)
+    is_hit = status == 1
+    hit_cell[is_hit] = np.stack(np.unravel_index(hit[is_hit], shape), axis=1)
+    depth64 = depth.astype(np.float64)
+    depth64[status == 0] = limit
+    return depth64, is_hit, status == 2, hit_cell
+
+
+def _label_measured_opencl(
+    shape: tuple[int, ...], origin: np.ndarray, directions: np.ndarray, measured: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """The labels of :func:`measure_rays` from per-ray measured depths, on the OpenCL device."""
+    runtime, program, real = _traverse_program()
+    cl, mf = runtime.cl, runtime.cl.mem_flags
+    shape3, p, dirs = _kernel_geometry(shape, origin, directions, real)
+    size = int(np.prod(shape))
+    empty, occupied = np.zeros(size, dtype=np.uint8), np.zeros(size, dtype=np.uint8)
+    dir_buf = cl.Buffer(runtime.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=dirs)
+    m_buf = cl.Buffer(runtime.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=np.ascontiguousarray(measured, real))
+    bufs = [cl.Buffer(runtime.context, mf.READ_WRITE | mf.COPY_HOST_PTR, hostbuf=a) for a in (empty, occupied)]
+    kernel = cl.Kernel(program, "label_measured")
+    kernel.set_args(*(np.int32(n) for n in shape3), *(real(v) for v in p), dir_buf, np.int32(dirs.shape[0]),
+                    m_buf, *bufs)  # fmt: skip
+    cl.enqueue_nd_range_kernel(runtime.queue, kernel, (dirs.shape[0],), None)
+    for host, buf in zip((empty, occupied), bufs, strict=True):
+        cl.enqueue_copy(runtime.queue, host, buf)
+    runtime.queue.finish()
+    return np.flatnonzero(empty), np.flatnonzero(occupied)
