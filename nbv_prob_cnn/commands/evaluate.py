@@ -12,7 +12,7 @@ HELP = "Compare NBV methods on held-out environments as Ray tasks: per-run CSVs,
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    from nbv_prob_cnn.gain import BACKENDS
+    from nbv_prob_cnn.gain import BACKENDS, GAIN_VARIANTS
     from nbv_prob_cnn.planners import METHODS
 
     parser.add_argument("--dataset", choices=sorted(DATASET_SPECS), required=True)
@@ -37,6 +37,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )  # fmt: skip
     parser.add_argument("--address", default=None, help="an existing Ray cluster, e.g. 10.0.0.5:6379")
     parser.add_argument("--backend", choices=BACKENDS, default="auto", help="ray-casting backend of the runs")
+    parser.add_argument(
+        "--gain-variant", choices=GAIN_VARIANTS, default="paper",
+        help="gain of the runs: the paper's equations, or the authors' code's host choices (docs/original_code.md)",
+    )  # fmt: skip
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
 
 
@@ -52,7 +56,7 @@ def run(args: argparse.Namespace) -> int:
     out = Path(args.out) / args.dataset
     logs = evaluate(
         args.dataset, args.methods, seeds, args.views, out, progress=not args.quiet,
-        workers=args.workers, address=args.address, backend=args.backend,
+        workers=args.workers, address=args.address, backend=args.backend, gain_variant=args.gain_variant,
     )  # fmt: skip
     table = summary_table(logs, at)
     write_summary_csv(logs, args.views, out / f"{args.dataset}_summary.csv")

@@ -8,7 +8,7 @@ import numpy as np
 
 from nbv_prob_cnn.basics.camera import DATASETS
 from nbv_prob_cnn.exploration.explore import explore, write_csv
-from nbv_prob_cnn.gain import BACKENDS
+from nbv_prob_cnn.gain import BACKENDS, GAIN_VARIANTS
 from nbv_prob_cnn.planners import METHODS, PlanningContext, make_planner
 
 NAME = "explore"
@@ -25,6 +25,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--png", help="picture of the result to write")
     parser.add_argument("--backend", choices=BACKENDS, default="auto", help="ray-casting backend")
     parser.add_argument("--n-rays", type=int, help="sub-cells per side of the ray square/cube")
+    parser.add_argument(
+        "--gain-variant", choices=GAIN_VARIANTS, default="paper",
+        help="gain: the paper's equations, or the authors' code's host choices (docs/original_code.md)",
+    )  # fmt: skip
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
     parser.add_argument("--noise", default="ideal", help="depth-sensor noise preset: ideal, kinect_v1, astra")
     parser.add_argument("--room-margin", type=float, default=None,
@@ -48,6 +52,7 @@ def run(args: argparse.Namespace) -> int:
         ground_truth=world.ground_truth,
         backend=args.backend,
         n_rays=args.n_rays,
+        gain_variant=args.gain_variant,
     )
     from nbv_prob_cnn.sensing.sensor_noise import sensor_noise
 

@@ -41,6 +41,8 @@ DEFAULT_SEEDS = EVALUATION_SEEDS[:10]
 FORWARDED_ENV = ("NBV_CACHE_DIR", "NBV_WEIGHTS_DIR", "NBV_OPENCL_DEVICE", "OCL_ICD_VENDORS")
 #: Key of a run's ``.json`` that holds :func:`weights_fingerprint` of the weights it ran with.
 WEIGHTS_KEY = "weights_sha256"
+#: Key of a run's ``.json`` that holds its gain variant (written only when not ``"paper"``).
+VARIANT_KEY = "gain_variant"
 
 
 @dataclass
@@ -75,11 +77,12 @@ def weights_fingerprint(dataset: str, method: str) -> str | None:
     return hashlib.sha256(default_weights_path(dataset, weights).read_bytes()).hexdigest()[:16]
 
 
-def run_status(path: Path, views: int, weights: str | None = None) -> str:
+def run_status(path: Path, views: int, weights: str | None = None, gain_variant: str = "paper") -> str:
     """``"done"``: the run CSV exists for at least ``views`` views (or stopped early in a run that
     asked for as many) and was made with the weights of fingerprint ``weights`` (None: a method
-    without weights); ``"missing"``, ``"short"``, or ``"other weights"`` (a run of a method with
-    weights whose ``.json`` records another fingerprint or none)."""
+    without weights); ``"missing"``, ``"short"``, ``"other weights"`` (a run of a method with
+    weights whose ``.json`` records another fingerprint or none), or ``"other gain variant"`` (its
+    ``.json`` records another ``gain_variant``; none recorded: ``"paper"``)."""
     if not path.is_file():
         return "missing"
     meta_path = path.with_suffix(".json")
@@ -90,7 +93,11 @@ def run_status(path: Path, views: int, weights: str | None = None) -> str:
         except (ValueError, KeyError, TypeError):
             return "short"
         recorded = meta.get(WEIGHTS_KEY)
+        if meta.get(VARIANT_KEY, "paper") != gain_variant:
+            return "other gain variant"
     else:
+        if gain_variant != "paper":
+            return "other gain variant"
         with open(path) as handle:
             enough = sum(1 for _ in handle) - 1 >= views
         recorded = None
@@ -99,7 +106,9 @@ def run_status(path: Path, views: int, weights: str | None = None) -> str:
     return "done" if recorded == weights else "other weights"
 
 
-def run_one(dataset: str, method: str, seed: int, views: int, backend: str = "auto") -> tuple[str, dict]:
+def run_one(
+    dataset: str, method: str, seed: int, views: int, backend: str = "auto", gain_variant: str = "paper"
+) -> tuple[str, dict]:
     """One run of SPEC §9 (the body of a Ray task): the CSV text and its metadata."""
     from nbv_prob_cnn.worlds import load_or_generate
 
@@ -107,12 +116,15 @@ def run_one(dataset: str, method: str, seed: int, views: int, backend: str = "au
     weights = weights_fingerprint(dataset, method)  # of the file this worker reads
     # same first view for every method: the rng is seeded by the environment only
     context = PlanningContext(
-        dataset_spec(dataset), rng=np.random.default_rng(seed), ground_truth=world.ground_truth, backend=backend
+        dataset_spec(dataset), rng=np.random.default_rng(seed), ground_truth=world.ground_truth, backend=backend,
+        gain_variant=gain_variant,
     )
     result = explore(world, make_planner(method), context, views, progress=False)
     text = io.StringIO()
     write_csv(result.records, text)
     meta = {"views": views, "stop_reason": result.stop_reason, "host": os.uname().nodename, WEIGHTS_KEY: weights}
+    if gain_variant != "paper":
+        meta[VARIANT_KEY] = gain_variant
     return text.getvalue(), meta
 
 
@@ -143,6 +155,7 @@ def evaluate(
     workers: int | None = None,
     address: str | None = None,
     backend: str = "auto",
+    gain_variant: str = "paper",
 ) -> dict[str, list[RunLog]]:
     """Run (or read back) every method on every seed; returns the logs per method.
 
@@ -152,6 +165,8 @@ def evaluate(
             ``address``.
         address: an existing Ray cluster (``ray start --head`` prints it), e.g. ``"10.0.0.5:6379"``.
         backend: ray-casting backend of the runs.
+        gain_variant: gain variant of the runs (:mod:`nbv_prob_cnn.gain.variant`); a stored run
+            of another variant is redone.
     """
     for method in methods:
         method_spec(method)  # fail early on an unknown name
@@ -162,7 +177,7 @@ def evaluate(
     pending: list[tuple[int, str]] = []
     redo: dict[str, int] = {}  # method -> runs made with other weights
     for seed, method in jobs:
-        status = run_status(run_path(out, dataset, method, seed), views, fingerprints[method])
+        status = run_status(run_path(out, dataset, method, seed), views, fingerprints[method], gain_variant)
         if status != "done":
             pending.append((seed, method))
         if status == "other weights":
@@ -175,11 +190,11 @@ def evaluate(
                       f"ones (sha256 {fingerprints[method]})", file=sys.stderr)  # fmt: skip
     if pending and workers == 0 and address is None:
         for seed, method in pending:
-            _store(run_path(out, dataset, method, seed), *run_one(dataset, method, seed, views, backend))
+            _store(run_path(out, dataset, method, seed), *run_one(dataset, method, seed, views, backend, gain_variant))
             bar.update(1)
             bar.set_postfix(seed=seed, method=method)
     elif pending:
-        _run_on_ray(dataset, pending, views, out, workers, address, backend, bar)
+        _run_on_ray(dataset, pending, views, out, workers, address, backend, bar, gain_variant)
     bar.close()
     logs: dict[str, list[RunLog]] = {m: [] for m in methods}
     for seed, method in jobs:
@@ -187,7 +202,7 @@ def evaluate(
     return logs
 
 
-def _run_on_ray(dataset, pending, views, out, workers, address, backend, bar) -> None:
+def _run_on_ray(dataset, pending, views, out, workers, address, backend, bar, gain_variant="paper") -> None:
     import ray
 
     env = {k: os.environ[k] for k in FORWARDED_ENV if k in os.environ}
@@ -199,7 +214,9 @@ def _run_on_ray(dataset, pending, views, out, workers, address, backend, bar) ->
         ray.init(address=address, **options)
     try:
         task = ray.remote(num_cpus=1, max_retries=1)(run_one)
-        futures = {task.remote(dataset, method, seed, views, backend): (seed, method) for seed, method in pending}
+        futures = {
+            task.remote(dataset, method, seed, views, backend, gain_variant): (seed, method) for seed, method in pending
+        }
         remaining = list(futures)
         while remaining:
             done, remaining = ray.wait(remaining, num_returns=1)

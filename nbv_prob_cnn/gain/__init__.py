@@ -19,14 +19,20 @@ from nbv_prob_cnn.basics.grid import check_probability, check_state
 from nbv_prob_cnn.basics.modes import BACKEND_NAMES
 from nbv_prob_cnn.gain.best_view import BestOriginView
 from nbv_prob_cnn.gain.directions import check_directions, distance_weights, ray_directions, sample_offsets
-from nbv_prob_cnn.gain.reference import ig_gains_reference, ray_gains_reference
+from nbv_prob_cnn.gain.reference import (
+    ig_gains_reference,
+    original_ray_terms,
+    original_view_gains_reference,
+    ray_gains_reference,
+)
+from nbv_prob_cnn.gain.variant import GAIN_VARIANTS, check_variant, sample_count, sample_weights
 
 #: Ray-casting backends (defined once, in :mod:`nbv_prob_cnn.basics.modes`).
 BACKENDS = BACKEND_NAMES
 
 __all__ = [
     "BACKENDS", "ray_directions", "ray_gains", "origin_view_gains", "view_gains", "view_membership",
-    "empty_origins", "best_origin_view", "BestOriginView",
+    "empty_origins", "best_origin_view", "BestOriginView", "GAIN_VARIANTS",
 ]  # fmt: skip
 
 
@@ -67,6 +73,8 @@ def ray_gains(
     mode: str = "prob",
     eps: float = 0.0,
     min_range: float = 0.0,
+    variant: str = "paper",
+    free_hits: bool = False,
 ) -> np.ndarray:
     """Normalised ray gain ``G_r(v, h) = H / (H + M)`` of SPEC §4.
 
@@ -87,6 +95,10 @@ def ray_gains(
             ``G_r`` is under-estimated by less than ``eps`` (the remaining terms sum to at
             most ``Pr * sum_t t^nu``).
         min_range: ``mode="ig"`` only, minimum sensor range in cells.
+        variant: ``"paper"`` (SPEC §4) or ``"original"`` (the authors' host choices: range,
+            weights, normalisation, ``ig``; :mod:`nbv_prob_cnn.gain.variant`).
+        free_hits: ``variant="original"``, ``mode="prob"`` only: an unknown sample counts
+            ``(1 - p_t) Pr(r_t)`` (the original's CNN and oracle maps).
 
     Returns:
         ``(N, R)`` float32 in [0, 1].
@@ -97,12 +109,13 @@ def ray_gains(
     state, prob, directions, origins, backend = _check_gain_inputs(
         state, prob, directions, r_max, origins, backend, mode, eps
     )
+    kernel_mode = _kernel_mode(mode, variant, free_hits)
     if backend == "numpy":
-        return _reference_ray_gains(state, prob, directions, r_max, origins, mode, min_range)
+        return _reference_ray_gains(state, prob, directions, r_max, origins, mode, min_range, variant, free_hits)
     from nbv_prob_cnn.gain.opencl import get_ray_caster
 
-    code, offsets, total = _kernel_inputs(state, prob, directions, r_max, mode)
-    return get_ray_caster().run(code, origins, offsets, total, mode, eps, min_range)
+    code, offsets, total = _kernel_inputs(state, prob, directions, r_max, mode, variant)
+    return get_ray_caster().run(code, origins, offsets, total, kernel_mode, eps, min_range, variant)
 
 
 def origin_view_gains(
@@ -117,6 +130,8 @@ def origin_view_gains(
     mode: str = "prob",
     eps: float = 0.0,
     min_range: float = 0.0,
+    variant: str = "paper",
+    free_hits: bool = False,
 ) -> np.ndarray:
     """``G_W(v, W)`` (equation (7)) for every origin ``v`` and candidate view ``W``.
 
@@ -137,14 +152,15 @@ def origin_view_gains(
         state, prob, directions, r_max, origins, backend, mode, eps
     )
     member = _check_membership(membership, directions)
+    kernel_mode = _kernel_mode(mode, variant, free_hits)
     if backend == "numpy":
-        return _reference_ray_gains(state, prob, directions, r_max, origins, mode, min_range) @ member.astype(
-            np.float32
-        )
+        return _reference_view_gains(state, prob, directions, r_max, member, origins, mode, min_range, variant,
+                                     free_hits)  # fmt: skip
     from nbv_prob_cnn.gain.opencl import get_ray_caster
 
-    code, offsets, total = _kernel_inputs(state, prob, directions, r_max, mode)
-    return get_ray_caster().run_views(code, origins, offsets, member, total, mode, eps, min_range)
+    code, offsets, total = _kernel_inputs(state, prob, directions, r_max, mode, variant)
+    return get_ray_caster().run_views(code, origins, offsets, member, total, kernel_mode, eps, min_range,
+                                      variant=variant)  # fmt: skip
 
 
 def best_origin_view(
@@ -159,6 +175,8 @@ def best_origin_view(
     mode: str = "prob",
     eps: float = 0.0,
     min_range: float = 0.0,
+    variant: str = "paper",
+    free_hits: bool = False,
     block_size: int | None = None,
     prune_views: bool = True,
 ) -> BestOriginView:
@@ -180,11 +198,12 @@ def best_origin_view(
         state, prob, directions, r_max, origins, backend, mode, eps
     )
     member = _check_membership(membership, directions)
+    kernel_mode = _kernel_mode(mode, variant, free_hits)
     if origins.shape[0] == 0:
         return BestOriginView(-1, 0, 0.0)
     if backend == "numpy":
         gains = origin_view_gains(state, prob, directions, r_max, member, origins, "numpy", mode=mode,
-                                  min_range=min_range)  # fmt: skip
+                                  min_range=min_range, variant=variant, free_hits=free_hits)  # fmt: skip
         flat = int(np.argmax(gains))
         index = flat // gains.shape[1]
         return BestOriginView(index, flat % gains.shape[1], float(gains.flat[flat]), origins[index])
@@ -192,28 +211,56 @@ def best_origin_view(
 
     if block_size is not None and (not isinstance(block_size, (int, np.integer)) or block_size < 1):
         raise ValueError(f"block_size: expected a positive integer, got {block_size!r}")
-    code, offsets, total = _kernel_inputs(state, prob, directions, r_max, mode)
+    code, offsets, total = _kernel_inputs(state, prob, directions, r_max, mode, variant)
     origin, view, gain, _ = get_ray_caster().best_view(
-        code, origins, offsets, member, total, mode, eps, min_range, block_size=block_size or BOUND_BLOCK,
-        prune_views=prune_views,
+        code, origins, offsets, member, total, kernel_mode, eps, min_range, block_size=block_size or BOUND_BLOCK,
+        prune_views=prune_views, variant=variant,
     )  # fmt: skip
     return BestOriginView(origin, view, gain, origins[origin] if origin >= 0 else None)
 
 
-def _reference_ray_gains(state, prob, directions, r_max, origins, mode, min_range) -> np.ndarray:
-    """``(N, R)`` ray gains from the numpy reference of ``mode``."""
+def _reference_ray_gains(state, prob, directions, r_max, origins, mode, min_range, variant="paper",
+                         free_hits=False) -> np.ndarray:  # fmt: skip
+    """``(N, R)`` ray gains from the numpy reference of ``mode`` and ``variant``."""
+    if variant == "original":
+        hits, totals = original_ray_terms(state, prob, directions, r_max, origins, mode, free_hits, min_range)
+        return np.where(totals > 0, hits / np.where(totals > 0, totals, 1.0), 0.0).astype(np.float32)
     if mode == "ig":
         return ig_gains_reference(state, directions, r_max, origins, min_range)
     return ray_gains_reference(state, prob, directions, r_max, origins)
 
 
-def _kernel_inputs(state, prob, directions, r_max, mode) -> tuple[np.ndarray, np.ndarray, float]:
+def _reference_view_gains(state, prob, directions, r_max, member, origins, mode, min_range, variant,
+                          free_hits) -> np.ndarray:  # fmt: skip
+    """``(N, V)`` view gains from the numpy reference: equation (7), or the original's ratio."""
+    if variant == "original":
+        hits, totals = original_ray_terms(state, prob, directions, r_max, origins, mode, free_hits, min_range)
+        return original_view_gains_reference(hits, totals, member)
+    rays = _reference_ray_gains(state, prob, directions, r_max, origins, mode, min_range)
+    return rays @ member.astype(np.float32)
+
+
+def _kernel_mode(mode: str, variant: str, free_hits: bool) -> str:
+    """The kernel's mode (``prob``, ``ig`` or ``prob_free``) after checking ``variant``/``free_hits``."""
+    check_variant(variant)
+    if not free_hits:
+        return mode
+    if variant != "original" or mode != "prob":
+        raise ValueError(f"free_hits: only with variant='original' and mode='prob', got {variant!r}, {mode!r}")
+    return "prob_free"
+
+
+def _kernel_inputs(state, prob, directions, r_max, mode, variant="paper") -> tuple[np.ndarray, np.ndarray, float]:
     """What every OpenCL gain kernel reads: the encoded grid, the sample offsets of the rays and
-    the weight normaliser ``sum t^nu``."""
+    the weight normaliser (``sum t^nu``; for the original variant its range and weights)."""
     from nbv_prob_cnn.gain.opencl import encode_grid
 
     code = encode_grid(state, prob if mode == "prob" else None)
-    return code, sample_offsets(directions, r_max), float(distance_weights(r_max, state.ndim).sum())
+    if variant == "paper":
+        return code, sample_offsets(directions, r_max), float(distance_weights(r_max, state.ndim).sum())
+    n_samples = sample_count(variant, r_max)
+    total = float(sample_weights(variant, n_samples, state.ndim).sum())
+    return code, sample_offsets(directions, n_samples - 1), total
 
 
 def _check_membership(membership: np.ndarray, directions: np.ndarray) -> np.ndarray:

@@ -5,6 +5,10 @@ Two kernels call it: ``view_gain`` sums the ray gains of each origin into its ca
 in local memory (the planners' path: no per-ray gains in global memory), ``ray_gain`` returns
 per-ray gains (poses with their own frusta). Each work-item marches a ray from ``lanes``
 neighbouring origins at once (:func:`default_lanes`).
+
+The gain variant (:mod:`nbv_prob_cnn.gain.variant`) is a build option of the same source
+(``-DGAIN_ORIGINAL=1`` for ``"original"``): one program per variant, built on first use. The
+caller passes the variant's sample offsets (its range) and the sum of its weights.
 """
 
 from __future__ import annotations
@@ -16,9 +20,14 @@ import numpy as np
 from scipy.ndimage import distance_transform_cdt
 
 from nbv_prob_cnn.basics.cl_device import cl_runtime
+from nbv_prob_cnn.gain.variant import ORIGINAL_FOCAL, ORIGINAL_NEAR_HIT, check_variant
 
 KERNEL_SOURCE = Path(__file__).with_name("raycast.cl")
-MODES = {"prob": 0, "ig": 1}
+#: Kernel modes; ``prob_free`` (an unknown sample counts ``(1 - p) Pr``) only in the original variant.
+MODES = {"prob": 0, "ig": 1, "prob_free": 2}
+#: Padding code of the grid border where the original ``ig`` must tell it from occupied cells
+#: (outside the grid is empty to the original code; above ``ORIGINAL_BORDER`` of the kernel).
+ORIGINAL_BORDER_CODE = -1.5
 
 #: Cell codes read by the kernel.
 CODE_EMPTY = -1.0
@@ -52,13 +61,14 @@ def encode_grid(state: np.ndarray, prob: np.ndarray | None) -> np.ndarray:
     return np.where(state == -1, prob, code).astype(np.float32)
 
 
-def march_grid(code: np.ndarray) -> np.ndarray:
+def march_grid(code: np.ndarray, border: float = -1.0) -> np.ndarray:
     """The grid the kernels march: ``code`` (from :func:`encode_grid`) as a 3D C-ordered array
     with one occupied cell of padding on each side of every axis the rays move along (2D grids
     get a trailing axis of size 1, not padded). Occupied cells (and the padding) become -1;
     known-empty cells become ``-1 - d`` with ``d`` the Chebyshev distance to the nearest
     non-empty cell (capped at :data:`MAX_SKIP`): the first samples of every ray from there are
-    empty (see :func:`group_first_samples`)."""
+    empty (see :func:`group_first_samples`). ``border``: the padding's code (-1, occupied;
+    :data:`ORIGINAL_BORDER_CODE` for the original ``ig``)."""
     code3 = code if code.ndim == 3 else code[:, :, None]
     pad = ((1, 1), (1, 1), (1, 1) if code.ndim == 3 else (0, 0))
     padded = np.pad(code3, pad, constant_values=np.float32(CODE_OCCUPIED))
@@ -68,7 +78,16 @@ def march_grid(code: np.ndarray) -> np.ndarray:
     distance = distance_transform_cdt(empty if code.ndim == 3 else empty[:, :, 0], metric="chessboard")
     distance = np.minimum(distance, MAX_SKIP).reshape(padded.shape)
     march = np.where(empty, -1.0 - distance, np.where(padded == np.float32(CODE_OCCUPIED), -1.0, padded))
-    return np.ascontiguousarray(march, dtype=np.float32)
+    march = np.ascontiguousarray(march, dtype=np.float32)
+    if border != -1.0:
+        inner = march[1:-1, 1:-1, 1:-1] if code.ndim == 3 else march[1:-1, 1:-1, :]
+        inner = inner.copy()
+        march[...] = np.float32(border)
+        if code.ndim == 3:
+            march[1:-1, 1:-1, 1:-1] = inner
+        else:
+            march[1:-1, 1:-1, :] = inner
+    return march
 
 
 def linear_indices(cells: np.ndarray, padded_shape: tuple[int, int, int], shift: int) -> np.ndarray:
@@ -204,15 +223,26 @@ class OpenCLRayCaster:
 
     def __init__(self, lanes: int | None = None) -> None:
         runtime = cl_runtime()
-        cl = self._cl = runtime.cl
+        self._cl = runtime.cl
         self.device, self.context, self.queue = runtime.device, runtime.context, runtime.queue
         self.lanes = default_lanes(self.device) if lanes is None else lanes
         if self.lanes not in LANE_WIDTHS:
             raise ValueError(f"lanes: expected one of {LANE_WIDTHS}, got {lanes!r}")
-        program = runtime.build(KERNEL_SOURCE, (f"-DLANES={self.lanes}",))
-        self._ray_kernel = cl.Kernel(program, "ray_gain")
-        self._view_kernel = cl.Kernel(program, "view_gain")
+        self._runtime = runtime
+        self._kernels: dict[str, tuple] = {}
+        self._ray_kernel, self._view_kernel = self.kernels("paper")
         self._cache: dict[tuple, object] = {}
+
+    def kernels(self, variant: str) -> tuple:
+        """``(ray_gain, view_gain)`` of the program of gain ``variant`` (built on first use)."""
+        if variant not in self._kernels:
+            options = [f"-DLANES={self.lanes}"]
+            if check_variant(variant) == "original":
+                options += ["-DGAIN_ORIGINAL=1", f"-DORIGINAL_FOCAL={ORIGINAL_FOCAL!r}f",
+                            f"-DORIGINAL_NEAR_HIT={ORIGINAL_NEAR_HIT!r}f"]  # fmt: skip
+            program = self._runtime.build(KERNEL_SOURCE, tuple(options))
+            self._kernels[variant] = (self._cl.Kernel(program, "ray_gain"), self._cl.Kernel(program, "view_gain"))
+        return self._kernels[variant]
 
     def _constant(self, array: np.ndarray):
         """A read-only device copy of ``array``, cached by content."""
@@ -227,10 +257,10 @@ class OpenCLRayCaster:
             self._cache[key] = buf
         return buf
 
-    def _common(self, code: np.ndarray, origins: np.ndarray, offsets: np.ndarray):
+    def _common(self, code: np.ndarray, origins: np.ndarray, offsets: np.ndarray, border: float = -1.0):
         """Device grid, host grid, linear origins and device linear offsets ``(R, T)``."""
         cl, mf = self._cl, self._cl.mem_flags
-        padded = march_grid(code)
+        padded = march_grid(code, border)
         code_buf = cl.Buffer(self.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=padded)
         origin_index = linear_indices(origins, padded.shape, shift=1)
         offset_index = linear_indices(offsets.reshape(-1, offsets.shape[2]), padded.shape, shift=0)
@@ -245,24 +275,27 @@ class OpenCLRayCaster:
         mode: str,
         eps: float,
         min_range: float,
+        variant: str = "paper",
     ) -> np.ndarray:
-        """Ray gains ``(N, R)`` float32 for the encoded grid ``code``."""
+        """Ray gains ``(N, R)`` float32 for the encoded grid ``code`` (``variant``: see
+        :mod:`nbv_prob_cnn.gain.variant`; ``offsets`` and ``total_weight`` must be its)."""
         cl, mf = self._cl, self._cl.mem_flags
         n, r, lanes = origins.shape[0], offsets.shape[0], self.lanes
         if n == 0:
             return np.empty((n, r), dtype=np.float32)
-        code_buf, _, origin_index, offset_buf = self._common(code, origins, offsets)
+        code_buf, _, origin_index, offset_buf = self._common(code, origins, offsets, _border(variant, mode))
         origin_index = pad_to(origin_index, lanes)
         blocks = origin_index.size // lanes
         out = np.empty((blocks, r, lanes), dtype=np.float32)
         origin_buf = cl.Buffer(self.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=origin_index)
         out_buf = cl.Buffer(self.context, mf.WRITE_ONLY, out.nbytes)
-        self._ray_kernel.set_args(
+        kernel = self.kernels(variant)[0]
+        kernel.set_args(
             code_buf, origin_buf, np.int32(origin_index.size), offset_buf, np.int32(r), np.int32(offsets.shape[1]),
-            np.int32(code.ndim - 1), np.float32(1.0 / total_weight), np.float32(eps), np.int32(MODES[mode]),
-            np.float32(min_range), out_buf,
+            np.int32(code.ndim - 1), np.float32(1.0 / total_weight), np.float32(total_weight), np.float32(eps),
+            np.int32(MODES[mode]), np.float32(min_range), out_buf,
         )  # fmt: skip
-        cl.enqueue_nd_range_kernel(self.queue, self._ray_kernel, (blocks * r,), None)
+        cl.enqueue_nd_range_kernel(self.queue, kernel, (blocks * r,), None)
         cl.enqueue_copy(self.queue, out, out_buf)
         self.queue.finish()
         return np.ascontiguousarray(out.transpose(0, 2, 1).reshape(-1, r)[:n])
@@ -279,18 +312,20 @@ class OpenCLRayCaster:
         min_range: float,
         local_size: int = VIEW_GAIN_LOCAL_SIZE,
         view_sets: np.ndarray | None = None,
+        variant: str = "paper",
     ) -> np.ndarray:
         """View gains ``(N, V)`` float32: the ray gains of each origin summed over the rays of
-        each view (``membership`` is the ``(R, V)`` 0/1 ray-in-view matrix). ``view_sets``: see
-        :meth:`_views` (None: every view)."""
-        code_buf, padded, origin_index, offset_buf = self._common(code, origins, offsets)
+        each view (``membership`` is the ``(R, V)`` 0/1 ray-in-view matrix; the original variant:
+        sum of hits over sum of hits + miss). ``view_sets``: see :meth:`_views` (None: every view)."""
+        code_buf, padded, origin_index, offset_buf = self._common(code, origins, offsets, _border(variant, mode))
         return self._views(
             code_buf, padded, origin_index, offset_buf, offsets.shape, membership, code.ndim - 1, total_weight,
-            mode, eps, min_range, local_size, view_sets,
+            mode, eps, min_range, local_size, view_sets, variant,
         )  # fmt: skip
 
     def _views(self, code_buf, padded, origin_index, offset_buf, offsets_shape, membership, nu, total_weight,
-               mode, eps, min_range, local_size=VIEW_GAIN_LOCAL_SIZE, view_sets=None) -> np.ndarray:  # fmt: skip
+               mode, eps, min_range, local_size=VIEW_GAIN_LOCAL_SIZE, view_sets=None,
+               variant="paper") -> np.ndarray:  # fmt: skip
         """``view_gain`` on a device grid ``code_buf`` (host copy ``padded``) at linear origins.
 
         ``view_sets``: None (every view exact) or per origin the views wanted exactly, ``(N, V)``
@@ -305,7 +340,8 @@ class OpenCLRayCaster:
         # local references keep every buffer alive until the queue has finished with it
         start_buf, rays_buf = self._constant(start), self._constant(rays)
         lanes, device = self.lanes, self.device  # local_size: origins per work-group, a multiple of lanes
-        local_size = int(min(local_size, device.max_work_group_size * lanes, device.local_mem_size // (4 * (r + v))))
+        words = (2 * r if variant == "original" else r) + v  # local floats per origin: rays (+ totals), views
+        local_size = int(min(local_size, device.max_work_group_size * lanes, device.local_mem_size // (4 * words)))
         local_size = max(lanes, local_size // lanes * lanes)
         first_sample = group_first_samples(padded, origin_index, local_size)
         every = group_sets(np.ones((1, v), dtype=bool), membership)
@@ -318,7 +354,7 @@ class OpenCLRayCaster:
         if view_sets is None:
             cl.enqueue_copy(self.queue, set_buf, every)
         out_buf = cl.Buffer(self.context, mf.WRITE_ONLY, block * v * 4)
-        kernel = self._view_kernel
+        kernel = self.kernels(variant)[1]
         for begin in range(0, n, block):
             count = min(block, n - begin)
             cl.enqueue_copy(self.queue, origin_buf, pad_to(origin_index[begin : begin + count], local_size))
@@ -328,10 +364,10 @@ class OpenCLRayCaster:
                 cl.enqueue_copy(self.queue, set_buf, np.ascontiguousarray(sets[group : group + groups]))
             kernel.set_args(
                 code_buf, origin_buf, np.int32(count), offset_buf, np.int32(r), np.int32(n_samples),
-                np.int32(nu), np.float32(1.0 / total_weight), np.float32(eps), np.int32(MODES[mode]),
-                np.float32(min_range), start_buf, rays_buf, np.int32(v), first_buf, set_buf, np.int32(set_stride),
-                np.int32(-(-v // 32)),
-                cl.LocalMemory(4 * (r + v) * local_size), out_buf,
+                np.int32(nu), np.float32(1.0 / total_weight), np.float32(total_weight), np.float32(eps),
+                np.int32(MODES[mode]), np.float32(min_range), start_buf, rays_buf, np.int32(v), first_buf, set_buf,
+                np.int32(set_stride), np.int32(-(-v // 32)),
+                cl.LocalMemory(4 * words * local_size), out_buf,
             )  # fmt: skip
             cl.enqueue_nd_range_kernel(self.queue, kernel, (groups * local_size // lanes,), (local_size // lanes,))
             cl.enqueue_copy(self.queue, out[begin : begin + count], out_buf)
@@ -339,17 +375,21 @@ class OpenCLRayCaster:
         return out
 
     def block_bounds(
-        self, code, origins, offsets, membership, total_weight, mode, size=None
+        self, code, origins, offsets, membership, total_weight, mode, size=None, variant="paper"
     ) -> tuple[np.ndarray, np.ndarray]:
         """Per origin its block, per block and view an upper bound of ``G_W`` of the block's
         origins: ``(block_of (N,), bounds (B, V))`` (see :meth:`best_view`)."""
         size = BOUND_BLOCK if size is None else size
-        return self._block_bounds(march_grid(code), origins, offsets, membership, total_weight, mode, size)
+        return self._block_bounds(march_grid(code), origins, offsets, membership, total_weight, mode, size,
+                                  variant=variant)  # fmt: skip
 
     def _block_bounds(self, padded, origins, offsets, membership, total_weight, mode, size=BOUND_BLOCK,
-                      min_per_block=0.0):  # fmt: skip
+                      min_per_block=0.0, variant="paper"):  # fmt: skip
         """``(block_of, bounds)``; bounds None when blocks hold fewer than ``min_per_block``
-        origins on average (bounds would cost about as much as exact gains)."""
+        origins on average (bounds would cost about as much as exact gains), and for the original
+        ``ig``, whose per-ray totals vary (its view gain is a ratio: no bound here)."""
+        if variant == "original" and mode == "ig":
+            return np.zeros(origins.shape[0], dtype=np.int64), None
         dims = origins.shape[1]
         shift = np.array([1, 1, 1 if dims == 3 else 0][:dims])
         cells = np.zeros((origins.shape[0], 3), dtype=np.int64)
@@ -360,13 +400,16 @@ class OpenCLRayCaster:
         corners, block_of = np.unique(corner_index, return_inverse=True)
         if corners.size * min_per_block > origins.shape[0]:
             return block_of.ravel(), None
-        bound = bound_grid(padded, dims, probabilistic=mode == "prob", size=size)
+        bound = bound_grid(padded, dims, probabilistic=mode != "ig", size=size)
         offset_index = linear_indices(offsets.reshape(-1, offsets.shape[2]), bound.shape, shift=0)
         offset_buf = self._constant(offset_index.reshape(offsets.shape[:2]))
         mf = self._cl.mem_flags
         bound_buf = self._cl.Buffer(self.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=bound)
+        # prob_free bounds itself: the least p of a window is below every cell's p (1 - p is above)
+        bound_mode = "prob_free" if mode == "prob_free" else "prob"
         view_bound = self._views(
-            bound_buf, bound, corners, offset_buf, offsets.shape, membership, dims - 1, total_weight, "prob", 0.0, 0.0,
+            bound_buf, bound, corners, offset_buf, offsets.shape, membership, dims - 1, total_weight, bound_mode,
+            0.0, 0.0, variant=variant,
         )  # fmt: skip
         return block_of.ravel(), view_bound
 
@@ -383,6 +426,7 @@ class OpenCLRayCaster:
         first_batch: int = BEST_VIEW_FIRST_BATCH,
         block_size: int = BOUND_BLOCK,
         prune_views: bool = True,
+        variant: str = "paper",
     ) -> tuple[int, int, float, int]:
         """The first ``(origin, view)`` of largest ``G_W`` in origin-major order, exactly as the
         exhaustive ``run_views(...)`` argmax, without computing every origin's gains.
@@ -398,14 +442,17 @@ class OpenCLRayCaster:
         margin): no pruned origin can beat or tie it. With ``prune_views``, after the first batch
         each origin evaluates only the views whose block bound reaches the best gain so far and
         marches only their rays (see :func:`reaching_views`; the others cannot beat or tie it).
+        The original variant (:mod:`~nbv_prob_cnn.gain.variant`): the same bounds hold for its
+        probabilistic modes (non-negative weights; every ray of a view has the same ``hits + miss``,
+        so a view's gain is its bounded hits over a constant); its ``ig`` evaluates every origin.
 
         Returns:
             ``(origin position, view, gain, origins evaluated exactly)``.
         """
         n, dims = origins.shape[0], code.ndim
-        code_buf, padded, origin_index, offset_buf = self._common(code, origins, offsets)
+        code_buf, padded, origin_index, offset_buf = self._common(code, origins, offsets, _border(variant, mode))
         block_of, view_bound = self._block_bounds(padded, origins, offsets, membership, total_weight, mode,
-                                                  block_size, MIN_ORIGINS_PER_BLOCK)  # fmt: skip
+                                                  block_size, MIN_ORIGINS_PER_BLOCK, variant)  # fmt: skip
         sparse = view_bound is None
         if view_bound is None:  # sparse origins: evaluate them all at once
             block_of, view_bound, first_batch = np.zeros(n, dtype=np.int64), np.ones((1, 1), np.float32), n
@@ -429,7 +476,7 @@ class OpenCLRayCaster:
                 chosen, view_sets = chosen[by_pattern], reach[pattern[by_pattern]]
             gains = self._views(
                 code_buf, padded, origin_index[chosen], offset_buf, offsets.shape, membership, dims - 1,
-                total_weight, mode, eps, min_range, view_sets=view_sets,
+                total_weight, mode, eps, min_range, view_sets=view_sets, variant=variant,
             )  # fmt: skip
             top = float(gains.max())
             rows, cols = np.nonzero(gains == gains.max())
@@ -439,6 +486,11 @@ class OpenCLRayCaster:
                 best = candidate
             done, batch = stop, batch * 2
         return best[1], best[2], best[0], done
+
+
+def _border(variant: str, mode: str) -> float:
+    """Padding code of the marched grid: occupied, or for the original ``ig`` the border code."""
+    return ORIGINAL_BORDER_CODE if variant == "original" and mode == "ig" else -1.0
 
 
 def reaching_views(view_bound: np.ndarray, block_of: np.ndarray, best: float) -> tuple[np.ndarray, np.ndarray]:

@@ -23,10 +23,32 @@
 // the loop is branch-free up to "no lane alive", in float32 the same operations per lane as
 // the scalar loop, hence bit-identical gains). ray_gain stores it per (origin, ray) (poses
 // with their own frusta), view_gain sums it into the candidate views per origin.
+//
+// GAIN_ORIGINAL (a build option, default 0) selects the gain variant of gain/variant.py: 0 is the
+// paper's (SPEC §4-§5); 1 the host choices of the authors' code (docs/original_code.md), with
+// the same marching: weights min((t / ORIGINAL_FOCAL)^nu, 1) (the host gives the shorter range
+// as n_samples), MODE_PROBABILISTIC_FREE (an unknown sample counts (1 - p) Pr), per ray
+// hits and hits + miss (`totals`; total_weight = the sum of all weights for the probabilistic
+// modes), view gains sum(hits) / sum(totals), and the original ig (see march_rays). With 0 the
+// preprocessed kernels are the paper's alone.
 #pragma OPENCL FP_CONTRACT OFF
 
 #define MODE_PROBABILISTIC 0
 #define MODE_INFORMATION_GAIN 1
+#define MODE_PROBABILISTIC_FREE 2
+
+#ifndef GAIN_ORIGINAL
+#define GAIN_ORIGINAL 0
+#endif
+#ifndef ORIGINAL_FOCAL
+#define ORIGINAL_FOCAL 8.0f
+#endif
+#ifndef ORIGINAL_NEAR_HIT
+#define ORIGINAL_NEAR_HIT 0.01f
+#endif
+#ifndef ORIGINAL_BORDER
+#define ORIGINAL_BORDER -1.25f
+#endif
 
 #ifndef LANES
 #define LANES 1
@@ -60,21 +82,61 @@ typedef CAT(int, LANES) intv;
 #define ANY8(v) ANY4((v).lo | (v).hi)
 #define ANY16(v) ANY8((v).lo | (v).hi)
 
+#if GAIN_ORIGINAL
+// Weight of sample t in the original variant: min((t / f)^nu, 1).
+inline float original_weight(const int t, const int nu)
+{
+    const float z = (float)t / ORIGINAL_FOCAL;
+    return min((nu == 1) ? z : z * z, 1.0f);
+}
+#endif
+
 // G_r of ray `off` from the origins of the LANES lanes (read at `origins`) into `gains`. A lane
 // is alive until its ray stops (known occupied cell or grid border, or Pr <= eps, or for ig the
 // first non-empty sample); dead lanes keep their values and read their origin cell.
+// GAIN_ORIGINAL: `gains` gets the hits and `totals` hits + miss of each lane's ray (the paper
+// build leaves `totals` alone). Original ig: the first non-empty sample t scores its weight if
+// unknown and t >= min_range (ORIGINAL_NEAR_HIT below), nothing if occupied, and sets the total
+// to the weights marched before it + 1; a ray that meets the grid border (padding code -1.5,
+// above ORIGINAL_BORDER: outside the grid is empty to the original) or no non-empty sample keeps
+// total_weight.
 inline void march_rays(__global const float *code, __global const int *origins, __global const int *off,
                        const int first_sample, const int n_samples, const int nu, const float inv_total,
-                       const float eps, const int mode, const float min_range, floatv *gains)
+                       const float total_weight, const float eps, const int mode, const float min_range,
+                       floatv *gains, floatv *totals)
 {
     const intv origin = LANES_AT(__global const intv, origins);
     floatv visible = 1.0f;  // Pr(r_t) = prod_{i<t} (1 - p_i)
     floatv hit = 0.0f;      // H(v, h)
     intv alive = (intv)(-1);
+#if GAIN_ORIGINAL
+    floatv total = total_weight;  // hits + miss
+    float marched = 0.0f;         // ig: the weights of the samples before t (all empty)
+    if (mode == MODE_INFORMATION_GAIN) {
+        for (int t = 0; t < first_sample; ++t) {
+            marched += original_weight(t, nu);
+        }
+    }
+#endif
     for (int t = first_sample; t < n_samples; ++t) {
         const intv cell = alive ? origin + off[t] : origin;
         const floatv c = GATHER(code, cell);
         const intv unknown = alive & (c >= 0.0f);
+#if GAIN_ORIGINAL
+        const float weight = original_weight(t, nu);
+        if (mode == MODE_INFORMATION_GAIN) {
+            const intv stops = alive & (c > -2.0f);
+            hit = unknown ? (floatv)((float)t >= min_range ? weight : ORIGINAL_NEAR_HIT) : hit;
+            total = (stops & (c > ORIGINAL_BORDER)) ? (floatv)(marched + 1.0f) : total;
+            marched += weight;
+            alive = alive & (c <= -2.0f);
+        } else {
+            const floatv seen = (mode == MODE_PROBABILISTIC_FREE) ? visible * (1.0f - c) : visible;
+            hit = unknown ? hit + seen * weight : hit;
+            visible = unknown ? visible * (1.0f - c) : visible;
+            alive = alive & ((c <= -2.0f) | (unknown & (visible > eps)));
+        }
+#else
         const float weight = (nu == 1) ? (float)t : (float)(t * t);
         if (mode == MODE_INFORMATION_GAIN) {
             hit = (unknown & (intv)((float)t >= min_range ? -1 : 0)) ? (floatv)(weight) : hit;
@@ -84,18 +146,24 @@ inline void march_rays(__global const float *code, __global const int *origins, 
             visible = unknown ? visible * (1.0f - c) : visible;
             alive = alive & ((c <= -2.0f) | (unknown & (visible > eps)));  // occupied: Pr = 0 from here on
         }
+#endif
         if (!ANY_LANE(alive)) {
             break;
         }
     }
+#if GAIN_ORIGINAL
+    *gains = hit;
+    *totals = total;
+#else
     *gains = hit * inv_total;
+#endif
 }
 
 // G_r(v, h) for every (origin, ray): one work-item per ray and block of LANES origins (origins
 // padded to a multiple of LANES); out is (n_origins / LANES, n_rays, LANES).
 __kernel void ray_gain(__global const float *code, __global const int *origins, const int n_origins,
                        __global const int *offsets, const int n_rays, const int n_samples,
-                       const int nu, const float inv_total, const float eps,
+                       const int nu, const float inv_total, const float total_weight, const float eps,
                        const int mode, const float min_range,
                        __global float *out)
 {
@@ -105,9 +173,12 @@ __kernel void ray_gain(__global const float *code, __global const int *origins, 
     }
     const int n = gid / n_rays;
     const int h = gid - n * n_rays;
-    floatv gains;
-    march_rays(code, origins + (size_t)n * LANES, offsets + (size_t)h * n_samples, 0, n_samples, nu, inv_total, eps,
-               mode, min_range, &gains);
+    floatv gains, totals;
+    march_rays(code, origins + (size_t)n * LANES, offsets + (size_t)h * n_samples, 0, n_samples, nu, inv_total,
+               total_weight, eps, mode, min_range, &gains, &totals);
+#if GAIN_ORIGINAL
+    gains = (totals > 0.0f) ? gains / totals : (floatv)(0.0f);
+#endif
     LANES_AT(__global floatv, out + (size_t)gid * LANES) = gains;
 }
 
@@ -124,9 +195,11 @@ __kernel void ray_gain(__global const float *code, __global const int *origins, 
 // count 0: a view is exact when it is in the set and all its rays are marched, else its value
 // is a lower bound of its gain (the coarse-to-fine search leaves out views and rays that cannot
 // win). The tests are the same for every work-item of the group: loops stay in lock step.
+// GAIN_ORIGINAL: the rays' totals follow their hits in local memory (ray_totals[ray][origin],
+// before the view sums) and a view's gain is sum(hits) / sum(totals) over its rays.
 __kernel void view_gain(__global const float *code, __global const int *origins, const int n_origins,
                         __global const int *offsets, const int n_rays, const int n_samples,
-                        const int nu, const float inv_total, const float eps,
+                        const int nu, const float inv_total, const float total_weight, const float eps,
                         const int mode, const float min_range,
                         __global const int *view_start, __global const int *view_rays, const int n_views,
                         __global const int *group_first_sample, __global const uint *group_sets, const int set_stride,
@@ -138,24 +211,42 @@ __kernel void view_gain(__global const float *code, __global const int *origins,
     const int first_sample = group_first_sample[get_group_id(0)];
     __global const uint *view_set = group_sets + (size_t)get_group_id(0) * set_stride;
     __global const uint *ray_set = view_set + view_words;
+#if GAIN_ORIGINAL
+    __local float *ray_totals = ray_gains + (size_t)n_rays * size;  // [ray][origin]
+    __local float *view_sums = ray_totals + (size_t)n_rays * size;  // [view][origin]
+#else
+    __local float *view_sums = ray_gains + (size_t)n_rays * size;  // [view][origin]
+#endif
     for (int h = 0; h < n_rays; ++h) {
         floatv gains = 0.0f;
+        floatv totals = 0.0f;
         if (((ray_set[h >> 5] >> (h & 31)) & 1u) != 0u) {
             march_rays(code, origins + first + lid * LANES, offsets + (size_t)h * n_samples, first_sample, n_samples,
-                       nu, inv_total, eps, mode, min_range, &gains);
+                       nu, inv_total, total_weight, eps, mode, min_range, &gains, &totals);
         }
         LANES_AT(__local floatv, ray_gains + (size_t)h * size + lid * LANES) = gains;
+#if GAIN_ORIGINAL
+        LANES_AT(__local floatv, ray_totals + (size_t)h * size + lid * LANES) = totals;
+#endif
     }
     barrier(CLK_LOCAL_MEM_FENCE);
     // each work-item sums the views of its own lanes' origins (a vector of sums per view) ...
-    __local float *view_sums = ray_gains + (size_t)n_rays * size;  // [view][origin]
     for (int w = 0; w < n_views; ++w) {
         floatv sum = 0.0f;
+#if GAIN_ORIGINAL
+        floatv total = 0.0f;
+#endif
         if (((view_set[w >> 5] >> (w & 31)) & 1u) != 0u) {
             for (int i = view_start[w]; i < view_start[w + 1]; ++i) {
                 sum += LANES_AT(__local floatv, ray_gains + (size_t)view_rays[i] * size + lid * LANES);
+#if GAIN_ORIGINAL
+                total += LANES_AT(__local floatv, ray_totals + (size_t)view_rays[i] * size + lid * LANES);
+#endif
             }
         }
+#if GAIN_ORIGINAL
+        sum = (total > 0.0f) ? sum / total : (floatv)(0.0f);
+#endif
         LANES_AT(__local floatv, view_sums + (size_t)w * size + lid * LANES) = sum;
     }
     barrier(CLK_LOCAL_MEM_FENCE);

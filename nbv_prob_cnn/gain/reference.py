@@ -1,4 +1,5 @@
-"""Plain numpy reference of the ray gain (SPEC §4): the literal equations, no early stop.
+"""Plain numpy reference of the ray gain (SPEC §4): the literal equations, no early stop; and
+of the original variant (:func:`original_ray_terms`, the authors' host choices).
 
 It is the readable implementation the OpenCL kernel is tested against (vectorized over
 origins and rays, a Python loop over the samples ``t``).
@@ -9,6 +10,7 @@ from __future__ import annotations
 import numpy as np
 
 from nbv_prob_cnn.gain.directions import distance_weights, sample_offsets
+from nbv_prob_cnn.gain.variant import ORIGINAL_IG_MIN_RANGE, ORIGINAL_NEAR_HIT, sample_count, sample_weights
 
 _CHUNK = 2048  # origins per block, bounds the (chunk, R, dims) temporaries
 
@@ -72,3 +74,63 @@ def ig_gains_reference(
             gains[block] += np.where(stops & (value == -1) & (t >= min_range), weights[t], 0.0)
             running &= ~stops
     return (gains / weights.sum()).astype(np.float32)
+
+
+def original_ray_terms(
+    state: np.ndarray,
+    prob: np.ndarray | None,
+    directions: np.ndarray,
+    r_max: int,
+    origins: np.ndarray,
+    mode: str = "prob",
+    free_hits: bool = False,
+    min_range: float = ORIGINAL_IG_MIN_RANGE,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Per ray the hits and hits + miss of the original variant (:mod:`~nbv_prob_cnn.gain.variant`),
+    each ``(N, R)`` float64, from its own description of the authors' host and kernel: samples
+    ``t = 0 .. N - 1`` of the shorter range, weights ``min((t / f)^nu, 1)``, cells outside the grid
+    empty (no hit, no occlusion: the ray can never come back), known occupied cells occluding.
+
+    ``mode="prob"``: an unknown sample adds ``w_t (1 - q_t) Pr(r_t)`` to the hits, ``q_t = p_t``
+    with ``free_hits`` (CNN or oracle map), else 0; every sample adds the rest of ``w_t`` to the
+    misses (hits + miss = sum of the weights). ``mode="ig"``: the first sample inside the grid
+    that is not known empty ends the ray: unknown, it scores ``w_t`` (``0.01`` if ``t <
+    min_range``); occupied, nothing; the misses are the weights before it plus ``1 - hits``.
+    """
+    n = sample_count("original", r_max)
+    weights = sample_weights("original", n, state.ndim)
+    offsets = sample_offsets(directions, n - 1)
+    hits = np.zeros((origins.shape[0], directions.shape[0]))
+    totals = np.full_like(hits, weights.sum())
+    values = prob if prob is not None else np.zeros(state.shape, dtype=np.float32)
+    for start in range(0, origins.shape[0], _CHUNK):
+        block = slice(start, start + _CHUNK)
+        visible = np.ones_like(hits[block])
+        running = np.ones(hits[block].shape, dtype=bool)
+        before = 0.0  # weights of the samples before t
+        for t in range(n):
+            p_unknown, value = _sample(state, values, 0.0, origins[block], offsets[:, t])
+            cells = origins[block][:, None, :] + offsets[None, :, t, :].astype(np.int64)
+            inside = np.all((cells >= 0) & (cells < np.array(state.shape)), axis=2)
+            unknown = inside & (value == -1)
+            occupied = inside & (value == 1)
+            if mode == "ig":
+                stops = running & (unknown | occupied)
+                score = weights[t] if t >= min_range else ORIGINAL_NEAR_HIT
+                hits[block] += np.where(stops & unknown, score, 0.0)
+                totals[block] = np.where(stops, before + 1.0, totals[block])
+                running &= ~stops
+            else:
+                free = 1.0 - p_unknown if free_hits else 1.0
+                hits[block] += np.where(unknown, weights[t] * free * visible, 0.0)
+                visible = np.where(unknown, visible * (1.0 - p_unknown), np.where(occupied, 0.0, visible))
+            before += weights[t]
+    return hits, totals
+
+
+def original_view_gains_reference(hits: np.ndarray, totals: np.ndarray, membership: np.ndarray) -> np.ndarray:
+    """The original view gain: per view the sum of its rays' hits over the sum of their hits +
+    miss (0 for a view without rays), ``(N, V)`` float32."""
+    member = np.asarray(membership, dtype=np.float64)
+    num, den = hits @ member, totals @ member
+    return np.where(den > 0, num / np.where(den > 0, den, 1.0), 0.0).astype(np.float32)

@@ -13,6 +13,7 @@ from nbv_prob_cnn.basics.camera import DatasetDefaults, Sensor, dataset_defaults
 from nbv_prob_cnn.basics.geometry import GridGeometry
 from nbv_prob_cnn.basics.view_pose import ViewPose, view_pose
 from nbv_prob_cnn.gain import best_origin_view, empty_origins, origin_view_gains, ray_directions, view_membership
+from nbv_prob_cnn.gain.variant import check_variant, ig_min_range, uses_free_hits
 
 #: Upper bound on origins × views per gain call (bounds the (origins, views) gains in memory).
 MAX_VIEWS_PER_CALL = 64_000_000
@@ -46,6 +47,8 @@ class PlanningContext:
             local view search (e.g. a call to ``/nbv/rank_views``); ``prob`` is the completed map
             for CNN-probability methods, else None. None: search in this process.
         origin_stride: overrides the data set's origin stride (1 = every empty cell).
+        gain_variant: ``"paper"`` (SPEC §4–§5) or ``"original"`` (the authors' host choices,
+            :mod:`nbv_prob_cnn.gain.variant`, docs/original_code.md).
     """
 
     defaults: DatasetDefaults
@@ -58,8 +61,10 @@ class PlanningContext:
     completion: CompletionHook | None = None
     ranker: RankHook | None = None
     origin_stride: int | None = None
+    gain_variant: str = "paper"
 
     def __post_init__(self) -> None:
+        check_variant(self.gain_variant)
         if self.origin_stride is not None and (not isinstance(self.origin_stride, int) or self.origin_stride < 1):
             raise ValueError(f"origin_stride: expected a positive integer, got {self.origin_stride!r}")
         sensor = self.active_sensor
@@ -149,6 +154,7 @@ def search_views(
     prune: bool = True,
     prune_views: bool = True,
     view_mask: ViewMask | None = None,
+    probability: str | None = None,
 ) -> list[ViewChoice]:
     """The ``top_k`` (origin, orientation) pairs with the largest ``G_W``, best first (SPEC §5).
 
@@ -159,14 +165,20 @@ def search_views(
     without evaluating origins that provably cannot reach it (``prune_views``: nor views; False
     evaluates every view of the origins it evaluates, for comparison). ``view_mask`` (optional)
     gives the orientations allowed at each origin; the others count as zero gain (never returned).
+    ``probability``: the source of ``prob`` (``"constant"``, ``"cnn"``, ``"oracle"``), which the
+    ``original`` gain variant treats differently (:func:`~nbv_prob_cnn.gain.variant.uses_free_hits`).
     """
     sensor = context.active_sensor
+    variant = context.gain_variant
+    gain_options = {"variant": variant, "free_hits": mode == "prob" and uses_free_hits(variant, probability)}
+    min_range = ig_min_range(variant, sensor.min_range) if mode == "ig" else sensor.min_range
     if top_k == 1 and prune and view_mask is None and _uses_opencl(context.backend) and origins.shape[0] > 0:
         t0 = time.perf_counter()
         block = 2 * (context.origin_stride or context.defaults.origin_stride)  # about 2^dims origins per block
         index, view, gain = best_origin_view(
             state, prob, context.directions, sensor.r_max, context.membership, origins, "opencl",
-            mode=mode, eps=context.eps, min_range=sensor.min_range, block_size=block, prune_views=prune_views,
+            mode=mode, eps=context.eps, min_range=min_range, block_size=block, prune_views=prune_views,
+            **gain_options,
         )  # fmt: skip
         times = {"cnn": 0.0, "raycast": time.perf_counter() - t0, "views": 0.0}
         return [ViewChoice(origins[index].copy(), int(view), float(gain), times)] if gain > 0.0 else []
@@ -180,7 +192,7 @@ def search_views(
         t0 = time.perf_counter()
         views = origin_view_gains(
             state, prob, context.directions, sensor.r_max, context.membership, chunk, context.backend,
-            mode=mode, eps=context.eps, min_range=sensor.min_range,
+            mode=mode, eps=context.eps, min_range=min_range, **gain_options,
         )  # fmt: skip
         if view_mask is not None:
             allowed = np.asarray(view_mask(chunk), dtype=bool)

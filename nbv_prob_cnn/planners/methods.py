@@ -127,7 +127,10 @@ class GainPlanner(RankingPlanner):
             found = context.ranker(self.name, state, prob, top_k)
         else:
             origins = method_origins(self.method, state, context, origin_filter)
-            found = search_views(state, prob, origins, context, self.method.mode, top_k, view_mask=view_mask)
+            found = search_views(
+                state, prob, origins, context, self.method.mode, top_k, view_mask=view_mask,
+                probability=self.method.probability,
+            )  # fmt: skip
         for choice in found:
             choice.times["cnn"] = t_prob if uses_cnn else 0.0
         return found
