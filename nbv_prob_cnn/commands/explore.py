@@ -20,7 +20,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--method", default="prob_ig", choices=list(METHODS), help="next-best-view method (SPEC §6)")
     parser.add_argument("--views", type=int, default=20, help="number of views, the random first one included")
     parser.add_argument("--seed", type=int, default=1000, help="world seed (without --scene) and first view")
-    parser.add_argument("--scene", help="world .npz written by `nbv world` (default: generate from --seed)")
+    parser.add_argument("--scene", help="world .npz from `nbv world` (ground truth; default: generate from --seed)")
     parser.add_argument("--log", required=True, help="per-iteration CSV to write")
     parser.add_argument("--png", help="picture of the result to write")
     parser.add_argument("--backend", choices=BACKENDS, default="auto", help="ray-casting backend")
@@ -40,6 +40,15 @@ def run(args: argparse.Namespace) -> int:
     from nbv_prob_cnn.worlds.world import World
 
     if args.scene:
+        from nbv_prob_cnn.perception.saved_grid import saved_file_kind
+
+        if saved_file_kind(args.scene) == "grid":
+            raise ValueError(
+                f"--scene {args.scene} is a grid a camera has seen (nbv integrate, the integrator's save service), "
+                "not a world: nbv explore simulates the camera and needs the ground truth, a world file from "
+                "`nbv world --dataset D --seed S --out scene.npz`. To plan on this grid: "
+                f"`nbv plan --grid {args.scene}`; to look at it: `nbv view --grid {args.scene} --out grid.png`"
+            )
         world = World.load(args.scene)
         if world.dataset != args.dataset:
             raise ValueError(f"--scene {args.scene} is a {world.dataset!r} world, not {args.dataset!r}")
