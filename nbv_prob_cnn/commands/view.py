@@ -1,4 +1,4 @@
-"""``nbv view``: render a recorded run (a bag from ``bag_record planning:=true``) to PNG and CSV."""
+"""``nbv view``: render a saved grid (``--grid``) or a recorded bag (``--bag``) to PNG and CSV."""
 
 from __future__ import annotations
 
@@ -7,18 +7,40 @@ from pathlib import Path
 
 NAME = "view"
 HELP = (
-    "Render a recorded run to PNG: occupied cells (top and side projections), camera poses and "
-    "next best views, and a heat map of the best view gain per candidate cell (plus a CSV of it)."
+    "Render a saved grid (--grid) or a recorded bag (--bag) to PNG: projections of the grid and a heat map of "
+    "the best view gain (plus a CSV of it). A bag of a planning run (bag_record planning:=true) shows its camera "
+    "poses, next best views and the planner's candidate gains; a camera-only bag is fused into a grid first."
 )
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--bag", required=True, type=Path, help="rosbag2 directory or .mcap file")
+    from nbv_prob_cnn.basics.datasets import DATASET_SPECS
+    from nbv_prob_cnn.gain import BACKENDS
+    from nbv_prob_cnn.planners.methods import GAIN_METHODS
+
+    source = parser.add_mutually_exclusive_group(required=True)
+    source.add_argument("--grid", type=Path, help="grid .npz (keys grid, origin, resolution)")
+    source.add_argument("--bag", type=Path, help="rosbag2 directory or .mcap file")
     parser.add_argument("--out", required=True, type=Path, help="output .png (the heat map CSV goes next to it)")
-    parser.add_argument("--cell", type=float, default=0.02, help="heat-map cell size [m] (default: %(default)s)")
+    parser.add_argument(
+        "--method",
+        default="prob_ig",
+        choices=[m for m in GAIN_METHODS if m != "omniscient"],
+        help="gain of the heat map on a grid (default: %(default)s; cnn_prob needs the data set's weights)",
+    )
+    parser.add_argument("--dataset", choices=sorted(DATASET_SPECS), help="sensor and rays (default: by grid shape)")
+    parser.add_argument("--backend", choices=BACKENDS, default="auto", help="ray-casting backend")
+    parser.add_argument(
+        "--cell", type=float, default=0.02, help="planning-bag heat-map cell [m] (default: %(default)s)"
+    )
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.grid is not None:
+        from nbv_prob_cnn.perception.saved_grid import read_saved_grid
+
+        saved = read_saved_grid(args.grid)
+        return _render_grid(args, saved.state, saved.geometry, args.grid.name, None)
     from nbv_prob_cnn.perception.bags import BagError
     from nbv_prob_cnn.viz.recorded_run import load_run, render_run
 
@@ -27,9 +49,56 @@ def run(args: argparse.Namespace) -> int:
     except (BagError, FileNotFoundError, ValueError) as exc:
         print(f"nbv view: {exc}")
         return 1
+    if len(run_data.candidates) == 0:
+        return _render_camera_bag(args, run_data.camera_positions)
     png, csv = render_run(run_data, args.out, args.cell)
     print(
         f"{len(run_data.camera_positions)} camera pose(s), {len(run_data.next_best_views)} next best view(s), "
         f"{len(run_data.occupied)} occupied cell(s), {len(run_data.candidates)} candidate view(s); wrote {png}, {csv}"
     )
+    return 0
+
+
+def _render_camera_bag(args: argparse.Namespace, camera_positions) -> int:
+    """A bag without planning topics: fuse its depth frames (the ``nbv integrate`` defaults) and
+    render that grid with the camera path."""
+    import numpy as np
+
+    from nbv_prob_cnn.basics.geometry import GridGeometry
+    from nbv_prob_cnn.perception.bags import BagError, read_frames
+    from nbv_prob_cnn.perception.tsdf import DEFAULT_ORIGIN_M, DEFAULT_SHAPE, DEFAULT_VOXEL_M, TsdfIntegrator
+
+    try:
+        frames = read_frames(args.bag)
+    except (BagError, ValueError) as exc:
+        print(f"nbv view: {args.bag}: no planning topics and no depth frames to fuse ({exc})")
+        return 1
+    integrator = TsdfIntegrator(np.array(DEFAULT_ORIGIN_M), DEFAULT_SHAPE, DEFAULT_VOXEL_M)
+    count = 0
+    for frame in frames:
+        integrator.integrate(frame.depth_m, frame.intrinsics, frame.pose_4x4)
+        count += 1
+    geometry = GridGeometry(DEFAULT_ORIGIN_M, DEFAULT_VOXEL_M, tuple(DEFAULT_SHAPE))
+    print(
+        f"{args.bag}: no planning topics; fused {count} depth frame(s) into the {DEFAULT_SHAPE} grid of `nbv integrate`"
+    )
+    return _render_grid(
+        args, integrator.ternary(), geometry, f"{args.bag.name} ({count} frames fused)", camera_positions
+    )
+
+
+def _render_grid(args: argparse.Namespace, state, geometry, name: str, camera_positions) -> int:
+    from nbv_prob_cnn.basics.datasets import DATASET_SPECS
+    from nbv_prob_cnn.planners.offline import best_gain_per_origin, infer_dataset
+    from nbv_prob_cnn.viz.saved_grid import render_saved_grid
+
+    dataset = infer_dataset(state.shape, args.dataset)
+    origins, gains = best_gain_per_origin(state, geometry, dataset, args.method, backend=args.backend)
+    stride = DATASET_SPECS[dataset].origin_stride
+    title = f"{name}: grid {tuple(state.shape)} of {geometry.resolution * 100:.3g} cm cells"
+    png, csv = render_saved_grid(
+        state, geometry, origins, gains, args.out, title, args.method, stride, camera_positions
+    )
+    best = float(gains.max()) if gains.size else 0.0
+    print(f"{len(origins)} candidate origin(s), best view gain {best:.4f} ({args.method}); wrote {png}, {csv}")
     return 0

@@ -20,7 +20,7 @@ COLOUR_SEEN_OCCUPIED = (0.85, 0.1, 0.1)
 COLOUR_UNSEEN_OCCUPIED = (0.55, 0.55, 0.8)
 
 
-def _state_image_2d(state: np.ndarray, truth: np.ndarray | None) -> np.ndarray:
+def state_image_2d(state: np.ndarray, truth: np.ndarray | None) -> np.ndarray:
     """RGB of a 2D map: unknown dark grey, seen empty white, seen occupied red and, when the
     ground truth is given, occupied cells not seen yet in a pale blue (so the picture tells what
     the camera saw from what only the ground truth knows)."""
@@ -33,7 +33,7 @@ def _state_image_2d(state: np.ndarray, truth: np.ndarray | None) -> np.ndarray:
     return rgb
 
 
-def _projection_image(state: np.ndarray, hidden_axis: int) -> tuple[np.ndarray, tuple[int, int] | None]:
+def projection_image(state: np.ndarray, hidden_axis: int) -> tuple[np.ndarray, tuple[int, int] | None]:
     """RGB projection along one axis: brightness = share of known cells along the line of
     sight, red where a seen occupied cell lies on it. Seen from above (along z), occupied
     columns are coloured by the height of their highest seen occupied cell instead; then the
@@ -57,7 +57,9 @@ def _projection_image(state: np.ndarray, hidden_axis: int) -> tuple[np.ndarray, 
     return rgb, None
 
 
-def _extent(geometry: GridGeometry | None, shape: tuple[int, ...], a: int, b: int) -> tuple[float, float, float, float]:
+def axis_extent(
+    geometry: GridGeometry | None, shape: tuple[int, ...], a: int, b: int
+) -> tuple[float, float, float, float]:
     """imshow extent of axes ``a``, ``b``: metres with a geometry, else cell indices (centre at i)."""
     if geometry is None:
         return (-0.5, shape[a] - 0.5, -0.5, shape[b] - 0.5)
@@ -109,8 +111,8 @@ def plot_views(
     axes = [fig.add_subplot(1, panels, i + 1) for i in range(panels)]
     if state.ndim == 2:
         ax = axes[0]
-        ax.imshow(np.transpose(_state_image_2d(state, truth), (1, 0, 2)), origin="lower",
-                  extent=_extent(geometry, state.shape, 0, 1), interpolation="nearest")  # fmt: skip
+        ax.imshow(np.transpose(state_image_2d(state, truth), (1, 0, 2)), origin="lower",
+                  extent=axis_extent(geometry, state.shape, 0, 1), interpolation="nearest")  # fmt: skip
         yaw = 2.0 * np.arctan2(quats[:, 2], quats[:, 3])
         ax.quiver(where[:, 0], where[:, 1], np.cos(yaw), np.sin(yaw), color="tab:blue", scale=25, width=0.004)
         ax.plot(where[:, 0], where[:, 1], "o", color="tab:blue", ms=3)
@@ -130,8 +132,8 @@ def plot_views(
         forward = np.array([matrix_from_quaternion(q)[:, 2] for q in quats]).reshape(-1, 3)
         for ax, (a, b) in zip(axes[:3], ((0, 1), (0, 2), (1, 2)), strict=True):
             hidden = 3 - a - b
-            image, heights = _projection_image(state, hidden)
-            ax.imshow(np.transpose(image, (1, 0, 2)), origin="lower", extent=_extent(geometry, state.shape, a, b),
+            image, heights = projection_image(state, hidden)
+            ax.imshow(np.transpose(image, (1, 0, 2)), origin="lower", extent=axis_extent(geometry, state.shape, a, b),
                       interpolation="nearest")  # fmt: skip
             for index, line in enumerate(arms or []):
                 strong = index == len(arms or []) - 1
@@ -140,8 +142,8 @@ def plot_views(
                         lw=2.0 if strong else 0.8, ms=2.5 if strong else 1.2, alpha=1.0 if strong else 0.6)  # fmt: skip
             ax.quiver(where[:, a], where[:, b], forward[:, a], forward[:, b], color="gold", scale=20, width=0.006)
             ax.plot(where[:, a], where[:, b], "o", color="gold", ms=3)
-            ax.set_xlim(*_extent(geometry, state.shape, a, b)[:2])
-            ax.set_ylim(*_extent(geometry, state.shape, a, b)[2:])
+            ax.set_xlim(*axis_extent(geometry, state.shape, a, b)[:2])
+            ax.set_ylim(*axis_extent(geometry, state.shape, a, b)[2:])
             ax.set_xlabel(f"{_AXES[a]} ({unit})")
             ax.set_ylabel(f"{_AXES[b]} ({unit})")
             handles = [

@@ -1,0 +1,241 @@
+"""What each node offers, read from its code without starting it: the parameters from its config
+dataclass (:func:`~nbv_prob_cnn.ros.common.param` fields) and its topics, services and actions
+from the ``create_publisher`` / ``create_subscription`` / ``create_service`` / ``create_client`` /
+``ActionServer`` / ``ActionClient`` calls of its module.
+
+``nbv node NAME --help`` prints one node; ``nbv docs nodes --out docs/nodes.md`` writes the
+reference page (a test fails when that page is stale).
+"""
+
+from __future__ import annotations
+
+import ast
+import dataclasses
+import importlib
+import inspect
+import re
+from dataclasses import dataclass
+from types import ModuleType
+from typing import Any
+
+from nbv_prob_cnn.ros import NODES
+from nbv_prob_cnn.ros.common import ParamSpec
+
+_CALLS = {
+    "create_publisher": ("topic", "publishes"),
+    "create_subscription": ("topic", "subscribes"),
+    "create_service": ("service", "serves"),
+    "create_client": ("service", "calls"),
+    "ActionServer": ("action", "serves"),
+    "ActionClient": ("action", "calls"),
+}
+
+
+@dataclass(frozen=True)
+class ParamDoc:
+    """One parameter: its name, type, default, allowed values and description."""
+
+    name: str
+    type: str
+    default: Any
+    allowed: str
+    dynamic: bool
+    description: str
+
+
+@dataclass(frozen=True)
+class InterfaceDoc:
+    """One topic, service or action of a node (``name`` absolute, as with no namespace)."""
+
+    kind: str  # topic, service, action
+    direction: str  # publishes, subscribes, serves, calls
+    name: str
+    type: str
+    qos: str
+    condition: str
+
+
+def node_module(name: str) -> ModuleType:
+    """The module of node ``name``.
+
+    Raises:
+        ValueError: not one of :data:`~nbv_prob_cnn.ros.NODES`.
+    """
+    if name not in NODES:
+        raise ValueError(f"unknown node {name!r}; available: {', '.join(sorted(NODES))}")
+    return importlib.import_module(f"nbv_prob_cnn.ros.{name}")
+
+
+def config_class(module: ModuleType) -> type:
+    """The config dataclass the node declares its parameters from (the module's dataclass whose
+    fields are all :func:`~nbv_prob_cnn.ros.common.param` fields, named ``...Config``)."""
+    found = [
+        obj
+        for obj in vars(module).values()
+        if inspect.isclass(obj) and dataclasses.is_dataclass(obj) and obj.__name__.endswith("Config")
+        and obj.__module__ == module.__name__
+        and all("param" in f.metadata for f in dataclasses.fields(obj))
+    ]  # fmt: skip
+    if len(found) != 1:
+        raise ValueError(f"{module.__name__}: expected one config dataclass, found {[c.__name__ for c in found]}")
+    return found[0]
+
+
+def parameters(name: str) -> list[ParamDoc]:
+    """The parameters of node ``name`` in declaration order."""
+    rows = []
+    for item in dataclasses.fields(config_class(node_module(name))):
+        spec: ParamSpec = item.metadata["param"]
+        default = item.default if item.default is not dataclasses.MISSING else item.default_factory()  # type: ignore[misc]
+        allowed = ""
+        if spec.choices is not None:
+            allowed = "one of " + ", ".join(f"`{c}`" for c in spec.choices)
+        elif spec.min_value is not None:
+            allowed = f"[{spec.min_value:g}, {spec.max_value:g}]"
+        rows.append(ParamDoc(item.name, type(default).__name__, default, allowed, spec.dynamic, spec.description))
+    return rows
+
+
+def _qos_text(expr: ast.expr | None, module: ModuleType, assigned: dict[str, ast.expr]) -> str:
+    if expr is None:
+        return ""
+    if isinstance(expr, ast.Name) and expr.id in assigned:
+        expr = assigned[expr.id]
+    if isinstance(expr, ast.Constant) and isinstance(expr.value, int):
+        return f"reliable, volatile, depth {expr.value}"
+    if isinstance(expr, ast.Name) and expr.id == "GRID_QOS":
+        return "reliable, transient local, depth 1 (late joiners get the last grid)"
+    if isinstance(expr, ast.Call):
+        called = ast.unparse(expr.func)
+        if called == "subscription_qos":
+            return "volatile; reliability from `qos_reliability` (best_effort = SENSOR_DATA)"
+        if called == "QoSProfile":
+            words = {k.arg: ast.unparse(k.value) for k in expr.keywords}
+            reliability = words.get("reliability", "RELIABLE").split(".")[-1].lower().replace("_", " ")
+            durability = words.get("durability", "VOLATILE").split(".")[-1].lower().replace("_", " ")
+            depth = words.get("depth", "10")
+            depth = "`queue_size`" if "queue_size" in depth else depth
+            return f"{reliability}, {durability}, depth {depth}"
+    return f"`{ast.unparse(expr)}`"
+
+
+def _name_text(expr: ast.expr, module: ModuleType) -> str:
+    try:
+        value = eval(compile(ast.Expression(expr), module.__name__, "eval"), vars(module))  # noqa: S307
+    except Exception:  # a loop variable or another run-time value
+        text = ast.unparse(expr)
+        return "(each recorded camera topic)" if "default_topic" in text else f"(per `{text}`)"
+    return "/" + str(value).lstrip("/")
+
+
+def _condition(node: ast.AST, parents: dict[ast.AST, ast.AST]) -> str:
+    tests = []
+    while node in parents:
+        parent = parents[node]
+        if isinstance(parent, ast.If) and node in parent.body:
+            tests.append(ast.unparse(parent.test))
+        elif isinstance(parent, ast.For):
+            tests.append(f"for {ast.unparse(parent.target)} in {ast.unparse(parent.iter)}")
+        node = parent
+    text = " and ".join(reversed(tests))
+    return re.sub(r"\b(?:self\.config|self|cfg)\.", "", text)
+
+
+def interfaces(name: str) -> list[InterfaceDoc]:
+    """The topics, services and actions node ``name`` creates, in source order."""
+    module = node_module(name)
+    tree = ast.parse(inspect.getsource(module))
+    parents = {child: parent for parent in ast.walk(tree) for child in ast.iter_child_nodes(parent)}
+    assigned: dict[str, ast.expr] = {}
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Assign) and len(node.targets) == 1 and isinstance(node.targets[0], ast.Name):
+            assigned.setdefault(node.targets[0].id, node.value)
+    found = []
+    for node in ast.walk(tree):
+        if not isinstance(node, ast.Call):
+            continue
+        called = node.func.attr if isinstance(node.func, ast.Attribute) else getattr(node.func, "id", "")
+        if called not in _CALLS:
+            continue
+        kind, direction = _CALLS[called]
+        args = node.args[1:] if called.startswith("Action") else node.args  # ActionServer(self, Type, name)
+        if len(args) < 2:
+            continue
+        qos = args[3] if kind == "topic" and direction == "subscribes" and len(args) > 3 else None
+        if kind == "topic" and direction == "publishes":
+            qos = args[2] if len(args) > 2 else None
+        found.append(
+            InterfaceDoc(kind, direction, _name_text(args[1], module), ast.unparse(args[0]).split(".")[-1],
+                         _qos_text(qos, module, assigned) if kind == "topic" else "", _condition(node, parents))
+        )  # fmt: skip
+    order = {"topic": 0, "service": 1, "action": 2}
+    return sorted(found, key=lambda i: (order[i.kind], i.direction, i.name))
+
+
+def summary(name: str) -> str:
+    """The first paragraph of the node module's docstring, without its ``name:`` prefix."""
+    text = (node_module(name).__doc__ or "").strip().split("\n\n")[0]
+    text = re.sub(r"^(?:Node )?``\w+``:\s*", "", " ".join(text.split()))
+    return re.sub(r"\s*\(SPEC[^)]*\)", "", text)
+
+
+def _value(value: Any) -> str:
+    return f'"{value}"' if isinstance(value, str) else repr(value)
+
+
+def help_text(name: str) -> str:
+    """Plain-text help of one node: what it does, its interfaces and its parameters."""
+    lines = [f"{name}: {summary(name)}", "", "Interfaces (names with no namespace):"]
+    for i in interfaces(name):
+        extra = "; ".join(t for t in (i.qos, f"only {i.condition}" if i.condition else "") if t)
+        lines.append(f"  {i.direction:10s} {i.kind:7s} {i.name}  [{i.type}]" + (f"  ({extra})" if extra else ""))
+    lines += ["", "Parameters (--ros-args -p NAME:=VALUE; * = may change at run time):"]
+    for p in parameters(name):
+        allowed = f"  {p.allowed}" if p.allowed else ""
+        lines.append(f"  {p.name}{'*' if p.dynamic else ''} ({p.type}, default {_value(p.default)}){allowed}")
+        lines.append(f"      {p.description}")
+    lines += ["", f"Run it: nbv node {name} --ros-args -p NAME:=VALUE ... (or ros2 run nbv_prob_cnn {name})"]
+    return "\n".join(lines)
+
+
+def _cell(text: str) -> str:
+    return text.replace("|", "\\|").replace("\n", " ")
+
+
+def nodes_markdown() -> str:
+    """The page ``docs/nodes.md``: every node's interfaces and parameters."""
+    out = [
+        "# Nodes: topics, services, actions and parameters",
+        "",
+        "<!-- Generated by `nbv docs nodes --out docs/nodes.md` from the nodes' code (config dataclasses and",
+        "     create_* calls); do not edit by hand: test/test_node_docs.py fails when this page is stale. -->",
+        "",
+        "Names are shown as they resolve with no namespace; every name is relative, so",
+        '`--ros-args -r __ns:=/robot1` moves a whole graph under `/robot1/...`. QoS "depth N" without more',
+        "is rclpy's default profile (keep last N, reliable, volatile). Parameters are set with",
+        "`--ros-args -p NAME:=VALUE`; those marked *run time* may also change while the node runs",
+        "(`ros2 param set`, or a `SetParameters` call); the others are read-only after start-up. A value",
+        "outside its range or choices is refused with the reason. `nbv node NAME --help` prints the",
+        "same without starting the node.",
+        "",
+    ]
+    for name in NODES:
+        out += [f"- [`{name}`](#{name})"]
+    for name in NODES:
+        out += [
+            "",
+            f"## {name}",
+            "",
+            summary(name),
+            "",
+            "| | kind | name | type | QoS / condition |",
+            "|---|---|---|---|---|",
+        ]
+        for i in interfaces(name):
+            extra = "; ".join(t for t in (i.qos, f"only {i.condition}" if i.condition else "") if t)
+            out.append(f"| {i.direction} | {i.kind} | `{i.name}` | `{i.type}` | {_cell(extra)} |")
+        out += ["", "| parameter | type | default | allowed | run time | description |", "|---|---|---|---|---|---|"]
+        for p in parameters(name):
+            out.append(f"| `{p.name}` | {p.type} | `{_cell(_value(p.default))}` | {_cell(p.allowed)} | "
+                       f"{'yes' if p.dynamic else ''} | {_cell(p.description)} |")  # fmt: skip
+    return "\n".join(out) + "\n"
