@@ -13,6 +13,7 @@ import numpy as np
 from tqdm import tqdm
 
 from nbv_prob_cnn.basics.grid import unknown_fraction, unknown_fraction_all
+from nbv_prob_cnn.exploration.view_guard import ViewGuard
 from nbv_prob_cnn.planners import Planner, PlanningContext, ViewChoice
 from nbv_prob_cnn.sensing.observe import observe
 from nbv_prob_cnn.sensing.sensor_noise import SensorNoise
@@ -21,10 +22,12 @@ from nbv_prob_cnn.worlds.world import World
 CSV_COLUMNS = [
     "iteration", "unknown_fraction", "unknown_fraction_all", "gain",
     "time_total_s", "time_cnn_s", "time_raycast_s", "time_views_s",
-    "x_m", "y_m", "z_m", "qx", "qy", "qz", "qw",
+    "x_m", "y_m", "z_m", "qx", "qy", "qz", "qw", "changed_cells", "ruled_out_views",
 ]  # fmt: skip
 #: Units of the columns: fractions and gains are ratios; times in seconds (``_s``); the camera
-#: position in metres of the grid frame (``_m``); the quaternion (x, y, z, w) of the camera.
+#: position in metres of the grid frame (``_m``); the quaternion (x, y, z, w) of the camera;
+#: counts of cells (``changed_cells``: cells whose state the view changed) and of views
+#: (``ruled_out_views``: poses the view guard has ruled out after this view; 0 without a guard).
 
 
 @dataclass
@@ -42,6 +45,8 @@ class IterationRecord:
     cell: np.ndarray
     position_m: np.ndarray
     quaternion: np.ndarray
+    changed_cells: int = 0
+    ruled_out_views: int = 0
 
     def csv_row(self) -> list:
         return [
@@ -55,6 +60,8 @@ class IterationRecord:
             f"{self.time_views_s:.6f}",
             *(f"{v:.6f}" for v in self.position_m),
             *(f"{v:.6f}" for v in self.quaternion),
+            self.changed_cells,
+            self.ruled_out_views,
         ]
 
 
@@ -85,13 +92,17 @@ def explore(
     noise: SensorNoise | None = None,
     room_margin_m: float | None = None,
     first: ViewChoice | None = None,
+    guard: ViewGuard | None = None,
 ) -> ExplorationResult:
     """Run one exploration of ``world`` with ``planner`` for at most ``views`` views.
 
     The first view is ``first`` if given, else random (SPEC §9); the run stops early when the
     planner finds no view (no positive gain, or, for a constrained planner, none it can take).
     ``noise``: a depth-sensor model for the simulated views (exact if None); ``room_margin_m``:
-    with ``noise``, walls this far outside the grid (see :func:`observe`).
+    with ``noise``, walls this far outside the grid (see :func:`observe`). ``guard``: rules out
+    each pose whose view changed fewer than its threshold of cells, plans around the ruled-out
+    poses and stops when nothing else has positive gain (:mod:`~nbv_prob_cnn.exploration.view_guard`);
+    None: the paper's plain loop.
     """
     if views < 1:
         raise ValueError(f"views: expected at least 1 view, got {views}")
@@ -105,15 +116,21 @@ def explore(
     for iteration in range(views):
         if iteration > 0:
             start = time.perf_counter()
-            planned = planner.plan(state, context)
+            planned = planner.plan(state, context) if guard is None else guard.plan(planner, state, context)
             elapsed = time.perf_counter() - start
             if planned is None:
                 stop_reason = f"no view with positive gain (or none feasible) after {iteration} views"
+                if guard is not None and guard.ruled_out:
+                    stop_reason += f", {len(guard.ruled_out)} ruled out for changing < {guard.min_changed_cells} cells"
                 break
             choice = planned
         orientation = context.orientations[choice.view_index]
+        before = state.copy()
         observe(state, world.ground_truth, choice.cell, orientation, context.active_sensor,
                 noise=noise, rng=context.rng, resolution_m=world.resolution, room_margin_m=room_margin_m)  # fmt: skip
+        changed = int(np.count_nonzero(state != before))
+        if guard is not None:
+            guard.record(choice, changed)
         records.append(
             IterationRecord(
                 iteration=iteration,
@@ -127,6 +144,8 @@ def explore(
                 cell=np.asarray(choice.cell).copy(),
                 position_m=geometry.cell_centre(choice.cell),
                 quaternion=context.view_quaternion(choice.view_index),
+                changed_cells=changed,
+                ruled_out_views=0 if guard is None else len(guard.ruled_out),
             )
         )
         bar.update(1)
