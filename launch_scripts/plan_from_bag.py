@@ -41,7 +41,7 @@ def main(argv=None) -> int:
         graph.start_node(
             "integrator",
             "integrator",
-            {**box, "drop_when_behind": False, "queue_size": 200, "qos_reliability": "reliable"},
+            {**box, "pose_source": "topic", "drop_when_behind": False, "queue_size": 200, "qos_reliability": "reliable"},
         )
         graph.start_node("completion_server", "completion_server", common)
         graph.start_node("gain_server", "gain_server", common)

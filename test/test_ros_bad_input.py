@@ -77,7 +77,7 @@ def test_integrator_battery(ros_env: dict, tmp_path: Path) -> None:  # noqa: F81
         integrator = graph.start_node(
             "integrator",
             "integrator",
-            {"pose_timeout_s": 0.5, "publish_rate_hz": 10.0, "diagnostics_period_s": 0.2},
+            {"pose_source": "topic", "pose_timeout_s": 0.5, "publish_rate_hz": 10.0, "diagnostics_period_s": 0.2},
         )
         with RosClient(int(ros_env["ROS_DOMAIN_ID"])) as client:
             received = []
@@ -167,7 +167,7 @@ def test_integrator_battery(ros_env: dict, tmp_path: Path) -> None:  # noqa: F81
             publish(TOPIC_POSE, pose_to_transform_msg(pose, 60 * S - S // 2), MSG_TRANSFORM)
             publish_frame(60 * S, with_pose=False)
             expect_drop("no_pose", "dropped: no pose within")
-            # a pose in another frame than the grid's (no tf here)
+            # a pose in another frame than the grid's (pose_source:=topic takes poses in the grid frame only)
             publish(TOPIC_POSE, pose_to_transform_msg(pose, 70 * S, parent="map"), MSG_TRANSFORM)
             expect_drop("pose_frame", "expected the grid frame 'world'")
 

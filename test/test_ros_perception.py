@@ -168,8 +168,10 @@ def test_sim_camera_to_integrator(ros_env: dict, tmp_path: Path) -> None:
         with RosClient(int(ros_env["ROS_DOMAIN_ID"])) as client:
             move = client.node.create_client(MoveCamera, "/sim_camera/move_to")
             assert client.spin_until(
-                lambda: all(
-                    client.node.count_subscribers(t) >= 2 for t in (TOPIC_IMAGE, TOPIC_CAMERA_INFO, TOPIC_POSE)
+                lambda: (
+                    all(client.node.count_subscribers(t) >= 2 for t in (TOPIC_IMAGE, TOPIC_CAMERA_INFO))
+                    and client.node.count_subscribers(TOPIC_POSE) >= 1  # bag_record; the integrator poses by TF
+                    and client.node.count_subscribers("/tf") >= 1
                 ),
                 START_TIMEOUT_S,
             ), "integrator and bag_record did not subscribe"
@@ -222,6 +224,7 @@ def test_bag_replay_matches_offline_integration(ros_env: dict, tmp_path: Path) -
         # deterministic: every frame integrated, in stamp order (drop_when_behind false, deep
         # queues; a pose that a busy machine delivers seconds after its image still counts)
         integrator = {
+            "pose_source": "topic",  # the bag carries /camera/pose
             "drop_when_behind": False,
             "queue_size": 200,
             "publish_rate_hz": 5.0,

@@ -44,7 +44,10 @@ class DropReason(str, enum.Enum):
     BAD_ENCODING = "bad_encoding"  # not a REP-118 depth encoding
     SIZE_MISMATCH = "size_mismatch"  # image data vs. its own sizes, or image vs. camera_info
     NON_FINITE_POSE = "non_finite_pose"  # NaN/inf pose or a zero quaternion
-    POSE_FRAME = "pose_frame"  # pose in another frame than the grid's (no tf here)
+    POSE_FRAME = "pose_frame"  # pose_source topic: pose in another frame than the grid's
+    TF_UNKNOWN_FRAME = "tf_unknown_frame"  # pose_source tf: the image's frame (or the grid's) never on /tf
+    TF_NOT_CONNECTED = "tf_not_connected"  # pose_source tf: the image's frame is in another TF tree
+    TF_EXTRAPOLATION = "tf_extrapolation"  # pose_source tf: no TF around the image's stamp before the timeout
     NO_POSE = "no_pose"  # no pose within the sync tolerance before the timeout
     NO_CAMERA_INFO = "no_camera_info"  # no camera_info within the tolerance before the timeout
     NO_JOINT_STATES = "no_joint_states"  # self-filter on: no joint_states within the tolerance before the timeout

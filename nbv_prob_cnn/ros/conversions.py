@@ -12,9 +12,10 @@ import math
 
 import numpy as np
 from builtin_interfaces.msg import Time
-from geometry_msgs.msg import Pose, PoseStamped
+from geometry_msgs.msg import Pose, PoseStamped, TransformStamped
 from nbv_prob_cnn_msgs.msg import ProbabilityGrid, VoxelGrid
 
+from nbv_prob_cnn.basics.camera import quaternion_from_matrix
 from nbv_prob_cnn.basics.geometry import GridGeometry
 from nbv_prob_cnn.perception.messages import stamp_parts
 
@@ -137,4 +138,18 @@ def arrays_to_pose_stamped(position: np.ndarray, quat: np.ndarray, frame_id: str
     msg.pose.position.x, msg.pose.position.y, msg.pose.position.z = (float(v) for v in position)
     o = msg.pose.orientation
     o.x, o.y, o.z, o.w = (float(v) for v in quat)
+    return msg
+
+
+def transform_stamped_msg(matrix: np.ndarray, stamp_ns: int, parent: str, child: str) -> TransformStamped:
+    """A :class:`TransformStamped` (as on ``/tf``: the pose of ``child`` in ``parent``) of a 4×4 rigid
+    transform."""
+    msg = TransformStamped()
+    msg.header.frame_id = parent
+    msg.header.stamp = time_msg(stamp_ns)
+    msg.child_frame_id = child
+    t = msg.transform.translation
+    t.x, t.y, t.z = (float(v) for v in np.asarray(matrix)[:3, 3])
+    r = msg.transform.rotation
+    r.x, r.y, r.z, r.w = (float(v) for v in quaternion_from_matrix(np.asarray(matrix)[:3, :3]))
     return msg

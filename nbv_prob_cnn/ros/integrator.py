@@ -1,13 +1,26 @@
 """``integrator``: TSDF fusion of posed depth frames into the ternary grid ``/nbv/grid`` (SPEC §1, §10).
 
-Subscribes ``/camera/depth/image`` (``32FC1`` metres or ``16UC1`` millimetres; 0/NaN = no return),
-``/camera/depth/camera_info`` and ``/camera/pose`` (``TransformStamped``, ``frame_id`` -> camera
-optical frame; there is no tf here) and pairs them by header stamp (± ``sync_tolerance_s``).
+Subscribes ``/camera/depth/image`` (``32FC1`` metres or ``16UC1`` millimetres; 0/NaN = no return)
+and ``/camera/depth/camera_info`` and pairs them by header stamp (± ``sync_tolerance_s``). Each
+image is posed, by ``pose_source``:
+
+* ``tf`` (default): by TF (``/tf`` + ``/tf_static``, :class:`~nbv_prob_cnn.ros.tf_listener.TfListener`:
+  tf2_ros where it imports), the pose of the image's ``header.frame_id`` (the camera's optical
+  frame, as a driver stamps it) in ``fixed_frame`` at the image's stamp, interpolated between the
+  TF samples around it. An image whose transform is not there yet (TF arrives after the image)
+  is held and retried (every 20 ms) for up to ``pose_timeout_s``, then dropped and counted
+  under the TF failure of its last try: ``tf_unknown_frame``, ``tf_not_connected`` or
+  ``tf_extrapolation`` (the log names the frame or the time gap).
+* ``topic``: ``/camera/pose`` (``TransformStamped``, ``fixed_frame`` -> camera optical frame),
+  paired with the image by stamp like camera_info (recorded bags, ``bag_replay``).
 A paired frame is fused by :class:`~nbv_prob_cnn.perception.TsdfIntegrator` in a worker thread,
 so the subscription callbacks only decode headers and never wait for an integration.
 
 Publishes ``/nbv/grid`` (``nbv_prob_cnn_msgs/VoxelGrid``, reliable + transient local, depth 1:
-late joiners get the latest grid) at most ``publish_rate_hz`` times a second, whenever a frame
+late joiners with transient local durability get the latest grid at once; and while the grid has
+not changed for ``republish_period_s`` and anything subscribes, the latest grid is published again,
+so a subscriber with the default QoS (volatile) also gets the current grid within that period),
+at most ``publish_rate_hz`` times a second, whenever a frame
 was integrated since the last grid. ``header.stamp`` is the stamp of the newest integrated frame,
 so a client that moved the camera and got frame stamp ``T`` waits for a grid stamped ``>= T``
 (an all-unknown grid stamped 0 follows a reset).
@@ -24,9 +37,10 @@ positions) as ``bad_joint_states`` (the log names the joints).
 No frame is dropped silently: every frame that cannot be used is counted under its reason
 (:class:`~nbv_prob_cnn.perception.messages.DropReason`: ``bad_message``, ``bad_encoding`` (not
 REP-118), ``size_mismatch`` (image data vs. its sizes, or image vs. camera_info),
-``non_finite_pose`` (NaN/inf or zero quaternion), ``pose_frame`` (pose not in ``frame_id``),
+``non_finite_pose`` (NaN/inf or zero quaternion), ``pose_frame`` (pose not in ``fixed_frame``),
 ``no_pose`` / ``no_camera_info`` / ``no_joint_states`` (nothing within the tolerance before
-``pose_timeout_s``), ``bad_joint_states``,
+``pose_timeout_s``), ``tf_unknown_frame`` / ``tf_not_connected`` / ``tf_extrapolation``
+(``pose_source:=tf``), ``bad_joint_states``,
 ``too_many_pending``, ``behind``, ``reset``, ``integration_error``), logged (at most every 5 s
 per reason) and reported on ``/diagnostics`` (``diagnostic_msgs/DiagnosticArray`` every
 ``diagnostics_period_s``: WARN when frames were dropped in the last period, one key per reason)
@@ -89,9 +103,11 @@ from nbv_prob_cnn.perception.messages import (
     PairedFrame,
     StampSync,
     decode_frame,
+    pose_to_transform_msg,
     stamp_of,
     typestore,
 )
+from nbv_prob_cnn.perception.tf_buffer import TransformError
 from nbv_prob_cnn.perception.tsdf import (
     DEFAULT_EMPTY_MARGIN_VOXELS,
     DEFAULT_ORIGIN_M,
@@ -104,6 +120,7 @@ from nbv_prob_cnn.ros import names
 from nbv_prob_cnn.ros.common import GRID_QOS, RELIABILITY, declare_config, param, run_node, subscription_qos
 from nbv_prob_cnn.ros.conversions import grid_to_msg, time_msg
 from nbv_prob_cnn.ros.robot_params import RobotParams
+from nbv_prob_cnn.ros.tf_listener import POSE_SOURCES, TfListener
 
 NODE_NAME = "integrator"
 TOPIC_GRID = names.GRID
@@ -114,6 +131,14 @@ SERVICE_DIAGNOSTICS = names.INTEGRATOR_DIAGNOSTICS
 TOPIC_DIAGNOSTICS = "/diagnostics"
 #: Most frames waiting for integration with ``drop_when_behind:=false`` (older ones are dropped beyond it).
 MAX_BACKLOG = 1000
+#: ``pose_source:=tf``: period of the retries of images whose transform had not arrived [s].
+TF_RETRY_PERIOD_S = 0.02
+#: The drop reason of an image whose TF lookup failed, by :attr:`TransformError.reason`.
+TF_DROP_REASONS = {
+    "unknown_frame": DropReason.TF_UNKNOWN_FRAME,
+    "not_connected": DropReason.TF_NOT_CONNECTED,
+    "extrapolation": DropReason.TF_EXTRAPOLATION,
+}
 #: Depth of the ``joint_states`` subscription with ``self_filter`` (2 s of a 50 Hz stream).
 JOINT_STATES_QUEUE = 100
 #: Re-exported for callers that took them from here.
@@ -135,7 +160,11 @@ class IntegratorConfig(RobotParams):
     """Parameters of ``integrator`` (all fixed after start-up): the robot description (used with
     ``self_filter``), then these."""
 
-    frame_id: str = param("world", "fixed frame of the grid; poses must be given in it")
+    fixed_frame: str = param("world", "frame of the grid: images are posed in it (by TF, or /camera/pose given in it)")
+    pose_source: str = param(
+        "tf", "where each image's pose comes from: tf (its header.frame_id in fixed_frame at its stamp, from /tf "
+        "+ /tf_static) or topic (/camera/pose)", choices=POSE_SOURCES,
+    )  # fmt: skip
     origin: list = param([float(v) for v in DEFAULT_ORIGIN_M], "world coordinates [m] of the corner of cell (0, 0, 0)",
                          check=_check_origin)  # fmt: skip
     shape: list = param([int(v) for v in DEFAULT_SHAPE], "grid size [cells] nx, ny, nz", check=_check_shape)
@@ -154,12 +183,18 @@ class IntegratorConfig(RobotParams):
         0.01, "largest stamp difference of an image and its pose / camera_info [s]", min_value=0.0, max_value=10.0
     )
     pose_timeout_s: float = param(
-        1.0, "an image whose pose / camera_info is missing this long is dropped [s]", min_value=0.0, max_value=60.0,
+        1.0, "an image whose pose (TF) / camera_info is missing this long is dropped [s]", min_value=0.0,
+        max_value=60.0,
         attribute="pose_timeout",
     )  # fmt: skip
     publish_rate_hz: float = param(
         2.0, "most grids per second; 0 = a grid after every integrated frame", min_value=0.0, max_value=100.0,
         attribute="publish_rate",
+    )  # fmt: skip
+    republish_period_s: float = param(
+        1.0, "publish the latest grid again when unchanged this long while anything subscribes (a volatile "
+        "subscriber gets the current grid within it; same header stamp); 0 = never", min_value=0.0,
+        max_value=3600.0,
     )  # fmt: skip
     drop_when_behind: bool = param(
         True, "when integration falls behind, only the newest waiting frame is kept (false: all, in order)"
@@ -224,7 +259,7 @@ class Integrator(Node):
         self._dirty = False
         self._newest_stamp_ns = 0
         self._next_publish = 0.0
-        self.counts = dict.fromkeys(("images", "integrated", "grids"), 0)
+        self.counts = dict.fromkeys(("images", "integrated", "grids", "grids_republished"), 0)
         if cfg.self_filter:
             self.counts["self_filtered_pixels"] = 0
         self.drops = DropCounts()  # every frame not integrated is counted here under its reason
@@ -240,9 +275,17 @@ class Integrator(Node):
         self.create_subscription(
             CameraInfo, names.CAMERA_INFO, self._on_info, camera_qos, callback_group=inputs, raw=True
         )
-        self.create_subscription(
-            TransformStamped, names.CAMERA_POSE, self._on_pose, camera_qos, callback_group=inputs, raw=True
-        )
+        self._tf: TfListener | None = None
+        self._tf_errors: dict[int, TransformError] = {}  # image stamp -> why its last TF lookup failed
+        if cfg.pose_source == "tf":
+            if not cfg.fixed_frame:
+                raise ValueError("fixed_frame must not be empty")
+            self._tf = TfListener(self, callback_group=inputs)
+            self.create_timer(TF_RETRY_PERIOD_S, self._on_tf_retry_timer, callback_group=inputs)
+        else:
+            self.create_subscription(
+                TransformStamped, names.CAMERA_POSE, self._on_pose, camera_qos, callback_group=inputs, raw=True
+            )
         if cfg.self_filter:
             # the filter needs the joint state of each frame's stamp: keep a few seconds of them (they are small)
             joints_qos = subscription_qos(max(cfg.queue_size, JOINT_STATES_QUEUE), cfg.qos_reliability)
@@ -255,11 +298,17 @@ class Integrator(Node):
         self.create_service(Trigger, SERVICE_DIAGNOSTICS, self._on_diagnostics, callback_group=services)
         self._diagnostics_pub = self.create_publisher(DiagnosticArray, TOPIC_DIAGNOSTICS, 10)
         self.create_timer(self.diagnostics_period, self._publish_diagnostics, callback_group=services)
+        self._last_grid: VoxelGrid | None = None  # the latest grid published, and when (time.monotonic)
+        self._last_grid_at = 0.0
+        if cfg.republish_period_s > 0:
+            self.create_timer(min(cfg.republish_period_s, 0.25), self._on_republish_timer, callback_group=services)
         self._worker = threading.Thread(target=self._work, name="tsdf_worker", daemon=True)
         self._worker.start()
+        poses = f"by TF ({self._tf.backend})" if self._tf else f"from {names.CAMERA_POSE}"
         self.get_logger().info(
-            f"grid {self.geometry.shape} voxel {voxel:g} m origin {list(self.geometry.origin)} in {self.frame_id!r}; "
-            f"sync ±{tolerance:g} s, publish <= {self.publish_rate:g} Hz, drop_when_behind={self.drop_when_behind}"
+            f"grid {self.geometry.shape} voxel {voxel:g} m origin {list(self.geometry.origin)} "
+            f"in {self.fixed_frame!r}; poses {poses}; sync ±{tolerance:g} s, publish <= {self.publish_rate:g} Hz, "
+            f"drop_when_behind={self.drop_when_behind}"
             + (f"; self-filter: {cfg.self_filter_bodies} bodies" if self._self_filter else "")
         )
 
@@ -300,6 +349,8 @@ class Integrator(Node):
             )
             return
         with self._cv:
+            if self._tf is not None:
+                self._enqueue(self._pose_by_tf(stamp, msg.header.frame_id))
             frames, overflow = self._sync.add_image(stamp, msg, time.monotonic())
             self._enqueue(frames)
         if overflow:
@@ -319,15 +370,40 @@ class Integrator(Node):
         msg = self._decode(raw, MSG_TRANSFORM, names.CAMERA_POSE)
         if msg is None:
             return
-        if msg.header.frame_id != self.frame_id:
+        if msg.header.frame_id != self.fixed_frame:
             self._drop(
                 DropReason.POSE_FRAME,
-                f"pose in frame {msg.header.frame_id!r}, expected the grid frame {self.frame_id!r} (no tf here); "
-                "ignored",
+                f"pose in frame {msg.header.frame_id!r}, expected the grid frame {self.fixed_frame!r} "
+                "(pose_source:=tf looks poses up in any frame); ignored",
             )
             return
         with self._cv:
             self._enqueue(self._sync.add_pose(stamp_of(msg), msg))
+
+    def _pose_by_tf(self, stamp: int, frame: str) -> list[PairedFrame]:
+        """``pose_source:=tf``: add the TF pose of image frame ``frame`` in ``fixed_frame`` at
+        ``stamp`` to the pairing and return the frames it completes (caller holds ``_cv``); when
+        the transform is not available (yet) none, and the error is kept for the drop report."""
+        assert self._tf is not None
+        try:
+            if not frame:
+                raise TransformError("the image has no header.frame_id (its optical frame) to look up in TF")
+            matrix, _ = self._tf.lookup(self.fixed_frame, frame, stamp)
+        except TransformError as exc:
+            self._tf_errors[stamp] = exc
+            return []
+        self._tf_errors.pop(stamp, None)
+        return self._sync.add_pose(stamp, pose_to_transform_msg(matrix, stamp, self.fixed_frame, frame))
+
+    def _on_tf_retry_timer(self) -> None:
+        """Retry the TF lookup of every image still waiting for its pose."""
+        with self._cv:
+            waiting = {stamp: msg for stamp, (msg, _) in self._sync.images.items()}
+            for stamp in list(self._tf_errors):
+                if stamp not in waiting:
+                    del self._tf_errors[stamp]  # paired, expired or reset
+            for stamp in sorted(stamp for stamp in waiting if stamp in self._tf_errors):
+                self._enqueue(self._pose_by_tf(stamp, waiting[stamp].header.frame_id))
 
     def _on_joints(self, raw: bytes) -> None:
         msg = self._decode(raw, MSG_JOINT_STATE, names.JOINT_STATES)
@@ -338,7 +414,12 @@ class Integrator(Node):
     def _on_expire_timer(self) -> None:
         with self._cv:
             dropped = self._sync.expire(time.monotonic(), self.pose_timeout)
+            tf_errors = {stamp: self._tf_errors.pop(stamp) for stamp, _, _ in dropped if stamp in self._tf_errors}
         for stamp, reason, text in dropped:
+            error = tf_errors.get(stamp)
+            if error is not None and reason == DropReason.NO_POSE:
+                reason = TF_DROP_REASONS.get(error.reason, DropReason.TF_UNKNOWN_FRAME)
+                text = f"no transform from {self.fixed_frame!r} in TF: {error}"
             self._drop(reason, f"image stamped {stamp * 1e-9:.3f} dropped: {text} after {self.pose_timeout:g} s")
 
     def diagnostics(self) -> dict[str, Any]:
@@ -361,7 +442,7 @@ class Integrator(Node):
             level=DiagnosticStatus.WARN if new_drops else DiagnosticStatus.OK,
             name=f"{self.get_fully_qualified_name()}: depth frames",
             message=f"{new_drops} frame(s) dropped in the last period" if new_drops else "integrating",
-            hardware_id=self.frame_id,
+            hardware_id=self.fixed_frame,
         )
         values = {k: v for k, v in report.items() if k not in ("dropped", "last_drop")}
         values.update({f"dropped_{k}": v for k, v in report["dropped"].items()})
@@ -513,8 +594,21 @@ class Integrator(Node):
             stamp_ns = self._newest_stamp_ns
             self._dirty = False
             self._next_publish = time.monotonic() + (1.0 / self.publish_rate if self.publish_rate > 0 else 0.0)
-        self._grid_pub.publish(grid_to_msg(grid, self.geometry, self.frame_id, time_msg(stamp_ns)))
+        msg = grid_to_msg(grid, self.geometry, self.fixed_frame, time_msg(stamp_ns))
+        self._grid_pub.publish(msg)
+        self._last_grid, self._last_grid_at = msg, time.monotonic()
         self.counts["grids"] += 1
+
+    def _on_republish_timer(self) -> None:
+        """The latest grid again, when unchanged for ``republish_period_s`` and anything subscribes."""
+        msg = self._last_grid
+        if msg is None or not self.context.ok() or self._grid_pub.get_subscription_count() == 0:
+            return
+        if time.monotonic() - self._last_grid_at < self.config.republish_period_s:
+            return
+        self._grid_pub.publish(msg)
+        self._last_grid_at = time.monotonic()
+        self.counts["grids_republished"] += 1
 
     def destroy_node(self) -> None:
         with self._cv:

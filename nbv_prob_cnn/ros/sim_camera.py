@@ -4,15 +4,21 @@ Publishes, all with the same header stamp per frame:
 
 * ``/camera/depth/image`` (``sensor_msgs/Image``, ``32FC1`` metres or ``16UC1`` millimetres, 0 = no return)
 * ``/camera/depth/camera_info`` (``sensor_msgs/CameraInfo``, pinhole, no distortion)
-* ``/camera/pose`` (``geometry_msgs/TransformStamped``, ``frame_id`` -> ``camera_frame``)
+* the camera pose ``frame_id`` -> ``camera_frame`` (the optical frame the images are stamped in):
+  on ``/tf`` (``tf2_msgs/TFMessage``) with ``pose_source:=tf`` (the default) and on ``/camera/pose``
+  (``geometry_msgs/TransformStamped``), for the free-flying camera, which stands in for the robot
+  that would publish it
 
 Moves with the service ``/sim_camera/move_to`` (``nbv_prob_cnn_msgs/MoveCamera``: the frame at the
 target is rendered and published inside the service call, the reply carries its stamp) or the
 topic ``/camera/goal_pose`` (``geometry_msgs/PoseStamped``; a frame is published immediately).
 Target poses are ``camera_optical`` poses (REP-103: z forward, x right, y down) in ``frame_id``.
-With ``follow_arm:=true`` the camera rides on the simulated arm instead: it takes its pose from
-``arm/camera_pose`` (``arm_sim``'s forward kinematics) and stamps each frame with the stamp of
-the arm pose it was rendered at (the move requests are refused).
+With ``follow_arm:=true`` the camera rides on the simulated arm instead (the move requests are
+refused) and publishes what a real camera driver does, the image and camera_info in
+``camera_frame`` and no pose: with ``pose_source:=tf`` it renders at the newest TF pose of
+``camera_frame`` in ``frame_id`` (``arm_sim`` publishes the links on ``/tf``, the camera mount on
+``/tf_static``) and stamps the frame with that transform's stamp; with ``pose_source:=topic`` it
+takes ``arm/camera_pose`` (``arm_sim``'s forward kinematics) and publishes ``/camera/pose`` as well.
 
 With ``render_arm:=true`` the arm (the robot of the robot description parameters ``urdf_path``,
 ``base_xyz``, ..., its visual meshes) is rendered into every frame at the latest ``joint_states``
@@ -57,10 +63,12 @@ from nbv_prob_cnn.perception.messages import (
     typestore,
 )
 from nbv_prob_cnn.perception.messages import stamp_ns as message_stamp_ns
+from nbv_prob_cnn.perception.tf_buffer import TransformError
 from nbv_prob_cnn.ros import names
 from nbv_prob_cnn.ros.common import declare_config, param, run_node
-from nbv_prob_cnn.ros.conversions import pose_to_arrays, time_msg
+from nbv_prob_cnn.ros.conversions import pose_to_arrays, time_msg, transform_stamped_msg
 from nbv_prob_cnn.ros.robot_params import RobotParams
+from nbv_prob_cnn.ros.tf_listener import POSE_SOURCES, TF_QOS, TOPIC_TF, TfListener
 
 NODE_NAME = "sim_camera"
 TOPIC_GOAL_POSE = names.GOAL_POSE
@@ -172,7 +180,11 @@ class SimCameraConfig(RobotParams):
         False, "render the arm's visual meshes into every frame at the latest joint_states (robot description "
         "parameters); no frame before the first joint state",
     )  # fmt: skip
-    follow_arm: bool = param(False, "take the pose from arm/camera_pose (arm_sim) instead of move_to/goal_pose")
+    follow_arm: bool = param(False, "ride on the arm (pose from TF or arm/camera_pose) instead of move_to/goal_pose")
+    pose_source: str = param(
+        "tf", "tf: the free camera broadcasts its pose on /tf, on the arm it reads it from /tf; topic: "
+        "arm/camera_pose in and /camera/pose out only", choices=POSE_SOURCES,
+    )  # fmt: skip
 
 
 class SimCamera(Node):
@@ -240,15 +252,29 @@ class SimCamera(Node):
         )
         self._image_pub = self.create_publisher(Image, names.DEPTH_IMAGE, qos)
         self._info_pub = self.create_publisher(CameraInfo, names.CAMERA_INFO, qos)
-        self._pose_pub = self.create_publisher(TransformStamped, names.CAMERA_POSE, qos)
+        # a real camera driver publishes no pose: on the arm (TF) only the image and camera_info
+        self._pose_pub = None
+        if not (self.follow_arm and self.pose_source == "tf"):
+            self._pose_pub = self.create_publisher(TransformStamped, names.CAMERA_POSE, qos)
+        self._tf_pub = None
+        if not self.follow_arm and self.pose_source == "tf":
+            from tf2_msgs.msg import TFMessage
+
+            self._tf_message = TFMessage
+            self._tf_pub = self.create_publisher(TFMessage, TOPIC_TF, TF_QOS)
+        self._tf: TfListener | None = None
         self.create_service(MoveCamera, SERVICE_MOVE_TO, self._on_move_to)
         self.create_subscription(PoseStamped, TOPIC_GOAL_POSE, self._on_goal_pose, 10)
-        if self.follow_arm:
+        if self.follow_arm and self.pose_source == "tf":
+            self._tf = TfListener(self)
+        elif self.follow_arm:
             self.create_subscription(PoseStamped, names.ARM_CAMERA_POSE, self._on_arm_pose, 10)
         self._timer = self.create_timer(1.0 / rate, self._on_timer) if rate > 0 else None
         self.get_logger().info(
             f"{source}: {self._camera.n_meshes} mesh(es), {width}x{height} px, hfov {hfov:g} deg, "
             f"{self.encoding}, {rate:g} Hz, pose {np.round(self._pose[:3, 3], 3).tolist()}"
+            + (f"; pose of {self.camera_frame!r} in {self.frame_id!r} from TF ({self._tf.backend})" if self._tf else "")
+            + (f"; broadcasting {self.frame_id!r} -> {self.camera_frame!r} on {TOPIC_TF}" if self._tf_pub else "")
             + (f"; rendering the arm ({len(self._arm.meshes)} visual meshes) at joint_states" if self._arm else "")
         )
 
@@ -285,10 +311,14 @@ class SimCamera(Node):
             depth = self._camera.render(self._pose, occluders)
             store = typestore()
             info = intrinsics_to_camera_info(self.intrinsics, stamp_ns, self.camera_frame)
-            pose = pose_to_transform_msg(self._pose, stamp_ns, self.frame_id, self.camera_frame)
             image = depth_to_image_msg(depth, stamp_ns, self.encoding, self.camera_frame)
+            if self._tf_pub is not None:  # before the image, so a TF listener has the pose when the image comes
+                pose_tf = transform_stamped_msg(self._pose, stamp_ns, self.frame_id, self.camera_frame)
+                self._tf_pub.publish(self._tf_message(transforms=[pose_tf]))
+            if self._pose_pub is not None:
+                pose = pose_to_transform_msg(self._pose, stamp_ns, self.frame_id, self.camera_frame)
+                self._pose_pub.publish(bytes(store.serialize_cdr(pose, MSG_TRANSFORM)))
             self._info_pub.publish(bytes(store.serialize_cdr(info, MSG_CAMERA_INFO)))
-            self._pose_pub.publish(bytes(store.serialize_cdr(pose, MSG_TRANSFORM)))
             self._image_pub.publish(bytes(store.serialize_cdr(image, MSG_IMAGE)))
             self.frames += 1
             return stamp_ns
@@ -296,7 +326,7 @@ class SimCamera(Node):
     def _target_pose(self, msg: PoseStamped) -> np.ndarray:
         frame = msg.header.frame_id
         if frame not in ("", self.frame_id):
-            raise ValueError(f"target frame {frame!r} is not the camera's fixed frame {self.frame_id!r} (no tf here)")
+            raise ValueError(f"target frame {frame!r} is not the camera's fixed frame {self.frame_id!r}")
         position, quat = pose_to_arrays(msg.pose)  # raises on NaN / zero quaternion
         pose = np.eye(4)
         pose[:3, :3] = matrix_from_quaternion(quat)
@@ -322,6 +352,8 @@ class SimCamera(Node):
         if not self.follow_arm:
             self.publish_frame()
             return
+        if self._tf is not None:
+            self._arm_pose_from_tf()
         with self._lock:
             latest = self._arm_pose
             if latest is None or latest[1] <= self._last_stamp_ns:
@@ -349,6 +381,19 @@ class SimCamera(Node):
             self._arm_qs[self._arm_stamp_ns] = q
             while len(self._arm_qs) > ARM_STATES_KEPT:
                 self._arm_qs.pop(next(iter(self._arm_qs)))
+
+    def _arm_pose_from_tf(self) -> None:
+        """``follow_arm`` + TF: the newest pose of ``camera_frame`` in ``frame_id`` becomes the arm pose."""
+        assert self._tf is not None
+        try:
+            pose, stamp = self._tf.lookup(self.frame_id, self.camera_frame)
+        except TransformError as exc:
+            self.get_logger().warning(f"no frame: no camera pose in TF yet ({exc})", throttle_duration_sec=5.0)
+            return
+        if stamp == 0:  # a chain of static transforms holds at any time: a frame per tick
+            stamp = self.get_clock().now().nanoseconds
+        with self._lock:
+            self._arm_pose = (pose, stamp)
 
     def _on_arm_pose(self, msg: PoseStamped) -> None:
         try:

@@ -1,0 +1,279 @@
+"""A TF buffer without rclpy: the transform tree of ``/tf`` and ``/tf_static`` with chained,
+time-interpolated lookups, for where ``tf2_ros`` cannot be imported (the ROS wheels of this
+environment have no tf2). :mod:`nbv_prob_cnn.ros.tf_listener` fills it from the topics.
+
+Frames form a tree as in tf2: each child frame has one parent (a transform ``parent -> child``
+is the pose of the child in the parent, ``geometry_msgs/TransformStamped`` with
+``header.frame_id`` = parent and ``child_frame_id`` = child). Dynamic transforms keep a history of
+``cache_time_s`` (tf2's default 10 s) and are interpolated between the two samples around the
+requested stamp; static ones hold at every stamp.
+
+The rigid-body maths is pytransform3d's (:class:`~pytransform3d.transform_manager.TemporalTransformManager`
+composes the chain, :class:`~pytransform3d.transform_manager.NumpyTimeseriesTransform` interpolates).
+Interpolation is screw-linear (ScLERP): for a pure translation or a pure rotation it is tf2's
+linear + spherical interpolation; when both change, the translation follows the screw motion
+instead of a straight line (millimetres apart for samples 20 ms apart on an arm).
+
+A failed lookup raises a :class:`TransformError` naming what is missing: the frame that was
+never received (:class:`FrameNotFoundError`), the two trees that do not meet
+(:class:`NotConnectedError`) or the transform whose history does not cover the stamp and by how
+much (:class:`ExtrapolationError`).
+"""
+
+from __future__ import annotations
+
+import bisect
+import threading
+from dataclasses import dataclass
+
+import numpy as np
+from pytransform3d.transform_manager import (
+    NumpyTimeseriesTransform,
+    StaticTransform,
+    TemporalTransformManager,
+    TimeVaryingTransform,
+)
+from pytransform3d.transformations import transform_from_pq
+
+#: tf2's default history of a dynamic transform [s].
+DEFAULT_CACHE_TIME_S = 10.0
+_NS = 1_000_000_000
+
+
+class TransformError(LookupError):
+    """A lookup that cannot be answered; ``reason`` names the kind (a diagnostics key)."""
+
+    reason = "transform_error"
+
+
+class FrameNotFoundError(TransformError):
+    """A frame that no transform names (yet)."""
+
+    reason = "unknown_frame"
+
+
+class NotConnectedError(TransformError):
+    """Both frames are known but lie in different trees."""
+
+    reason = "not_connected"
+
+
+class ExtrapolationError(TransformError):
+    """A transform on the chain has no data around the requested stamp."""
+
+    reason = "extrapolation"
+
+
+def normalize_frame(frame: str) -> str:
+    """tf2's frame names carry no leading slash (``/world`` is ``world``)."""
+    return frame.lstrip("/")
+
+
+def pq_from_translation_quaternion(translation, quaternion_xyzw) -> np.ndarray:
+    """pytransform3d's position-quaternion ``(x, y, z, qw, qx, qy, qz)`` of a translation and a ROS
+    quaternion ``(x, y, z, w)``, normalised.
+
+    Raises:
+        ValueError: not 3 + 4 numbers, NaN/inf components or a zero quaternion.
+    """
+    t = np.asarray(translation, dtype=np.float64).reshape(3)
+    q = np.asarray(quaternion_xyzw, dtype=np.float64).reshape(4)
+    if not (np.all(np.isfinite(t)) and np.all(np.isfinite(q))):
+        raise ValueError(f"transform: NaN or infinite components (translation {t.tolist()}, rotation {q.tolist()})")
+    norm = float(np.linalg.norm(q))
+    if norm < 1e-9:
+        raise ValueError(f"transform: zero quaternion {q.tolist()}")
+    x, y, z, w = q / norm
+    return np.array([t[0], t[1], t[2], w, x, y, z])
+
+
+def matrix_from_translation_quaternion(translation, quaternion_xyzw) -> np.ndarray:
+    """4×4 matrix of a translation (3,) and a ROS quaternion ``(x, y, z, w)``.
+
+    Raises:
+        ValueError: as :func:`pq_from_translation_quaternion`.
+    """
+    return transform_from_pq(pq_from_translation_quaternion(translation, quaternion_xyzw))
+
+
+def _seconds(stamp_ns: int) -> str:
+    return f"{stamp_ns / _NS:.6f} s"
+
+
+class _History(TimeVaryingTransform):
+    """The samples of one dynamic transform, sorted by stamp (ns), pruned to the cache time."""
+
+    def __init__(self, cache_ns: int) -> None:
+        self.cache_ns = cache_ns
+        self.stamps: list[int] = []
+        self.pqs: list[np.ndarray] = []  # pytransform3d order: x, y, z, qw, qx, qy, qz
+        self._series: NumpyTimeseriesTransform | None = None
+
+    def add(self, stamp_ns: int, pq: np.ndarray) -> None:
+        i = bisect.bisect_left(self.stamps, stamp_ns)
+        if i < len(self.stamps) and self.stamps[i] == stamp_ns:
+            self.pqs[i] = pq  # a repeated stamp replaces the sample (as tf2)
+        else:
+            self.stamps.insert(i, stamp_ns)
+            self.pqs.insert(i, pq)
+        keep = bisect.bisect_left(self.stamps, self.stamps[-1] - self.cache_ns)
+        del self.stamps[:keep], self.pqs[:keep]
+        self._series = None
+
+    @property
+    def oldest(self) -> int:
+        return self.stamps[0]
+
+    @property
+    def newest(self) -> int:
+        return self.stamps[-1]
+
+    def as_matrix(self, query_time):
+        if self._series is None:
+            self._series = NumpyTimeseriesTransform(np.array(self.stamps, dtype=np.int64), np.array(self.pqs))
+        return self._series.as_matrix(query_time)
+
+    def check_transforms(self):
+        return self  # every sample was checked and normalised when it was added
+
+
+@dataclass
+class _Edge:
+    parent: str
+    static: bool
+    transform: TimeVaryingTransform
+
+
+class TfBuffer:
+    """Transforms between frames at a stamp, from the ``/tf`` and ``/tf_static`` samples given to
+    :meth:`set_transform`. Thread-safe."""
+
+    def __init__(self, cache_time_s: float = DEFAULT_CACHE_TIME_S) -> None:
+        if not cache_time_s > 0:
+            raise ValueError(f"cache_time_s: must be positive, got {cache_time_s!r}")
+        self.cache_ns = round(cache_time_s * _NS)
+        self._edges: dict[str, _Edge] = {}  # child -> its parent and its transform
+        self._manager = TemporalTransformManager(check=False)
+        self._lock = threading.Lock()
+
+    # ---------------------------------------------------------------- filling
+    def set_transform(
+        self, parent: str, child: str, stamp_ns: int, translation, quaternion_xyzw, static: bool = False
+    ) -> None:
+        """Add the pose of ``child`` in ``parent`` at ``stamp_ns`` (a static one holds at every stamp
+        and replaces any earlier one). A child given a new parent is moved there (as tf2).
+
+        Raises:
+            ValueError: empty or equal frame names, a negative stamp, NaN/inf or a zero quaternion.
+        """
+        parent, child = normalize_frame(parent), normalize_frame(child)
+        if not parent or not child:
+            raise ValueError(f"transform {parent!r} -> {child!r}: frame names must not be empty")
+        if parent == child:
+            raise ValueError(f"transform {parent!r} -> {child!r}: a frame cannot be its own parent")
+        if stamp_ns < 0:
+            raise ValueError(f"transform {parent!r} -> {child!r}: negative stamp {stamp_ns} ns")
+        pq = pq_from_translation_quaternion(translation, quaternion_xyzw)
+        matrix = transform_from_pq(pq)
+        with self._lock:
+            edge = self._edges.get(child)
+            if (edge is None or edge.parent != parent) and child in self._ancestors(parent):
+                raise ValueError(f"transform {parent!r} -> {child!r}: {child!r} is an ancestor of {parent!r}")
+            if edge is not None and (edge.parent != parent or edge.static != static):
+                self._manager.remove_transform(child, edge.parent)
+                edge = None
+            if edge is None:
+                transform: TimeVaryingTransform = StaticTransform(matrix) if static else _History(self.cache_ns)
+                edge = _Edge(parent, static, transform)
+                self._edges[child] = edge
+                self._manager.add_transform(child, parent, transform)
+            if static:
+                edge.transform = StaticTransform(matrix)
+                self._manager.add_transform(child, parent, edge.transform)
+            else:
+                assert isinstance(edge.transform, _History)
+                edge.transform.add(int(stamp_ns), pq)
+
+    def clear(self) -> None:
+        """Forget every transform (e.g. after a jump back in time)."""
+        with self._lock:
+            self._edges.clear()
+            self._manager = TemporalTransformManager(check=False)
+
+    # ---------------------------------------------------------------- queries
+    def frames(self) -> list[str]:
+        """Every frame named so far."""
+        with self._lock:
+            return sorted(set(self._edges) | {edge.parent for edge in self._edges.values()})
+
+    def _ancestors(self, frame: str) -> list[str]:
+        """``frame``, its parent, ... up to its tree's root."""
+        chain = [frame]
+        while chain[-1] in self._edges:
+            chain.append(self._edges[chain[-1]].parent)
+        return chain
+
+    def _path_edges(self, target: str, source: str) -> list[tuple[str, _Edge]]:
+        """The edges (child, edge) between ``source`` and ``target``, checked to exist."""
+        known = set(self._edges) | {edge.parent for edge in self._edges.values()}
+        for role, frame in (("source", source), ("target", target)):
+            if frame not in known:
+                hint = f"; known frames: {', '.join(sorted(known))}" if known else "; no transform received yet"
+                raise FrameNotFoundError(f"{role} frame {frame!r} does not exist{hint}")
+        up_source, up_target = self._ancestors(source), self._ancestors(target)
+        if up_source[-1] != up_target[-1]:
+            raise NotConnectedError(
+                f"frames {source!r} and {target!r} are not connected: {source!r} is in the tree of "
+                f"{up_source[-1]!r}, {target!r} in the tree of {up_target[-1]!r}"
+            )
+        common = next(frame for frame in up_source if frame in set(up_target))
+        below = up_source[: up_source.index(common)] + up_target[: up_target.index(common)]
+        return [(child, self._edges[child]) for child in below]
+
+    def _stamp_for(self, target: str, source: str, edges: list[tuple[str, _Edge]], stamp_ns: int | None) -> int:
+        """The stamp to evaluate at: ``stamp_ns``, checked against every dynamic transform's
+        history; ``None`` = the newest stamp all of them cover (tf2's time 0)."""
+        dynamic = [(child, edge) for child, edge in edges if not edge.static]
+        if not dynamic:
+            return 0 if stamp_ns is None else int(stamp_ns)
+        histories = [(child, edge.parent, edge.transform) for child, edge in dynamic]
+        if stamp_ns is None:
+            stamp_ns = min(h.newest for _, _, h in histories)  # type: ignore[attr-defined]
+        for child, parent, history in histories:
+            assert isinstance(history, _History)
+            if history.oldest <= stamp_ns <= history.newest:
+                continue
+            if stamp_ns > history.newest:
+                gap = f"{(stamp_ns - history.newest) / _NS:.3f} s after its newest sample ({_seconds(history.newest)})"
+            else:
+                gap = f"{(history.oldest - stamp_ns) / _NS:.3f} s before its oldest sample ({_seconds(history.oldest)})"
+            raise ExtrapolationError(
+                f"cannot transform {source!r} into {target!r} at {_seconds(stamp_ns)}: the transform "
+                f"{parent!r} -> {child!r} has data from {_seconds(history.oldest)} to "
+                f"{_seconds(history.newest)}; the request is {gap}"
+            )
+        return int(stamp_ns)
+
+    def lookup(self, target_frame: str, source_frame: str, stamp_ns: int | None = None) -> tuple[np.ndarray, int]:
+        """The pose of ``source_frame`` in ``target_frame`` (the 4×4 matrix that maps points in
+        the source frame into the target frame, as tf2's ``lookup_transform(target, source, t)``)
+        at ``stamp_ns``, or at the newest stamp the chain covers when ``None``; returns the matrix
+        and the stamp it holds at.
+
+        Raises:
+            FrameNotFoundError, NotConnectedError, ExtrapolationError (all :class:`TransformError`).
+        """
+        target, source = normalize_frame(target_frame), normalize_frame(source_frame)
+        with self._lock:
+            edges = self._path_edges(target, source)
+            stamp = self._stamp_for(target, source, edges, stamp_ns)
+            matrix = self._manager.get_transform_at_time(source, target, np.int64(stamp))
+        return np.asarray(matrix, dtype=np.float64).reshape(4, 4), stamp
+
+    def can_transform(self, target_frame: str, source_frame: str, stamp_ns: int | None = None) -> bool:
+        """Whether :meth:`lookup` would succeed."""
+        try:
+            self.lookup(target_frame, source_frame, stamp_ns)
+        except TransformError:
+            return False
+        return True
