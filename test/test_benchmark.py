@@ -1,11 +1,14 @@
-"""The planning benchmark's baseline kernels compute the same search as the planners' path."""
+"""The planning benchmark's baseline kernels compute the same search as the planners' path (the
+authors'-scheme kernel: the same as the original gain variant's reference)."""
 
 import numpy as np
+import pytest
 
 from nbv_prob_cnn.basics.camera import DatasetDefaults, Sensor
 from nbv_prob_cnn.basics.grid import probability_with_constant
-from nbv_prob_cnn.bench.planning import baseline_view_search
-from nbv_prob_cnn.gain import ray_gains
+from nbv_prob_cnn.bench.planning import authors_ray_terms, authors_view_search, baseline_view_search
+from nbv_prob_cnn.gain import origin_view_gains, ray_directions, ray_gains
+from nbv_prob_cnn.gain.reference import original_ray_terms
 from nbv_prob_cnn.planners import PlanningContext, search_best_view
 
 SMALL_3D = DatasetDefaults("3du", 3, (18, 16, 14), 0.01, Sensor(60.0, 46.0, 8), 4, 3)
@@ -26,6 +29,35 @@ def test_baselines_find_the_reference_best_view(rng):
     # the naive kernel rounds a float position: the same search up to rare half-way cells
     gain, index, _ = baseline_view_search(state, prob, origins, context, "naive")
     assert abs(gain - reference.max()) < 0.05 * reference.max()
+
+
+AUTHORS_CASES = [(2, (40, 36), 16, 30), (3, (18, 16, 14), 4, 14), (3, (12, 13, 11), 16, 9)]
+
+
+@pytest.mark.parametrize("dims,shape,n_rays,r_max", AUTHORS_CASES)
+@pytest.mark.parametrize("free_hits", [False, True])
+def test_authors_scheme_kernel_matches_the_original_reference(rng, dims, shape, n_rays, r_max, free_hits):
+    state = rng.choice(np.array([-1, 0, 1], dtype=np.int8), size=shape, p=[0.5, 0.43, 0.07])
+    prob = np.where(state == -1, rng.random(shape), 0.0).astype(np.float32)
+    directions = ray_directions(dims, n_rays)
+    origins = np.argwhere(state == 0)
+    hits, totals, _ = authors_ray_terms(state, prob, origins, directions, r_max, free_hits)
+    want_hits, want_totals = original_ray_terms(state, prob, directions, r_max, origins, "prob", free_hits)
+    assert want_hits.max() > 0.1
+    assert np.abs(hits - want_hits).max() < 1e-5 * want_totals.max() and np.allclose(totals, want_totals, rtol=1e-6)
+
+
+def test_authors_view_search_finds_the_original_best_view(rng):
+    state = rng.choice(np.array([-1, 0, 1], dtype=np.int8), size=SMALL_3D.shape, p=[0.5, 0.45, 0.05])
+    prob = probability_with_constant(state, 0.15)
+    context = PlanningContext(SMALL_3D, backend="opencl", gain_variant="original")
+    origins = np.argwhere(state == 0)
+    reference = origin_view_gains(state, prob, context.directions, 8, context.membership, origins, "numpy",
+                                  variant="original").ravel()  # fmt: skip
+    gain, index, _ = authors_view_search(state, prob, origins, context, free_hits=False)
+    assert index == np.argmax(reference) and abs(gain - reference.max()) < 1e-5
+    pruned = search_best_view(state, prob, origins, context)
+    assert pruned is not None and abs(pruned.gain - gain) < 1e-5
 
 
 def test_planning_time_sweep_writes_csv_and_png(tmp_path):

@@ -13,7 +13,17 @@ the default worlds, measured side by side in one run for
 * ``two_step``: the previous path, kept here only as a baseline (``baseline_ray_gain``: per-ray
   gains to memory, then an (origins × rays) @ (rays × views) product);
 * ``naive``: one work-item per (origin, ray) marching a float position, stopping at the first
-  occupied cell (the paper's scheme), then the same product;
+  occupied cell, then the same product. This is a simple kernel of our own, *not* the authors'
+  scheme (their kernel never stops early and calls ``pow`` per sample; ``authors`` is that);
+* ``authors``: our own kernel after the scheme of the authors' published code
+  (``authors_ray_gain`` in ``baselines.cl``: one work-item per (origin, ray), every sample of the
+  original variant's range marched, ``pow`` per sample, the original weights), then per view
+  sum(hits) / sum(hits + miss) by two products on the host. It computes the ``original`` gain
+  variant (:mod:`nbv_prob_cnn.gain.variant`), not the paper's: compare it with ``pruned_original``
+  (our pruned search on the same variant) for equal results, with ``pruned``/``fused`` for the
+  planners' path. Its cost is exactly linear in origins × rays, so it is timed on a random subset
+  of at most ``authors_origins`` origins and extrapolated (like ``numpy``);
+* ``pruned_original``: the planners' pruned search under the ``original`` variant;
 * ``numpy``: the reference on a random subset of origins, extrapolated linearly.
 
 Every variant gets the same grid, probabilities and origins. "Effective samples/s" counts the
@@ -44,7 +54,9 @@ from nbv_prob_cnn.worlds.world import World
 BASELINE_SOURCE = Path(__file__).with_name("baselines.cl")
 #: Origins × rays per baseline launch (the previous planners' block size).
 BASELINE_RAYS_PER_CALL = 8_000_000
-VARIANTS = ("iteration", "pruned", "all_views", "fused", "two_step", "naive", "numpy")
+VARIANTS = ("iteration", "pruned", "all_views", "fused", "two_step", "naive", "pruned_original", "authors", "numpy")
+#: Origins the ``authors`` baseline is timed on (then extrapolated; its cost is linear in origins).
+AUTHORS_ORIGINS = 20_000
 
 
 @dataclass(frozen=True)
@@ -91,9 +103,13 @@ class BenchResult:
     same_best_view: bool = True
     same_pruned_view: bool = True  # the coarse-to-fine search chose the exhaustive search's view
     cnn_s: float = 0.0  # CNN inference alone (cnn_prob cases; included in the iteration)
+    authors_origins: int = 0  # origins the authors' baseline was timed on
+    authors_samples: int = 0  # origins × rays × samples of the original range (all origins)
+    same_authors_view: bool = True  # on its subset, the authors' baseline chose our original-variant view
 
     def samples_per_s(self, variant: str) -> float:
-        return self.nominal_samples / self.timings[variant].seconds
+        nominal = self.authors_samples if variant in ("authors", "pruned_original") else self.nominal_samples
+        return nominal / self.timings[variant].seconds
 
 
 def half_explored(world: World, context: PlanningContext, target: float = 0.5, max_views: int = 400) -> np.ndarray:
@@ -142,7 +158,61 @@ def _baseline_kernels():
 
     runtime = cl_runtime()
     program = runtime.build(BASELINE_SOURCE)
-    return runtime, runtime.cl.Kernel(program, "baseline_ray_gain"), runtime.cl.Kernel(program, "naive_ray_gain")
+    kernels = (runtime.cl.Kernel(program, name) for name in ("baseline_ray_gain", "naive_ray_gain", "authors_ray_gain"))
+    return runtime, *kernels
+
+
+def authors_ray_terms(
+    state: np.ndarray, prob: np.ndarray, origins: np.ndarray, directions: np.ndarray, r_max: int, free_hits: bool
+) -> tuple[np.ndarray, np.ndarray, int]:
+    """Hits and hits + miss ``(N, R)`` of the ``authors_ray_gain`` baseline (the authors' scheme,
+    on the original variant's range and weights; ``free_hits``: the CNN/oracle maps' ``(1 - p)``),
+    and the bytes of its OpenCL buffers."""
+    from nbv_prob_cnn.gain.opencl import encode_grid
+    from nbv_prob_cnn.gain.variant import ORIGINAL_FOCAL, sample_count
+
+    runtime, kernel = _baseline_kernels()[0], _baseline_kernels()[3]
+    cl, mf = runtime.cl, runtime.cl.mem_flags
+    code = np.ascontiguousarray(encode_grid(state, prob))
+    shape3 = code.shape + (1,) * (3 - code.ndim)
+    n, rays = origins.shape[0], directions.shape[0]
+    table = np.zeros((rays, 3), dtype=np.float32)
+    table[:, : state.ndim] = directions
+    origins3 = np.zeros((n, 3), dtype=np.float32)
+    origins3[:, : state.ndim] = origins
+    hits, totals = np.empty((n, rays), dtype=np.float32), np.empty((n, rays), dtype=np.float32)
+    if n == 0:
+        return hits, totals, 0
+    buffers = [cl.Buffer(runtime.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=a) for a in (code, origins3, table)]
+    out = [cl.Buffer(runtime.context, mf.WRITE_ONLY, hits.nbytes) for _ in range(2)]
+    kernel(runtime.queue, (n * rays,), None, buffers[0], *(np.int32(d) for d in shape3), buffers[1], np.int32(n),
+           buffers[2], np.int32(rays), np.int32(sample_count("original", r_max)), np.float32(state.ndim - 1),
+           np.float32(ORIGINAL_FOCAL), np.int32(free_hits), *out)  # fmt: skip
+    cl.enqueue_copy(runtime.queue, hits, out[0])
+    cl.enqueue_copy(runtime.queue, totals, out[1])
+    runtime.queue.finish()
+    return hits, totals, code.nbytes + origins3.nbytes + table.nbytes + 2 * hits.nbytes
+
+
+def authors_view_search(
+    state: np.ndarray, prob: np.ndarray, origins: np.ndarray, context: PlanningContext, free_hits: bool
+) -> tuple[float, int, int]:
+    """Best view with the ``authors`` baseline: its ray terms in blocks, per view sum(hits) /
+    sum(hits + miss) (two products). Returns (best gain, flat best index, device bytes)."""
+    rays = context.directions.shape[0]
+    block = max(1, BASELINE_RAYS_PER_CALL // rays)
+    best_gain, best_index, device_bytes = -1.0, -1, 0
+    for begin in range(0, origins.shape[0], block):
+        hits, totals, used = authors_ray_terms(
+            state, prob, origins[begin : begin + block], context.directions, context.active_sensor.r_max, free_hits
+        )
+        device_bytes = max(device_bytes, used)
+        num, den = hits @ context.membership, totals @ context.membership
+        views = np.where(den > 0, num / np.where(den > 0, den, 1.0), 0.0).ravel()
+        i = int(np.argmax(views))
+        if views[i] > best_gain:
+            best_gain, best_index = float(views[i]), i + begin * context.membership.shape[1]
+    return best_gain, best_index, device_bytes
 
 
 def baseline_view_search(
@@ -152,7 +222,7 @@ def baseline_view_search(
     blocks, each block @ membership. Returns (best gain, flat best index, device bytes)."""
     from nbv_prob_cnn.gain.opencl import encode_grid
 
-    runtime, two_step, naive = _baseline_kernels()
+    runtime, two_step, naive, _ = _baseline_kernels()
     cl, mf = runtime.cl, runtime.cl.mem_flags
     sensor = context.active_sensor
     code = np.ascontiguousarray(encode_grid(state, prob))
@@ -207,7 +277,9 @@ def fused_device_bytes(state: np.ndarray, origins: int, context: PlanningContext
     return 4 * (grid + offsets + block * (1 + views) + int(context.membership.sum()) + views + 1)
 
 
-def run_case(case: BenchCase, world: World, repeats: int = 3, numpy_origins: int = 3000) -> BenchResult:
+def run_case(
+    case: BenchCase, world: World, repeats: int = 3, numpy_origins: int = 3000, authors_origins: int = AUTHORS_ORIGINS
+) -> BenchResult:
     """Time one planning iteration of ``case.method`` with every variant (see module doc)."""
     context = PlanningContext(
         _defaults(case.dataset), rng=np.random.default_rng(world.seed), n_rays=case.n_rays, backend="opencl",
@@ -270,12 +342,44 @@ def run_case(case: BenchCase, world: World, repeats: int = 3, numpy_origins: int
                 choice is not None and np.array_equal(best_cell, choice.cell) and index % n_views == choice.view_index
             )
 
+    _time_original_variant(result, state, prob, origins, context, repeats, authors_origins)
     subset = origins[np.random.default_rng(0).permutation(origins.shape[0])[:numpy_origins]]
     numpy_context = PlanningContext(context.defaults, n_rays=case.n_rays, backend="numpy")
     numpy_timing = _measure(lambda: search_best_view(state, prob, subset, numpy_context), 1)
     numpy_timing.seconds *= origins.shape[0] / max(1, subset.shape[0])
     result.timings["numpy"] = numpy_timing
     return result
+
+
+def _time_original_variant(result, state, prob, origins, context, repeats, authors_origins) -> None:
+    """``pruned_original`` (our pruned search on the original variant, all origins) and ``authors``
+    (the authors'-scheme baseline on a random subset of ``authors_origins`` origins, its time
+    extrapolated linearly; one run: it is the slow one) into ``result``."""
+    from nbv_prob_cnn.gain.variant import sample_count
+
+    original = PlanningContext(context.defaults, n_rays=result.case.n_rays, backend="opencl",
+                               origin_stride=result.case.stride, gain_variant="original")  # fmt: skip
+    probability = "cnn" if result.case.method in ("cnn_prob", "cnn_prob_d") else "constant"
+    free_hits = probability == "cnn"
+    search = lambda chosen, prune: search_views(state, prob, chosen, original, probability=probability, prune=prune)  # noqa: E731
+    search(origins, True)  # warm-up: the original variant's kernel build
+    result.timings["pruned_original"] = _measure(lambda: search(origins, True), repeats)
+    result.authors_samples = origins.shape[0] * result.rays * sample_count("original", context.active_sensor.r_max)
+    subset = origins[np.sort(np.random.default_rng(1).permutation(origins.shape[0])[:authors_origins])]
+    result.authors_origins = subset.shape[0]
+    found: dict[str, tuple] = {}
+    timing = _measure(lambda: found.setdefault("best", authors_view_search(state, prob, subset, original, free_hits)),
+                      1)  # fmt: skip
+    timing.seconds *= origins.shape[0] / max(1, subset.shape[0])
+    timing.cpu_seconds *= origins.shape[0] / max(1, subset.shape[0])
+    timing.peak_bytes += found["best"][2]
+    result.timings["authors"] = timing
+    ours = search(subset, False)
+    n_views = original.membership.shape[1]
+    index = found["best"][1]
+    result.same_authors_view = bool(ours) and (
+        np.array_equal(subset[index // n_views], ours[0].cell) and index % n_views == ours[0].view_index
+    )
 
 
 def _defaults(dataset: str):
@@ -292,14 +396,16 @@ def format_table(results: list[BenchResult]) -> str:
             "pruned, all views (s) | fused search (s) | two-step (s) | naive (s) | numpy (s, extrap.) | "
             "iteration / pruned / all views / fused / two-step / naive CPU-s | pruned vs all views | pruned vs fused | "
             "fused vs two-step | fused vs naive | pruned samples/s | fused samples/s | naive samples/s | "
-            "peak MB iteration / fused / two-step / naive | same best view |"
+            "peak MB iteration / fused / two-step / naive | same best view | "
+            "pruned original (s) | authors (s, extrap.) | authors vs pruned original | authors vs pruned | "
+            "authors vs fused | authors vs naive | authors samples/s | authors: same view (subset) |"
         ),
-        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
+        "|" + "---|" * 30,
     ]
     for r in results:
         t = r.timings
         mb = " / ".join(f"{t[v].peak_bytes / 2**20:.0f}" for v in ("iteration", "fused", "two_step", "naive"))
-        cpu = " / ".join(f"{t[v].cpu_seconds:.2f}" for v in VARIANTS[:-1])
+        cpu = " / ".join(f"{t[v].cpu_seconds:.2f}" for v in VARIANTS[:6])
         lines.append(
             f"| {r.case.label} | {r.unknown_fraction:.2f} | {r.origins} | {r.rays} | {t['iteration'].seconds:.3f} | "
             f"{r.cnn_s:.3f} | {t['pruned'].seconds:.3f} | {t['all_views'].seconds:.3f} | {t['fused'].seconds:.3f} | "
@@ -309,7 +415,12 @@ def format_table(results: list[BenchResult]) -> str:
             f"{t['two_step'].seconds / t['fused'].seconds:.1f}× | {t['naive'].seconds / t['fused'].seconds:.1f}× | "
             f"{r.samples_per_s('pruned'):.2e} | {r.samples_per_s('fused'):.2e} | "
             f"{r.samples_per_s('naive'):.2e} | {mb} | "
-            f"{'yes' if r.same_best_view and r.same_pruned_view else 'NO'} |"
+            f"{'yes' if r.same_best_view and r.same_pruned_view else 'NO'} | "
+            f"{t['pruned_original'].seconds:.3f} | {t['authors'].seconds:.1f} ({r.authors_origins} origins) | "
+            f"{t['authors'].seconds / t['pruned_original'].seconds:.0f}× | "
+            f"{t['authors'].seconds / t['pruned'].seconds:.0f}× | {t['authors'].seconds / t['fused'].seconds:.0f}× | "
+            f"{t['authors'].seconds / t['naive'].seconds:.1f}× | {r.samples_per_s('authors'):.2e} | "
+            f"{'yes' if r.same_authors_view else 'NO'} |"
         )
     return "\n".join(lines)
 
