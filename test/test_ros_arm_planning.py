@@ -46,6 +46,7 @@ GEOMETRY = GridGeometry((0.0, 0.102, 0.0), 0.04, (24, 32, 24))
 #: view gets the exact check), every unknown cell blocks the arm.
 ARM_PLANNER = {
     "dataset": "3dt", "method": "prob_ig", "in_process": True, "use_arm": True, "capability_stride": 0,
+    "urdf_path": "panda",  # the built-in robot: the test publishes the joint states, no robot_description
     "arm_top_k": 300, "arm_max_checks": 0, "free_above_m": -1.0, "markers_top_k": 1,
 }  # fmt: skip
 _counter = iter(range(1000))
@@ -184,7 +185,8 @@ def test_plan_with_arm_answers_a_reachable_view_with_its_joint_goal(ros):
 def test_evaluate_views_reports_reachability_and_ik_solutions(ros):
     node, bench, graph = ros
     robot = RobotModel()
-    graph.start_node("gain_server", "gain_server", {"dataset": "3dt", "use_arm": True, "free_above_m": -1.0})
+    graph.start_node("gain_server", "gain_server", {"dataset": "3dt", "use_arm": True, "free_above_m": -1.0,
+                                                  "urdf_path": "panda"})  # fmt: skip
     bench.publish_grid()
     at_reference = robot.camera_pose(robot.reference_q)
     poses = []
@@ -310,7 +312,8 @@ def test_sim_camera_follows_the_arm(ros):
     node, bench, graph = ros
     robot = RobotModel()
     graph.start_node("arm_sim", "arm_sim", {"velocity_scale": 1.0, "rate_hz": 50.0})
-    graph.start_node("sim_camera", "sim_camera", {"follow_arm": True, "rate_hz": 5.0, "width": 64, "height": 48})
+    graph.start_node("sim_camera", "sim_camera", {"follow_arm": True, "pose_source": "topic", "rate_hz": 5.0,
+                                                  "width": 64, "height": 48})  # fmt: skip
     arm_poses: dict[int, PoseStamped] = {}
     frames: list[TransformStamped] = []
 

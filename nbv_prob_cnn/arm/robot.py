@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import hashlib
 import math
+import os
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -107,19 +108,22 @@ class RobotConfig:
     """How to build a :class:`RobotModel` (all parameters of a robot description).
 
     Attributes:
-        urdf_path: URDF file; ``None`` = the default Panda.
+        urdf_path: URDF file; ``None`` = the default Panda (unless ``description`` is given).
         package_dirs: folders that resolve ``package://`` mesh paths.
+        description: URDF text (e.g. received on ``/robot_description``, resolved by
+            :func:`~nbv_prob_cnn.arm.description.read_description`); wins over ``urdf_path``.
         world_from_base: 4×4 pose of the URDF root link in the world.
         camera_parent: URDF link carrying the camera.
         parent_from_camera: 4×4 pose of the optical frame on ``camera_parent``.
         reference: joint name → position of a known collision-free configuration; joints off the
             camera chain (fingers) keep these values; self-collision pairs in contact at this
             configuration are disabled (mesh approximations overlap at rest). ``None``: the
-            Panda's ready pose for the default robot, the middle of the limits otherwise.
+            Panda's ready pose for a robot with the Panda's joints, the middle of the limits otherwise.
     """
 
     urdf_path: str | None = None
     package_dirs: tuple[str, ...] = ()
+    description: str | None = None
     world_from_base: np.ndarray = field(default_factory=lambda: translation(DEFAULT_BASE_XYZ))
     camera_parent: str = "panda_hand"
     parent_from_camera: np.ndarray = field(default_factory=lambda: translation(DEFAULT_HAND_FROM_CAMERA_XYZ))
@@ -128,13 +132,30 @@ class RobotConfig:
     def cache_key(self) -> str:
         """Hash of everything that changes the kinematics and the map's IK seed (URDF text, base,
         camera mount, reference)."""
-        path = Path(self.urdf_path) if self.urdf_path else panda_urdf()[0]
-        digest = hashlib.sha256(path.read_bytes())
+        digest = hashlib.sha256(self.urdf_file().read_bytes())
         for array in (self.world_from_base, self.parent_from_camera):
             digest.update(np.round(np.asarray(array, dtype=np.float64), 9).tobytes())
         digest.update(self.camera_parent.encode())
         digest.update(repr(sorted((self.reference or {}).items())).encode())  # the IK seed of the map
         return digest.hexdigest()[:20]
+
+    def urdf_file(self) -> Path:
+        """The URDF file the model is built from: ``urdf_path``, the default Panda's, or the
+        ``description`` text written once into the cache (named by its hash)."""
+        if self.description is not None:
+            return description_file(self.description)
+        return Path(self.urdf_path) if self.urdf_path else panda_urdf()[0]
+
+
+def description_file(text: str) -> Path:
+    """A URDF text as a file in the cache directory (pinocchio and the mesh loaders read files)."""
+    target = arm_cache_dir() / f"description_{hashlib.sha256(text.encode()).hexdigest()[:16]}.urdf"
+    if not target.is_file():
+        target.parent.mkdir(parents=True, exist_ok=True)
+        tmp = target.with_suffix(f".{os.getpid()}.tmp")
+        tmp.write_text(text)
+        tmp.replace(target)
+    return target
 
 
 def robot_config(
@@ -145,18 +166,20 @@ def robot_config(
     camera_xyz: Sequence[float] = DEFAULT_HAND_FROM_CAMERA_XYZ,
     camera_rpy: Sequence[float] = (0.0, 0.0, 0.0),
     package_dirs: Sequence[str] = (),
+    description: str | None = None,
 ) -> RobotConfig:
-    """A :class:`RobotConfig` from flat parameters (as ROS parameters come): ``""`` URDF = the
-    Panda, ``""`` camera parent = ``panda_hand``.
+    """A :class:`RobotConfig` from flat parameters (as ROS parameters come): ``""`` URDF and no
+    ``description`` = the Panda, ``""`` camera parent = ``panda_hand``.
 
     Raises:
         ValueError: a custom URDF without ``camera_parent``, or bad poses.
     """
-    if urdf_path and not camera_parent:
+    if (urdf_path or description) and not camera_parent:
         raise ValueError("camera_parent: required with a custom URDF (the link that carries the camera)")
     return RobotConfig(
         urdf_path=urdf_path or None,
         package_dirs=tuple(package_dirs),
+        description=description,
         world_from_base=pose_from_xyz_rpy(base_xyz, base_rpy),
         camera_parent=camera_parent or "panda_hand",
         parent_from_camera=pose_from_xyz_rpy(camera_xyz, camera_rpy),
@@ -186,11 +209,11 @@ class RobotModel:
         import pinocchio as pin
 
         self.config = config or RobotConfig()
-        if self.config.urdf_path is None:
+        if self.config.urdf_path is None and self.config.description is None:
             urdf, meshes = panda_urdf()
             package_dirs = [str(meshes.parent), *self.config.package_dirs]
         else:
-            urdf = Path(self.config.urdf_path)
+            urdf = self.config.urdf_file()
             package_dirs = list(self.config.package_dirs)
             if not urdf.is_file():
                 raise ValueError(f"robot: URDF file {str(urdf)!r} does not exist")
@@ -217,9 +240,8 @@ class RobotModel:
             )
         parent = model.frames[model.getFrameId(self.config.camera_parent)]
         placement = parent.placement * pin.SE3(parent_from_camera[:3, :3], parent_from_camera[:3, 3])
-        self.camera_frame = model.addFrame(
-            pin.Frame(self.CAMERA_FRAME, parent.parentJoint, placement, pin.FrameType.OP_FRAME)
-        )
+        name = self.CAMERA_FRAME if not model.existFrame(self.CAMERA_FRAME) else f"nbv_{self.CAMERA_FRAME}"
+        self.camera_frame = model.addFrame(pin.Frame(name, parent.parentJoint, placement, pin.FrameType.OP_FRAME))
         self.model, self.collision_model, self.visual_model = model, collision, visual
         self.data = model.createData()
         self.joint_names: list[str] = [model.names[i] for i in range(1, model.njoints)]
@@ -236,8 +258,8 @@ class RobotModel:
             raise ValueError(f"robot: camera_parent {self.config.camera_parent!r} does not move with any joint")
         self.chain = np.array(sorted(model.idx_qs[j] for j in chain_joints), dtype=np.int64)
         reference = self.config.reference
-        if reference is None:
-            reference = PANDA_READY if self.config.urdf_path is None else {}
+        if reference is None:  # the Panda's ready pose for any description of the Panda (joint names)
+            reference = PANDA_READY if set(PANDA_READY) <= set(self.joint_names) else {}
         unknown = sorted(set(reference) - set(self.joint_names))
         if unknown:
             raise ValueError(f"robot: reference names unknown joints {unknown}; joints: {self.joint_names}")

@@ -12,8 +12,9 @@ ProbabilitySource = Literal["constant", "cnn", "oracle"]
 #: Ray-casting backend.
 Backend = Literal["auto", "opencl", "numpy"]
 #: How ``nbv_planner`` moves the camera: the sim_camera/move_to service, a goal-pose topic, or
-#: the arm (arm_sim/move_to_joints with the planned joint goal).
-MoveMode = Literal["service", "topic", "arm"]
+#: the arm (arm_sim/move_to_joints with the planned joint goal), or the arm through a
+#: joint_trajectory_controller (control_msgs/FollowJointTrajectory with the timed joint path).
+MoveMode = Literal["service", "topic", "arm", "trajectory"]
 
 GAIN_MODES: tuple[GainMode, ...] = get_args(GainMode)
 PROBABILITY_SOURCES: tuple[ProbabilitySource, ...] = get_args(ProbabilitySource)

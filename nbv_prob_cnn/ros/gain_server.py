@@ -85,7 +85,7 @@ class GainServer(Node):
         self._joints: JointStateTracker | None = None
         if self.use_arm:
             # no capability map: every pose gets the exact check
-            self._arm = ArmPlanningSetup(self.config.robot_config(), free_above_m=self.config.free_above(),
+            self._arm = ArmPlanningSetup(self.config.robot_config(self), free_above_m=self.config.free_above(),
                                          capability_stride=0)  # fmt: skip
             self._joints = JointStateTracker(self._arm.robot)
             self.create_subscription(JointState, names.JOINT_STATES, self._on_joint_state, 10, callback_group=group)
@@ -172,6 +172,12 @@ class GainServer(Node):
         except (ValueError, TimeoutError, RuntimeError) as exc:
             response.success = False
             response.message = str(exc)
+            # an error reply never marks a pose valid (the scores may have been filled before the error)
+            count = len(request.poses)
+            response.gains = array.array("f", bytes(4 * count))
+            response.validity = array.array("B", [INVALID_POSE] * count)
+            response.reasons = [f"error: {exc}"] * count
+            response.ik_solutions, response.reachable = [], []
             self.get_logger().warning(f"evaluate_views: {exc}")
         response.computation_time_s = time.perf_counter() - start
         return response

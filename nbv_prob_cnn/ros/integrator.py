@@ -87,6 +87,7 @@ from rclpy.node import Node
 from sensor_msgs.msg import CameraInfo, Image, JointState
 from std_srvs.srv import Trigger
 
+from nbv_prob_cnn.arm.joint_states import JointStateMerger
 from nbv_prob_cnn.arm.robot_scene import BODIES
 from nbv_prob_cnn.basics.geometry import GridGeometry
 from nbv_prob_cnn.basics.grid import EMPTY, OCCUPIED, UNKNOWN
@@ -119,7 +120,7 @@ from nbv_prob_cnn.perception.tsdf import (
 from nbv_prob_cnn.ros import names
 from nbv_prob_cnn.ros.common import GRID_QOS, RELIABILITY, declare_config, param, run_node, subscription_qos
 from nbv_prob_cnn.ros.conversions import grid_to_msg, time_msg
-from nbv_prob_cnn.ros.robot_params import RobotParams
+from nbv_prob_cnn.ros.robot_params import RobotParams, merged_joint_state
 from nbv_prob_cnn.ros.tf_listener import POSE_SOURCES, TfListener
 
 NODE_NAME = "integrator"
@@ -247,12 +248,14 @@ class Integrator(Node):
         self._tsdf_lock = threading.Lock()
         self._sync = StampSync(round(tolerance * 1e9), require_joints=cfg.self_filter)
         self._self_filter = None
+        self._joint_merger: JointStateMerger | None = None
         if cfg.self_filter:
             from nbv_prob_cnn.arm.robot import RobotModel
             from nbv_prob_cnn.arm.self_filter import RobotSelfFilter
 
-            robot = RobotModel(cfg.robot_config())
+            robot = RobotModel(cfg.robot_config(self))
             self._self_filter = RobotSelfFilter(robot, cfg.self_filter_bodies, cfg.self_filter_tolerance_m)
+            self._joint_merger = JointStateMerger(robot.joint_names)  # arm and gripper may come separately
         self._queue: deque[PairedFrame] = deque()
         self._generation = 0
         self._stop = False
@@ -407,6 +410,8 @@ class Integrator(Node):
 
     def _on_joints(self, raw: bytes) -> None:
         msg = self._decode(raw, MSG_JOINT_STATE, names.JOINT_STATES)
+        if msg is not None and self._joint_merger is not None:
+            msg = merged_joint_state(self._joint_merger, msg)  # None until every joint has arrived once
         if msg is not None:
             with self._cv:
                 self._enqueue(self._sync.add_joints(stamp_of(msg), msg))

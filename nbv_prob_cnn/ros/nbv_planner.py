@@ -5,8 +5,20 @@
   ``in_process:=true``. Publishes ``/nbv/next_best_view`` and ``/nbv/markers``.
 * ``/nbv/explore`` (Explore action): plan, move the camera (``/sim_camera/move_to``, or publish
   ``/camera/goal_pose`` and wait for ``/camera/pose`` to arrive there, or with ``move_mode:=arm``
-  send the joint goal to ``/arm_sim/move_to_joints`` and wait for ``/joint_states`` to reach it),
+  send the joint goal to ``/arm_sim/move_to_joints`` and wait for ``/joint_states`` to reach it,
+  or with ``move_mode:=trajectory`` send the straight joint path, timed within the velocity,
+  acceleration and jerk limits (:func:`~nbv_prob_cnn.arm.trajectory.time_parameterise`), to a
+  ``joint_trajectory_controller``'s ``control_msgs/FollowJointTrajectory`` action
+  (``trajectory_action``, default ``/arm_controller/follow_joint_trajectory``)),
   wait for a grid that includes a frame from the new pose, repeat until a stop condition.
+  A move that is rejected or fails (arm / trajectory modes) rules that view out and the next
+  feasible ranked view is tried (at most ``max_failed_executions`` in a row); each failure is
+  reported in the feedback (``executed`` false, ``execution_error``) and never aborts the goal.
+
+Every plan keeps the camera inside the workspace: the ``workspace_min`` / ``workspace_max`` box
+and the ``min_camera_height_m`` / ``max_camera_height_m`` heights (grid frame), intersected with
+the request's box (``PlanNextBestView`` ``use_workspace``, or the same fields of an ``Explore``
+goal), in every ``move_mode``.
 
 With ``use_arm:=true`` (robot description parameters of :class:`RobotParams`) a plan is the best
 view the arm reaches collision-free from the configuration of the latest ``/joint_states``
@@ -26,19 +38,25 @@ import time
 from dataclasses import dataclass
 
 import numpy as np
-from geometry_msgs.msg import PoseStamped, TransformStamped
+from action_msgs.msg import GoalStatus
+from builtin_interfaces.msg import Duration
+from control_msgs.action import FollowJointTrajectory
+from control_msgs.msg import JointTolerance
+from geometry_msgs.msg import Point, PoseStamped, TransformStamped
 from nbv_prob_cnn_msgs.action import Explore
 from nbv_prob_cnn_msgs.msg import ViewScore, VoxelGrid
 from nbv_prob_cnn_msgs.srv import CompleteGrid, MoveCamera, MoveToJoints, PlanNextBestView, RankViews
-from rclpy.action import ActionServer, CancelResponse, GoalResponse
+from rclpy.action import ActionClient, ActionServer, CancelResponse, GoalResponse
 from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.node import Node
 from sensor_msgs.msg import JointState
+from trajectory_msgs.msg import JointTrajectoryPoint
 from visualization_msgs.msg import MarkerArray
 
 from nbv_prob_cnn.arm.feasibility import ArmView, FeasibilityReport, takes_view_mask
 from nbv_prob_cnn.arm.selection import ArmViewSelector
 from nbv_prob_cnn.arm.swept import SweptVolume
+from nbv_prob_cnn.arm.trajectory import TimedPath, time_parameterise
 from nbv_prob_cnn.arm.views import ArmPlanningSetup
 from nbv_prob_cnn.basics.camera import DATASETS
 from nbv_prob_cnn.basics.grid import unknown_fraction_all
@@ -66,6 +84,13 @@ SWEPT_STEP = 0.02
 NO_POSITIVE_GAIN = "no view with positive gain"
 #: Planning's message (prefix) when ``use_arm`` finds no view the arm can take (also an end of an exploration).
 NO_REACHABLE_VIEW = "no view the arm reaches collision-free"
+#: Box bound standing for "no limit" on an axis.
+UNBOUNDED = 1e9
+
+
+class ExecutionError(RuntimeError):
+    """The robot did not take the planned view (rejected goal, failed execution, an arm that
+    did not arrive): the exploration rules the view out and tries the next one."""
 
 
 class RecordingPlanner:
@@ -111,8 +136,33 @@ class PlannerConfig(ArmViewParams):
     )
     move_mode: MoveMode = param(
         "service",
-        "'service' (sim_camera/move_to), 'topic' (goal pose) or 'arm' (arm_sim/move_to_joints; needs use_arm)",
+        "'service' (sim_camera/move_to), 'topic' (goal pose), 'arm' (arm_sim/move_to_joints) or 'trajectory' "
+        "(FollowJointTrajectory); arm and trajectory need use_arm",
         choices=MOVE_MODES,
+    )  # fmt: skip
+    workspace_min: list = param([], "camera workspace box corner [x, y, z] (grid frame, m; [] = no box)")
+    workspace_max: list = param([], "camera workspace box corner [x, y, z] (grid frame, m; [] = no box)")
+    min_camera_height_m: float = param(0.0, "lowest camera position z (grid frame, m; 0 = no limit)",
+                                       min_value=-100.0, max_value=100.0)  # fmt: skip
+    max_camera_height_m: float = param(0.0, "highest camera position z (grid frame, m; 0 = no limit)",
+                                       min_value=-100.0, max_value=100.0)  # fmt: skip
+    trajectory_action: str = param(
+        "/arm_controller/follow_joint_trajectory", "move_mode trajectory: the controller's FollowJointTrajectory action"
+    )
+    controller_joints: list = param([""], "move_mode trajectory: joints of the controller (['']: the camera chain's)")
+    trajectory_velocity_scale: float = param(0.5, "move_mode trajectory: fraction of the URDF velocity limits",
+                                             min_value=0.01, max_value=1.0)  # fmt: skip
+    max_joint_acceleration: float = param(1.5, "move_mode trajectory: joint acceleration limit (rad/s² or m/s²)",
+                                          min_value=1e-3, max_value=1000.0)  # fmt: skip
+    max_joint_jerk: float = param(15.0, "move_mode trajectory: joint jerk limit (rad/s³ or m/s³)", min_value=1e-3,
+                                  max_value=100000.0)  # fmt: skip
+    trajectory_dt_s: float = param(0.05, "move_mode trajectory: time between trajectory points (s)", min_value=0.001,
+                                   max_value=10.0)  # fmt: skip
+    goal_tolerance: float = param(0.01, "move_mode trajectory: goal position tolerance sent with the goal (rad or m)",
+                                  min_value=0.0, max_value=10.0)  # fmt: skip
+    max_failed_executions: int = param(
+        5, "arm / trajectory modes: views in a row whose move failed before the exploration stops", min_value=1,
+        max_value=1000,
     )  # fmt: skip
     move_timeout_s: float = param(30.0, "wait for the camera to arrive", min_value=0.1, max_value=600.0)
     grid_timeout_s: float = param(30.0, "wait for the grid with the new frame", min_value=0.1, max_value=600.0)
@@ -155,8 +205,11 @@ class NbvPlanner(Node):
         self._explore_lock = threading.Lock()  # guards the two fields below
         self._active_goal = None  # the running exploration's goal handle
         self._refused_goals: set[bytes] = set()  # accepted while another ran: aborted on execution
-        if self.move_mode == "arm" and not self.use_arm:
-            raise ValueError("move_mode 'arm' needs use_arm:=true (the joint goal comes from planning with the arm)")
+        if self.move_mode in ("arm", "trajectory") and not self.use_arm:
+            raise ValueError(
+                f"move_mode {self.move_mode!r} needs use_arm:=true (the joint goal comes from planning with the arm)"
+            )
+        self._workspace = workspace_box(self.workspace_min, self.workspace_max)  # raises on bad values
         self._arm: ArmPlanningSetup | None = None
         self._joints: JointStateTracker | None = None
         self._arm_lock = threading.Lock()  # guards the fields below (arm planning runs one at a time)
@@ -168,7 +221,7 @@ class NbvPlanner(Node):
         if self.use_arm:
             cfg = self.config
             self._arm = ArmPlanningSetup(
-                cfg.robot_config(), cfg.motion_weight, cfg.free_above(), cfg.arm_max_checks, cfg.capability_stride,
+                cfg.robot_config(self), cfg.motion_weight, cfg.free_above(), cfg.arm_max_checks, cfg.capability_stride,
                 ik_alternatives=cfg.arm_ik_alternatives, strict_capability=cfg.arm_strict_capability,
             )  # fmt: skip
             self._joints = JointStateTracker(self._arm.robot)
@@ -182,6 +235,9 @@ class NbvPlanner(Node):
         self._rank_client = self.create_client(RankViews, names.RANK_VIEWS, callback_group=group)
         self._move_client = self.create_client(MoveCamera, names.MOVE_TO, callback_group=group)
         self._joints_client = self.create_client(MoveToJoints, names.MOVE_TO_JOINTS, callback_group=group)
+        self._trajectory_client = ActionClient(
+            self, FollowJointTrajectory, self.trajectory_action, callback_group=group
+        )
         self.create_service(PlanNextBestView, names.PLAN, self._plan_service, callback_group=group)
         self._action = ActionServer(
             self, Explore, names.EXPLORE, execute_callback=self._explore,
@@ -236,7 +292,7 @@ class NbvPlanner(Node):
         with self._arm_lock:
             if self._last_arm_plan is not None:
                 selector, q_start, view = self._last_arm_plan
-                if self.move_mode == "arm":
+                if self.move_mode in ("arm", "trajectory"):
                     selector.moved(q_start, view)
                 else:
                     selector.take(view.choice)
@@ -268,10 +324,9 @@ class NbvPlanner(Node):
             frame = grid.header.frame_id or self.frame_id
             method = ros_method(request.method, self.method)
             context = planning_context(self.dataset, geometry, self.backend, self.n_rays, self._rng)
-            box_min = np.array([request.workspace_min.x, request.workspace_min.y, request.workspace_min.z])
-            box_max = np.array([request.workspace_max.x, request.workspace_max.y, request.workspace_max.z])
+            box_min, box_max = self._planning_box(request)
             top_k = max(1, int(request.top_k), self.markers_top_k)
-            keep = origin_filter(geometry, request.use_workspace, box_min, box_max, int(request.max_origins), self._rng)
+            keep = origin_filter(geometry, box_min is not None, box_min, box_max, int(request.max_origins), self._rng)
             planner = RecordingPlanner(make_planner(method.name), keep, self._height_limit(geometry))
             if not self.in_process:
                 hooks = self._server_hooks(grid, state, geometry, request, context, planner)
@@ -324,6 +379,21 @@ class NbvPlanner(Node):
         response.time_total_s = time.perf_counter() - start
         return response
 
+    def _planning_box(self, request) -> tuple[np.ndarray | None, np.ndarray | None]:
+        """The camera workspace of a plan: the request's box (``use_workspace``) ∩ the
+        ``workspace_min/max`` parameters ∩ the camera heights; (None, None) when nothing limits it."""
+        boxes = [] if self._workspace is None else [self._workspace]
+        if request.use_workspace:
+            low, high = request.workspace_min, request.workspace_max
+            boxes.append((np.array([low.x, low.y, low.z]), np.array([high.x, high.y, high.z])))
+        low_z, high_z = self.min_camera_height_m, self.max_camera_height_m
+        if low_z or high_z:
+            boxes.append((np.array([-UNBOUNDED, -UNBOUNDED, low_z or -UNBOUNDED]),
+                          np.array([UNBOUNDED, UNBOUNDED, high_z or UNBOUNDED])))  # fmt: skip
+        if not boxes:
+            return None, None
+        return np.max([b[0] for b in boxes], axis=0), np.min([b[1] for b in boxes], axis=0)
+
     def _height_limit(self, geometry):
         """use_arm: the origin filter of ``arm_min_view_height_m`` (None when off)."""
         low = self.arm_min_view_height_m
@@ -340,6 +410,7 @@ class NbvPlanner(Node):
         carved) travels as a grid message of its own."""
         completed = {}
         carved: list = []  # (state, message) of the planner's grid when it differs (swept space carved)
+        box_min, box_max = self._planning_box(request)
 
         def grid_msg(state: np.ndarray) -> VoxelGrid:
             if state.shape == original.shape and np.array_equal(state, original):
@@ -359,9 +430,11 @@ class NbvPlanner(Node):
 
         def rank(method: str, state: np.ndarray, prob, top_k: int) -> list:
             call = RankViews.Request(
-                grid=grid_msg(state), method=method, top_k=top_k, use_workspace=request.use_workspace
+                grid=grid_msg(state), method=method, top_k=top_k, use_workspace=box_min is not None
             )
-            call.workspace_min, call.workspace_max = request.workspace_min, request.workspace_max
+            if box_min is not None:
+                call.workspace_min = Point(x=float(box_min[0]), y=float(box_min[1]), z=float(box_min[2]))
+                call.workspace_max = Point(x=float(box_max[0]), y=float(box_max[1]), z=float(box_max[2]))
             call.max_origins = request.max_origins
             if planner.arm_filter is not None and (self.capability_stride or self.arm_min_view_height_m > 0):
                 allowed = flat_cells(planner.arm_filter(context.candidate_origins(state)), state.shape)
@@ -417,8 +490,98 @@ class NbvPlanner(Node):
         request = MoveToJoints.Request(name=list(goal.name), position=list(goal.position))
         reply = call_service(self, self._joints_client, request, self.move_timeout_s)
         if not reply.success:
-            raise ValueError(f"arm move failed: {reply.message}")
-        return self._joints.wait_until(goal_q, self.joint_tolerance, sent, self.move_timeout_s + reply.duration_s)
+            raise ExecutionError(f"arm move failed: {reply.message}")
+        try:
+            return self._joints.wait_until(goal_q, self.joint_tolerance, sent, self.move_timeout_s + reply.duration_s)
+        except TimeoutError as exc:
+            raise ExecutionError(str(exc)) from exc
+
+    def _move(self, planned: PlanNextBestView.Response) -> int:
+        """Move to a plan's view in ``move_mode``; returns the stamp (ns) from which frames are taken there.
+
+        Raises:
+            ExecutionError: the arm / controller did not take the view (the next view is tried).
+        """
+        if self.move_mode == "arm":
+            return self._move_arm(planned.joint_goal)
+        if self.move_mode == "trajectory":
+            try:
+                return self._move_trajectory(planned.joint_goal)
+            except TimeoutError as exc:
+                raise ExecutionError(str(exc)) from exc
+        return self._move_camera(planned.best_pose)
+
+    def _rule_out_planned_view(self) -> None:
+        """The move to the last plan's view failed: never plan that view again."""
+        with self._arm_lock:
+            if self._last_arm_plan is not None:
+                selector, _, view = self._last_arm_plan
+                selector.take(view.choice)
+                self._last_arm_plan = None
+
+    def _move_trajectory(self, goal: JointState) -> int:
+        """Send the straight joint path from the plan's start to ``goal``, timed within the limits,
+        to the FollowJointTrajectory action; wait for the result and for ``joint_states`` at the
+        goal; returns the stamp (ns) of the first joint state there.
+
+        Raises:
+            ExecutionError: the server is missing, rejects the goal or reports a failure.
+        """
+        with self._arm_lock:
+            plan = self._last_arm_plan
+        if plan is None:
+            raise ExecutionError("no planned joint path to execute")
+        robot = self._arm.robot
+        q_start, q_goal = plan[1], robot.joint_state_configuration(goal.name, goal.position)
+        path = self._timed_path(q_start, q_goal)
+        joints = self._controller_joints()
+        index = [robot.joint_names.index(n) for n in joints]
+        request = FollowJointTrajectory.Goal()
+        request.trajectory.joint_names = joints
+        request.trajectory.points = [
+            JointTrajectoryPoint(
+                positions=[float(v) for v in path.positions[k, index]],
+                velocities=[float(v) for v in path.velocities[k, index]],
+                accelerations=[float(v) for v in path.accelerations[k, index]],
+                time_from_start=duration_msg(float(t)),
+            )
+            for k, t in enumerate(path.times)
+            if k > 0 or path.times.size == 1
+        ]  # fmt: skip
+        request.goal_tolerance = [JointTolerance(name=n, position=self.goal_tolerance) for n in joints]
+        request.goal_time_tolerance = duration_msg(self.move_timeout_s)
+        client = self._trajectory_client
+        if not client.wait_for_server(timeout_sec=min(self.move_timeout_s, 10.0)):
+            raise ExecutionError(f"action {self.trajectory_action} is not available")
+        sent = self.get_clock().now().nanoseconds
+        handle = wait_future(client.send_goal_async(request), self.move_timeout_s, "goal acceptance")
+        if handle is None or not handle.accepted:
+            raise ExecutionError(f"{self.trajectory_action} rejected the trajectory (see the controller's log)")
+        outcome = wait_future(handle.get_result_async(), path.duration + 2 * self.move_timeout_s, "trajectory result")
+        code, text = outcome.result.error_code, outcome.result.error_string
+        if outcome.status != GoalStatus.STATUS_SUCCEEDED or code != FollowJointTrajectory.Result.SUCCESSFUL:
+            raise ExecutionError(
+                f"{self.trajectory_action} failed: error code {code} {text!r} (status {outcome.status})"
+            )
+        tolerance = max(self.joint_tolerance, self.goal_tolerance)
+        return self._joints.wait_until(q_goal, tolerance, sent, self.move_timeout_s)
+
+    def _controller_joints(self) -> list[str]:
+        """The joints a trajectory names: ``controller_joints``, or the camera chain's."""
+        robot = self._arm.robot
+        joints = [n for n in self.controller_joints if n] or [robot.joint_names[i] for i in robot.chain]
+        unknown = sorted(set(joints) - set(robot.joint_names))
+        if unknown:
+            raise ExecutionError(f"controller_joints: {unknown} are not joints of the robot {robot.joint_names}")
+        return joints
+
+    def _timed_path(self, q_start: np.ndarray, q_goal: np.ndarray) -> TimedPath:
+        """The straight joint path timed within ``trajectory_velocity_scale`` × the URDF velocity
+        limits and the acceleration and jerk limits."""
+        robot = self._arm.robot
+        vmax = np.asarray(robot.model.velocityLimit, dtype=np.float64) * self.trajectory_velocity_scale
+        return time_parameterise(q_start, q_goal, vmax, self.max_joint_acceleration, self.max_joint_jerk,
+                                 self.trajectory_dt_s)  # fmt: skip
 
     def _move_camera(self, target: PoseStamped) -> int:
         """Move the camera; returns the stamp (ns) of the first frame taken at the target."""
@@ -476,12 +639,13 @@ class NbvPlanner(Node):
             fraction = unknown_fraction_all(msg_to_grid(self._wait_for_grid(0, self.grid_timeout_s))[0])
             if self._joints is not None:  # the arm's first joint state may still be on its way
                 self._joints.wait_for_first(self.move_timeout_s)
-            for index in range(goal.max_views):
+            index, failures = 0, 0  # views taken; failed moves in a row
+            while index < goal.max_views:
                 if goal_handle.is_cancel_requested:
                     return "canceled", f"canceled after {index} views", fraction
                 if goal.stop_unknown_fraction > 0 and fraction <= goal.stop_unknown_fraction:
                     return "succeeded", f"unknown fraction {fraction:.4f} <= {goal.stop_unknown_fraction}", fraction
-                planned = self.plan(PlanNextBestView.Request(method=goal.method))
+                planned = self.plan(goal_plan_request(goal))
                 if not planned.success:
                     if planned.message == NO_POSITIVE_GAIN or planned.message.startswith(NO_REACHABLE_VIEW):
                         return "succeeded", planned.message, fraction
@@ -489,10 +653,27 @@ class NbvPlanner(Node):
                 if planned.best_gain <= goal.stop_gain:
                     return "succeeded", f"best gain {planned.best_gain:.4f} <= {goal.stop_gain}", fraction
                 moving = time.perf_counter()
-                if self.move_mode == "arm":
-                    frame_ns = self._move_arm(planned.joint_goal)
-                else:
-                    frame_ns = self._move_camera(planned.best_pose)
+                try:
+                    frame_ns = self._move(planned)
+                except ExecutionError as exc:
+                    failures += 1
+                    result.failed_executions += 1
+                    self._rule_out_planned_view()
+                    failed = Explore.Feedback(
+                        view_index=index, pose=planned.best_pose, gain=planned.best_gain, unknown_fraction=fraction,
+                        executed=False, execution_error=str(exc),
+                    )  # fmt: skip
+                    failed.joint_goal, failed.joint_travel = planned.joint_goal, planned.joint_path_length
+                    goal_handle.publish_feedback(failed)
+                    self.get_logger().warning(f"view {index}: move failed ({exc}); trying the next ranked view")
+                    if failures >= self.max_failed_executions:
+                        return (
+                            "succeeded",
+                            f"stopped: {failures} planned views in a row failed to execute ({exc})",
+                            fraction,
+                        )
+                    continue
+                failures = 0
                 if self._arm is not None:
                     self._took_planned_view()
                 waiting = time.perf_counter()
@@ -501,21 +682,77 @@ class NbvPlanner(Node):
                 fraction = unknown_fraction_all(msg_to_grid(grid)[0])
                 result.poses.append(planned.best_pose)
                 feedback = Explore.Feedback(
-                    view_index=index, pose=planned.best_pose, gain=planned.best_gain, unknown_fraction=fraction
-                )
-                if self.move_mode == "arm":
+                    view_index=index, pose=planned.best_pose, gain=planned.best_gain, unknown_fraction=fraction,
+                    executed=True,
+                )  # fmt: skip
+                if self.move_mode in ("arm", "trajectory"):
                     feedback.joint_goal, feedback.joint_travel = planned.joint_goal, planned.joint_path_length
                 goal_handle.publish_feedback(feedback)
                 self.get_logger().info(
                     f"view {index}: gain {planned.best_gain:.4f}, unknown fraction {fraction:.4f}; "
                     f"{stage_times(planned, waiting - moving, done - waiting)}"
                 )
+                index += 1
         except (ValueError, TimeoutError, RuntimeError) as exc:
             self.get_logger().error(f"explore: {exc}")
             return "aborted", f"error: {exc}", fraction
         if goal_handle.is_cancel_requested:
             return "canceled", f"canceled after {goal.max_views} views", fraction
         return "succeeded", f"reached {goal.max_views} views", fraction
+
+
+def workspace_box(low: list, high: list) -> tuple[np.ndarray, np.ndarray] | None:
+    """The ``workspace_min`` / ``workspace_max`` parameters as a box (None when both are empty).
+
+    Raises:
+        ValueError: not three finite numbers each, or min > max.
+    """
+    if not low and not high:
+        return None
+    lo, hi = np.asarray(low, dtype=np.float64), np.asarray(high, dtype=np.float64)
+    if lo.shape != (3,) or hi.shape != (3,) or not (np.all(np.isfinite(lo)) and np.all(np.isfinite(hi))):
+        raise ValueError(f"workspace_min/workspace_max: expected 3 finite numbers each, got {low} and {high}")
+    if np.any(lo > hi):
+        raise ValueError(f"workspace_min {low} exceeds workspace_max {high} on some axis")
+    return lo, hi
+
+
+def goal_plan_request(goal: Explore.Goal) -> PlanNextBestView.Request:
+    """The planning request of one exploration step: the goal's method and workspace (its box
+    and camera heights; 0 heights = no limit from the goal)."""
+    request = PlanNextBestView.Request(method=goal.method, use_workspace=goal.use_workspace)
+    low, high = goal.workspace_min, goal.workspace_max
+    box_min = [low.x, low.y, low.z] if goal.use_workspace else [-UNBOUNDED] * 3
+    box_max = [high.x, high.y, high.z] if goal.use_workspace else [UNBOUNDED] * 3
+    if goal.min_camera_height:
+        box_min[2] = max(box_min[2], float(goal.min_camera_height))
+    if goal.max_camera_height:
+        box_max[2] = min(box_max[2], float(goal.max_camera_height))
+    request.use_workspace = bool(goal.use_workspace or goal.min_camera_height or goal.max_camera_height)
+    request.workspace_min = Point(x=float(box_min[0]), y=float(box_min[1]), z=float(box_min[2]))
+    request.workspace_max = Point(x=float(box_max[0]), y=float(box_max[1]), z=float(box_max[2]))
+    return request
+
+
+def duration_msg(seconds: float) -> Duration:
+    """``builtin_interfaces/Duration`` of a non-negative number of seconds."""
+    nanoseconds = round(seconds * 1e9)
+    return Duration(sec=nanoseconds // 1_000_000_000, nanosec=nanoseconds % 1_000_000_000)
+
+
+def wait_future(future, timeout_s: float, what: str):
+    """The result of an rclpy future completed by the executor's other threads.
+
+    Raises:
+        ExecutionError: not done within ``timeout_s``, or it raised.
+    """
+    done = threading.Event()
+    future.add_done_callback(lambda _: done.set())
+    if not done.wait(timeout_s):
+        raise ExecutionError(f"no {what} within {timeout_s:.0f} s")
+    if future.exception() is not None:
+        raise ExecutionError(f"{what} failed: {future.exception()}")
+    return future.result()
 
 
 def stage_times(planned: PlanNextBestView.Response, move_s: float, grid_wait_s: float) -> str:

@@ -1,51 +1,201 @@
-"""The robot description parameters shared by every node that models the arm, and the
-conversions between ``sensor_msgs/JointState`` and configuration vectors.
+"""The robot description every node that models the arm reads, and the conversions between
+``sensor_msgs/JointState`` and configuration vectors.
 
 ``arm_sim`` moves the arm; ``sim_camera`` renders it, ``integrator`` filters it out of the depth
-images and ``nbv_planner`` / ``gain_server`` plan views it can reach. All of them must describe the
-same robot, so their config dataclasses derive from :class:`RobotParams` and declare the same
-parameter names.
+images and ``nbv_planner`` / ``gain_server`` plan views it can reach. They all read the robot as a
+ROS graph carries it (:meth:`RobotParams.robot_config`):
+
+1. the description: the ``robot_description`` parameter (URDF or xacro text), else ``urdf_path``
+   (a ``.urdf`` or ``.xacro`` file; ``panda`` = the Panda of ``pybullet_data``), else the
+   ``robot_description`` topic (``std_msgs/String``, transient local, as ``robot_state_publisher``
+   serves it), waited for ``description_timeout_s``; ``package://`` resolved through
+   ``package_dirs``, ``AMENT_PREFIX_PATH`` and ``ROS_PACKAGE_PATH``;
+2. where it stands: a link ``world_frame`` in the description places it (its root), else
+   ``base_xyz`` / ``base_rpy``;
+3. the camera: a link ``camera_frame`` (the images' optical frame) in the description is the
+   camera, else ``camera_xyz`` / ``camera_rpy`` on ``camera_parent``.
+
+So a graph with ``arm_sim`` (or a real driver) publishing the description with the camera in it
+needs none of the pose parameters.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import threading
+import time
 from dataclasses import dataclass
 
 import numpy as np
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState
+from std_msgs.msg import String
 
+from nbv_prob_cnn.arm.description import read_description, urdf_links, urdf_root_link
+from nbv_prob_cnn.arm.joint_states import JointStateMerger
 from nbv_prob_cnn.arm.robot import (
     DEFAULT_BASE_XYZ,
     DEFAULT_HAND_FROM_CAMERA_XYZ,
     RobotConfig,
     RobotModel,
+    pose_from_xyz_rpy,
     robot_config,
 )
 from nbv_prob_cnn.perception.messages import stamp_ns
 from nbv_prob_cnn.ros.common import param
 
+#: ``urdf_path`` value of the built-in robot: the Franka Panda of ``pybullet_data``.
+BUILTIN_PANDA = "panda"
+#: Topic of the description (relative: ``/robot_description`` without a namespace).
+ROBOT_DESCRIPTION = "robot_description"
+#: QoS of ``robot_description``: the last message kept for late joiners (as robot_state_publisher).
+DESCRIPTION_QOS = QoSProfile(
+    depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL
+)
+
 
 @dataclass
 class RobotParams:
-    """Robot description parameters (read-only after start-up); default: the Panda beside the 3DT table."""
+    """Robot description parameters (read-only after start-up); default: the ``robot_description`` topic."""
 
-    urdf_path: str = param("", "robot URDF (empty = the Panda from pybullet_data)")
-    base_xyz: list = param(list(DEFAULT_BASE_XYZ), "root link position in frame_id (m)")
-    base_rpy: list = param([0.0, 0.0, 0.0], "root link roll, pitch, yaw (rad)")
-    camera_parent: str = param("", "link carrying the camera (empty = panda_hand)")
-    camera_xyz: list = param(list(DEFAULT_HAND_FROM_CAMERA_XYZ), "optical frame on the link (m)")
-    camera_rpy: list = param([0.0, 0.0, 0.0], "optical frame roll, pitch, yaw on the link (rad)")
+    robot_description: str = param("", "URDF or xacro text of the robot (empty: urdf_path, else the topic)")
+    urdf_path: str = param(
+        "", "URDF or .xacro file of the robot, 'panda' = the Panda of pybullet_data (empty: robot_description topic)"
+    )
+    xacro_args: list = param([""], "xacro arguments name:=value (['']: none)")
+    package_dirs: list = param([""], "folders searched first for package://<pkg>/ (the package's folder or its parent)")
+    description_timeout_s: float = param(60.0, "wait for the robot_description topic", min_value=0.1, max_value=3600.0)
+    world_frame: str = param(
+        "world", "fixed frame the robot stands in: a link of this name in the description places it"
+    )
+    base_xyz: list = param(
+        list(DEFAULT_BASE_XYZ), "root link position in world_frame (m), when the description has no world_frame link"
+    )
+    base_rpy: list = param(
+        [0.0, 0.0, 0.0], "root link roll, pitch, yaw (rad), when the description has no world_frame link"
+    )
+    camera_frame: str = param(
+        "camera_optical", "optical frame of the depth images: a link of this name in the description is the camera"
+    )
+    camera_parent: str = param(
+        "", "link carrying the camera, when the description has no camera_frame link (empty = panda_hand)"
+    )
+    camera_xyz: list = param(list(DEFAULT_HAND_FROM_CAMERA_XYZ), "optical frame on camera_parent (m), as camera_parent")
+    camera_rpy: list = param([0.0, 0.0, 0.0], "optical frame roll, pitch, yaw on camera_parent (rad), as camera_parent")
 
-    def robot_config(self) -> RobotConfig:
-        """The core :class:`~nbv_prob_cnn.arm.robot.RobotConfig` these parameters describe.
+    def robot_config(self, node: Node | None = None) -> RobotConfig:
+        """The core :class:`~nbv_prob_cnn.arm.robot.RobotConfig` these parameters describe; reads
+        the ``robot_description`` topic through ``node`` when neither text nor file is given.
 
         Raises:
-            ValueError: a custom URDF without ``camera_parent``, or bad poses.
+            ValueError: no description in time, a missing package, a xacro error, a custom URDF
+                without the camera (no ``camera_frame`` link, no ``camera_parent``), bad poses.
         """
-        return robot_config(
-            self.urdf_path, self.base_xyz, self.base_rpy, self.camera_parent, self.camera_xyz, self.camera_rpy
+        dirs = [d for d in self.package_dirs if d]
+        if not self.robot_description and self.urdf_path == BUILTIN_PANDA:
+            return robot_config("", self.base_xyz, self.base_rpy, self.camera_parent, self.camera_xyz,
+                                self.camera_rpy, dirs)  # fmt: skip
+        text = self.robot_description
+        if not text and not self.urdf_path:
+            if node is None:
+                raise ValueError("robot description: no robot_description or urdf_path, and no node to read the topic")
+            text = wait_for_robot_description(node, self.description_timeout_s)
+        urdf = read_description(text, self.urdf_path, dirs, xacro_arguments(self.xacro_args))
+        return description_config(
+            urdf, dirs, self.world_frame, self.base_xyz, self.base_rpy, self.camera_frame, self.camera_parent,
+            self.camera_xyz, self.camera_rpy,
+        )  # fmt: skip
+
+
+def xacro_arguments(values: list) -> dict[str, str]:
+    """``name:=value`` strings as a mapping.
+
+    Raises:
+        ValueError: an entry without ``:=``.
+    """
+    mappings = {}
+    for item in values:
+        if not item:
+            continue
+        name, sep, value = str(item).partition(":=")
+        if not sep or not name:
+            raise ValueError(f"xacro_args: expected name:=value, got {item!r}")
+        mappings[name] = value
+    return mappings
+
+
+def description_config(
+    urdf: str,
+    package_dirs: list[str],
+    world_frame: str,
+    base_xyz,
+    base_rpy,
+    camera_frame: str,
+    camera_parent: str,
+    camera_xyz,
+    camera_rpy,
+) -> RobotConfig:
+    """The :class:`RobotConfig` of a resolved URDF text: placed by its ``world_frame`` root link
+    when it has one (else the base parameters), the camera at its ``camera_frame`` link when it
+    has one (else the mount parameters on ``camera_parent``).
+
+    Raises:
+        ValueError: ``world_frame`` is a link but not the root; no camera (see above).
+    """
+    links = urdf_links(urdf)
+    if world_frame and world_frame in links:
+        if urdf_root_link(urdf) != world_frame:
+            raise ValueError(f"robot description: link {world_frame!r} (world_frame) is not the root")
+        world_from_base = np.eye(4)
+    else:
+        world_from_base = pose_from_xyz_rpy(base_xyz, base_rpy)
+    if camera_frame and camera_frame in links:
+        parent, mount = camera_frame, np.eye(4)
+    elif camera_parent:
+        parent, mount = camera_parent, pose_from_xyz_rpy(camera_xyz, camera_rpy)
+    else:
+        raise ValueError(
+            f"robot description: no link {camera_frame!r} (camera_frame) and no camera_parent; "
+            f"set camera_frame to the optical frame's link, or camera_parent + camera_xyz/camera_rpy"
         )
+    return RobotConfig(
+        description=urdf, package_dirs=tuple(package_dirs), world_from_base=world_from_base,
+        camera_parent=parent, parent_from_camera=mount,
+    )  # fmt: skip
+
+
+def wait_for_robot_description(node: Node, timeout_s: float) -> str:
+    """The latest ``robot_description`` (``std_msgs/String``, transient local) seen by a helper
+    node beside ``node`` (same namespace and remappings; ``node`` itself is not spun yet).
+
+    Raises:
+        ValueError: nothing within ``timeout_s``.
+    """
+    import rclpy
+    from rclpy.executors import SingleThreadedExecutor
+
+    helper = rclpy.create_node(f"{node.get_name()}_description", namespace=node.get_namespace(),
+                               context=node.context)  # fmt: skip
+    received: list[str] = []
+    topic = helper.resolve_topic_name(ROBOT_DESCRIPTION)
+    helper.create_subscription(String, ROBOT_DESCRIPTION, lambda msg: received.append(msg.data), DESCRIPTION_QOS)
+    executor = SingleThreadedExecutor(context=node.context)
+    executor.add_node(helper)
+    deadline = time.monotonic() + timeout_s
+    try:
+        while not received and time.monotonic() < deadline:
+            executor.spin_once(timeout_sec=0.1)
+    finally:
+        executor.shutdown()
+        helper.destroy_node()
+    if not received:
+        raise ValueError(
+            f"robot description: nothing on {topic} within {timeout_s:g} s (start the robot's "
+            "robot_state_publisher, or set robot_description / urdf_path)"
+        )
+    node.get_logger().info(f"robot description: {len(received[-1])} characters from {topic}")
+    return received[-1]
 
 
 @dataclass
@@ -72,71 +222,109 @@ def joint_state_msg(robot: RobotModel, q: np.ndarray | None) -> JointState:
     return msg
 
 
+def merged_joint_state(merger: JointStateMerger, msg):
+    """A joint state message (rclpy or rosbags) merged into every joint of the robot: a copy
+    naming all of them, ``None`` while some never arrived; a malformed one is returned as it is,
+    so that its conversion reports the error.
+
+    The copy keeps the header and carries no velocities or efforts.
+    """
+    try:
+        merger.update(list(msg.name), list(msg.position))
+    except ValueError:
+        return msg
+    if not merger.complete():
+        return None
+    q = merger.configuration()
+    if dataclasses.is_dataclass(msg):  # rosbags message
+        return dataclasses.replace(msg, name=list(merger.joint_names), position=q, velocity=np.zeros(0),
+                                   effort=np.zeros(0))  # fmt: skip
+    return JointState(header=msg.header, name=list(merger.joint_names), position=[float(v) for v in q])
+
+
 class JointStateTracker:
-    """The latest ``joint_states`` of a robot, converted on arrival (subscription callback
-    :meth:`on_joint_state`); a message with wrong names is kept as its error, so the next request
-    reports it instead of planning from a stale configuration."""
+    """The robot's configuration from ``joint_states`` (subscription callback
+    :meth:`on_joint_state`), merged over partial messages (:class:`JointStateMerger`: names the
+    robot lacks are ignored, a joint is missing until its first position arrives). A malformed
+    message is kept as the error, so the next request reports it instead of planning from a stale
+    configuration; the next good message clears it."""
 
     def __init__(self, robot: RobotModel) -> None:
         self.robot = robot
         self._condition = threading.Condition()
-        self._q: np.ndarray | None = None
+        self._merger = JointStateMerger(robot.joint_names)
+        self._q: np.ndarray | None = None  # the merged configuration once complete
         self._stamp_ns = -1
         self._error = ""
+        self._arrived = False
 
     def on_joint_state(self, msg: JointState) -> str:
-        """Store one message; returns its error ("" when it was valid)."""
-        try:
-            q, error = self.robot.joint_state_configuration(msg.name, msg.position), ""
-        except ValueError as exc:
-            q, error = None, str(exc)
+        """Merge one message; returns its error ("" when it was valid)."""
         with self._condition:
-            self._q, self._error = q, error
+            try:
+                self._merger.update(msg.name, msg.position)
+                self._error = ""
+                if self._merger.complete():
+                    self._q = self._merger.configuration()
+            except ValueError as exc:
+                self._error = str(exc)
+            self._arrived = True
             self._stamp_ns = stamp_ns(msg.header.stamp)
             self._condition.notify_all()
-        return error
+            return self._error
+
+    def ignored_names(self) -> list[str]:
+        """Names seen on joint_states that the robot lacks."""
+        with self._condition:
+            return sorted(self._merger.ignored)
 
     def current(self) -> tuple[np.ndarray, int]:
-        """The latest configuration and its stamp (ns).
+        """The merged configuration and the stamp (ns) of the latest message.
 
         Raises:
-            ValueError: no joint state yet, or the latest one had wrong names/values.
+            ValueError: no joint state yet, joints never received (named), or the latest message
+                was malformed.
         """
         with self._condition:
             return self._checked()
 
     def current_or(self, default: np.ndarray) -> np.ndarray:
-        """The latest configuration, or ``default`` before any joint state arrived.
+        """The merged configuration, or ``default`` before any joint state arrived.
 
         Raises:
-            ValueError: the latest joint state had wrong names/values.
+            ValueError: the latest message was malformed, or joints are still missing.
         """
         with self._condition:
-            return default if self._q is None and not self._error else self._checked()[0]
+            return default if not self._arrived else self._checked()[0]
 
     def _checked(self) -> tuple[np.ndarray, int]:
         if self._error:
             raise ValueError(self._error)
-        if self._q is None:
+        if not self._arrived:
             raise ValueError("no joint state received yet on joint_states")
+        if self._q is None:
+            self._merger.configuration()  # raises, naming the joints never received
         return self._q.copy(), self._stamp_ns
 
     def wait_for_first(self, timeout_s: float) -> None:
-        """Wait until the first joint state (valid or not) has arrived.
+        """Wait until every joint of the robot has a position (or a malformed message arrived).
 
         Raises:
-            TimeoutError: none within ``timeout_s``.
+            TimeoutError: not within ``timeout_s`` (the message names the missing joints).
         """
         with self._condition:
             if not self._condition.wait_for(lambda: self._q is not None or bool(self._error), timeout_s):
-                raise TimeoutError(f"no joint state received on joint_states within {timeout_s:.0f} s")
+                missing = self._merger.missing()
+                raise TimeoutError(
+                    f"no complete joint state on joint_states within {timeout_s:.0f} s (never received: {missing})"
+                )
 
     def wait_until(self, goal: np.ndarray, tolerance: float, min_stamp_ns: int, timeout_s: float) -> int:
         """Wait until a joint state stamped at or after ``min_stamp_ns`` is within ``tolerance``
         (max abs difference, rad or m) of ``goal``; returns its stamp (ns).
 
         Raises:
-            ValueError: a joint state with wrong names/values arrives meanwhile.
+            ValueError: a malformed joint state arrives meanwhile.
             TimeoutError: not reached in time.
         """
 

@@ -50,6 +50,7 @@ from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import CameraInfo, Image, JointState
 
+from nbv_prob_cnn.arm.joint_states import JointStateMerger
 from nbv_prob_cnn.basics.camera import look_rotation, matrix_from_quaternion, quaternion_from_matrix
 from nbv_prob_cnn.perception.depth_camera import DepthCamera, DepthNoise, Intrinsics, room_mesh
 from nbv_prob_cnn.perception.messages import (
@@ -238,7 +239,8 @@ class SimCamera(Node):
             from nbv_prob_cnn.arm.robot import RobotModel
             from nbv_prob_cnn.arm.robot_scene import RobotScene
 
-            self._arm = RobotScene(RobotModel(cfg.robot_config()), "visual")
+            self._arm = RobotScene(RobotModel(cfg.robot_config(self)), "visual")
+            self._arm_merger = JointStateMerger(self._arm.robot.joint_names)  # arm and gripper may come apart
             # without follow_arm only the newest joint state matters (a backlog would render the arm
             # where it was); with it every one is kept by stamp, to pair with the arm pose of that stamp
             depth = ARM_STATES_KEPT if cfg.follow_arm else 1
@@ -367,7 +369,10 @@ class SimCamera(Node):
         if self._arm is None:
             return
         try:
-            q = self._arm.robot.joint_state_configuration(list(msg.name), list(msg.position))
+            self._arm_merger.update(list(msg.name), list(msg.position))  # names the robot lacks are ignored
+            if not self._arm_merger.complete():
+                return  # a joint has never arrived yet (e.g. the gripper's message comes next)
+            q = self._arm_merger.configuration()
         except ValueError as exc:
             self.bad_joint_states += 1
             self.get_logger().warning(
