@@ -1,0 +1,202 @@
+"""The integrator poses depth images by TF (``pose_source:=tf``, the default), as beside a real
+robot: ``/tf_static`` world -> base and the camera mount, ``/tf`` base -> camera_link sampled
+around the image stamps, images in the optical frame. The grid equals the one a second
+integrator builds from the hand-computed poses on ``/camera/pose``; an image whose TF comes late
+is held and integrated; images whose frame is unknown, in another tree or outside the TF
+history are dropped and counted under their reason. And the grid reaches a subscriber with the
+default QoS (volatile) that starts after the last frame, within 2 s."""
+
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+pytest.importorskip("open3d")
+pytest.importorskip("rosbags")
+rclpy = pytest.importorskip("rclpy")
+pytest.importorskip("nbv_prob_cnn_msgs")
+pytest.importorskip("tf2_msgs")
+
+from geometry_msgs.msg import TransformStamped  # noqa: E402
+from nbv_prob_cnn_msgs.msg import VoxelGrid  # noqa: E402
+from sensor_msgs.msg import CameraInfo, Image  # noqa: E402
+from std_srvs.srv import Trigger  # noqa: E402
+from test_ros_perception import (  # noqa: E402
+    START_TIMEOUT_S,
+    RosClient,
+    assert_clean_stop,
+    counts,
+    log_text,
+    stamp_ns,
+)
+from test_ros_perception import domain_id as perception_domain  # noqa: E402
+from tf2_msgs.msg import TFMessage  # noqa: E402
+
+from nbv_prob_cnn.perception import Intrinsics  # noqa: E402
+from nbv_prob_cnn.perception.bags import (  # noqa: E402
+    MSG_CAMERA_INFO,
+    MSG_IMAGE,
+    MSG_TRANSFORM,
+    depth_to_image_msg,
+    intrinsics_to_camera_info,
+    pose_to_transform_msg,
+    typestore,
+)
+from nbv_prob_cnn.ros.common import GRID_QOS  # noqa: E402
+from nbv_prob_cnn.ros.conversions import msg_to_grid, time_msg  # noqa: E402
+from nbv_prob_cnn.ros.graph import NodeGraph, wait_for  # noqa: E402
+from nbv_prob_cnn.ros.tf_listener import TF_QOS, TF_STATIC_QOS  # noqa: E402
+
+pytestmark = pytest.mark.slow  # multi-process ROS graphs
+
+S = 1_000_000_000
+INTRINSICS = Intrinsics.from_hfov(64, 48, 60.0)
+DEPTH = np.full(INTRINSICS.shape, 0.6, np.float32)  # a plane 0.6 m in front of the camera
+GRID_PARAMS = {"publish_rate_hz": 10.0, "pose_timeout_s": 1.0, "diagnostics_period_s": 0.2}
+
+
+def transform(parent: str, child: str, stamp: int, xyz, xyzw=(0.0, 0.0, 0.0, 1.0)) -> TransformStamped:
+    msg = TransformStamped()
+    msg.header.frame_id, msg.header.stamp, msg.child_frame_id = parent, time_msg(stamp), child
+    t, r = msg.transform.translation, msg.transform.rotation
+    t.x, t.y, t.z = (float(v) for v in xyz)
+    r.x, r.y, r.z, r.w = (float(v) for v in xyzw)
+    return msg
+
+
+def hand_pose(x: float) -> np.ndarray:
+    """world <- camera_optical by hand: base at (0.74, 0.74, 0); camera_link at (x, 0, 1.0) in the
+    base; the optical frame turned 180° about the link's x axis (z looks down, y along -y)."""
+    pose = np.diag([1.0, -1.0, -1.0, 1.0])
+    pose[:3, 3] = [0.74 + x, 0.74, 1.0]
+    return pose
+
+
+class Publishers:
+    """Images and camera_infos for the TF integrator (plain topics) and the reference (``/ref``)."""
+
+    def __init__(self, client: RosClient) -> None:
+        node = client.node
+        self.store = typestore()
+        self.image = {ns: node.create_publisher(Image, f"{ns}/camera/depth/image", 10) for ns in ("", "/ref")}
+        self.info = {ns: node.create_publisher(CameraInfo, f"{ns}/camera/depth/camera_info", 10) for ns in ("", "/ref")}
+        self.ref_pose = node.create_publisher(TransformStamped, "/ref/camera/pose", 10)
+        self.tf = node.create_publisher(TFMessage, "/tf", TF_QOS)
+        self.tf_static = node.create_publisher(TFMessage, "/tf_static", TF_STATIC_QOS)
+
+    def all(self) -> list:
+        return [*self.image.values(), *self.info.values(), self.ref_pose, self.tf, self.tf_static]
+
+    def frame(self, stamp: int, frame_id: str = "camera_optical", ns: str = "") -> None:
+        info = intrinsics_to_camera_info(INTRINSICS, stamp, frame_id)
+        self.info[ns].publish(bytes(self.store.serialize_cdr(info, MSG_CAMERA_INFO)))
+        image = depth_to_image_msg(DEPTH, stamp, "16UC1", frame_id)
+        self.image[ns].publish(bytes(self.store.serialize_cdr(image, MSG_IMAGE)))
+
+    def reference_frame(self, stamp: int, pose: np.ndarray) -> None:
+        msg = pose_to_transform_msg(pose, stamp, "world", "camera_optical")
+        self.ref_pose.publish(bytes(self.store.serialize_cdr(msg, MSG_TRANSFORM)))
+        self.frame(stamp, ns="/ref")
+
+
+def test_integrator_poses_images_by_tf(ros_domain, tmp_path: Path) -> None:
+    env = ros_domain(perception_domain(6))
+    with NodeGraph(env, log_dir=tmp_path) as graph, RosClient(int(env["ROS_DOMAIN_ID"])) as client:
+        graph.start_node("integrator", "integrator", GRID_PARAMS)
+        graph.start_node("ref_integrator", "integrator", {**GRID_PARAMS, "pose_source": "topic"}, namespace="/ref")
+        out = Publishers(client)
+        ref_grids: list[VoxelGrid] = []
+        client.node.create_subscription(VoxelGrid, "/ref/nbv/grid", ref_grids.append, GRID_QOS)
+        assert client.spin_until(lambda: all(p.get_subscription_count() >= 1 for p in out.all()), START_TIMEOUT_S), (
+            "the integrators did not subscribe"
+        )
+        assert out.image[""].get_subscription_count() == 1  # the reference is not on the plain topics
+        client.spin_until(lambda: False, 0.5)
+        diagnostics = client.node.create_client(Trigger, "/integrator/diagnostics")
+
+        def report() -> dict:
+            return json.loads(client.call(diagnostics, Trigger.Request()).message)
+
+        def same_grid_as_reference(stamp: int) -> None:
+            grid, _ = msg_to_grid(client.wait_grid(stamp))
+            assert client.spin_until(lambda: ref_grids and stamp_ns(ref_grids[-1].header.stamp) >= stamp, 20.0)
+            reference, _ = msg_to_grid(ref_grids[-1])
+            assert counts(grid)["occupied"] > 0 and counts(grid)["empty"] > 0, counts(grid)
+            np.testing.assert_array_equal(grid, reference)
+
+        # the robot's static frames, then base -> camera_link at 10 s and 11 s (0.2 m apart along x)
+        out.tf_static.publish(TFMessage(transforms=[
+            transform("world", "base", 0, (0.74, 0.74, 0.0)),
+            transform("camera_link", "camera_optical", 0, (0.0, 0.0, 0.0), (1.0, 0.0, 0.0, 0.0)),
+            transform("odom", "lidar", 0, (0.0, 0.0, 0.5)),
+        ]))  # fmt: skip
+        out.tf.publish(TFMessage(transforms=[transform("base", "camera_link", 10 * S, (-0.1, 0.0, 1.0))]))
+        out.tf.publish(TFMessage(transforms=[transform("base", "camera_link", 11 * S, (0.1, 0.0, 1.0))]))
+        client.spin_until(lambda: False, 0.3)
+        # an image half-way: the camera is interpolated to x = 0 (the reference: the hand-computed pose)
+        out.frame(10 * S + S // 2)
+        out.reference_frame(10 * S + S // 2, hand_pose(0.0))
+        same_grid_as_reference(10 * S + S // 2)
+
+        # an image before its TF: held, then integrated when the TF comes 0.3 s later
+        out.frame(12 * S)
+        client.spin_until(lambda: False, 0.3)
+        out.tf.publish(TFMessage(transforms=[transform("base", "camera_link", 12 * S, (0.2, 0.0, 1.0))]))
+        out.reference_frame(12 * S, hand_pose(0.2))
+        same_grid_as_reference(12 * S)
+        first = report()
+        assert first["integrated"] == 2 and first["dropped_total"] == 0, first
+
+        # images that cannot be posed: each dropped after pose_timeout_s under its reason
+        cases = [
+            ("ir_optical", 13 * S, "tf_unknown_frame", "source frame 'ir_optical' does not exist"),
+            ("lidar", 14 * S, "tf_not_connected", "'lidar' is in the tree of 'odom', 'world' in the tree of"),
+            ("camera_optical", 5 * S, "tf_extrapolation", "5.000 s before its oldest sample (10.000000 s)"),
+            ("camera_optical", 15 * S, "tf_extrapolation", "3.000 s after its newest sample (12.000000 s)"),
+        ]
+        for frame_id, stamp, reason, text in cases:
+            dropped = report()["dropped"][reason]
+            out.frame(stamp, frame_id)
+            assert client.spin_until(lambda r=reason, d=dropped: report()["dropped"][r] == d + 1, 10.0), (
+                reason, report(), log_text(tmp_path, "integrator")[-2000:],
+            )  # fmt: skip
+            assert text in report()["last_drop"][reason], (text, report()["last_drop"])
+        final = report()
+        assert final["integrated"] == 2 and final["dropped_total"] == 4, final
+        assert "poses by TF" in log_text(tmp_path, "integrator")
+        assert all(graph.alive().values())
+        assert_clean_stop(graph)
+
+
+def test_a_default_qos_subscriber_gets_the_grid(ros_domain, tmp_path: Path) -> None:
+    """A subscriber with rclpy's default QoS (reliable, volatile, depth 10) that starts after the
+    last frame receives the current grid within 2 s (the integrator republishes it)."""
+    env = ros_domain(perception_domain(7))
+    with NodeGraph(env, log_dir=tmp_path) as graph, RosClient(int(env["ROS_DOMAIN_ID"])) as client:
+        graph.start_node("integrator", "integrator", GRID_PARAMS)
+        out = Publishers(client)
+        assert client.spin_until(
+            lambda: all(p.get_subscription_count() >= 1 for p in (out.image[""], out.info[""], out.tf_static)),
+            START_TIMEOUT_S,
+        ), "the integrator did not subscribe"
+        client.spin_until(lambda: False, 0.5)
+        out.tf_static.publish(TFMessage(transforms=[transform("world", "camera_optical", 0, (0.74, 0.74, 1.0),
+                                                              (1.0, 0.0, 0.0, 0.0))]))  # fmt: skip
+        client.spin_until(lambda: False, 0.3)
+        out.frame(3 * S)
+        latest, _ = msg_to_grid(client.wait_grid(3 * S))  # the transient-local subscriber has it
+        client.spin_until(lambda: False, 1.0)  # the last frame is long gone
+        late: list[VoxelGrid] = []
+        start = time.monotonic()
+        client.node.create_subscription(VoxelGrid, "/nbv/grid", late.append, 10)  # the default QoS
+        assert client.spin_until(lambda: bool(late), 2.0), "no grid within 2 s on a default-QoS subscription"
+        elapsed = time.monotonic() - start
+        assert stamp_ns(late[0].header.stamp) == 3 * S
+        np.testing.assert_array_equal(msg_to_grid(late[0])[0], latest)
+        assert elapsed <= 2.0
+        assert wait_for(lambda: all(graph.alive().values()), 1.0)
+        assert_clean_stop(graph)
