@@ -84,3 +84,25 @@ def test_runs_with_other_weights_are_redone(tmp_path, monkeypatch, capsys):
     assert f"3du flat_city_cnn: redoing 1 run(s) made with other weights than the current ones (sha256 {new})" in (
         capsys.readouterr().err
     )
+
+
+def test_guarded_runs_sit_beside_the_plain_ones(tmp_path):
+    """``guard=True``: runs named ``*_guarded_*`` with the threshold in their ``.json`` (5e-5 of the
+    64³ 3DU grid = 14 cells); the plain runs in the same folder are neither read nor rewritten."""
+    from nbv_prob_cnn.exploration.evaluation import GUARD_KEY
+
+    plain = evaluate("3du", ["prob_ig"], [120], 4, tmp_path, progress=False, workers=0)
+    plain_path = run_path(tmp_path, "3du", "prob_ig", 120)
+    mtime = plain_path.stat().st_mtime_ns
+    guarded = evaluate("3du", ["prob_ig"], [120], 4, tmp_path, progress=False, workers=0, guard=True)
+    path = run_path(tmp_path, "3du", "prob_ig", 120, guarded=True)
+    assert path.name == "3du_prob_ig_guarded_seed120.csv" and plain_path.stat().st_mtime_ns == mtime
+    meta = json.loads(path.with_suffix(".json").read_text())
+    assert meta[GUARD_KEY] == 14 and GUARD_KEY not in json.loads(plain_path.with_suffix(".json").read_text())
+    assert run_status(path, 4, None, "paper", 14) == "done" and run_status(path, 4, None, "paper", 20) == "other guard"
+    assert run_status(path, 4) == "other guard" and run_status(plain_path, 4, None, "paper", 14) == "other guard"
+    # same first view; the columns the guard reports exist in both
+    assert guarded["prob_ig"][0].unknown_fraction[0] == plain["prob_ig"][0].unknown_fraction[0]
+    with open(path) as handle:
+        header = handle.readline().strip().split(",")
+    assert header[-2:] == ["changed_cells", "ruled_out_views"]

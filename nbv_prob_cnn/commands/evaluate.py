@@ -41,30 +41,44 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--gain-variant", choices=GAIN_VARIANTS, default="paper",
         help="gain of the runs: the paper's equations, or the authors' code's host choices (docs/original_code.md)",
     )  # fmt: skip
+    parser.add_argument(
+        "--guard", action="store_true",
+        help="run every method with the view guard (a pose whose view changed fewer than --guard-min-cells cells "
+        "is never planned again); results as <dataset>_guarded_* beside the plain ones. Default: the paper's loop",
+    )  # fmt: skip
+    parser.add_argument("--guard-min-cells", type=int, default=None,
+                        help="with --guard: threshold in cells (default: 5e-5 of the grid's cells)")  # fmt: skip
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
 
 
 def run(args: argparse.Namespace) -> int:
-    from nbv_prob_cnn.exploration.evaluation import evaluate, save_plots, summary_table, write_summary_csv
+    from nbv_prob_cnn.exploration.evaluation import (
+        GUARDED,
+        evaluate,
+        save_plots,
+        summary_table,
+        write_summary_csv,
+    )
 
     at = args.at or sorted({min(20, args.views), min(50, args.views), args.views})
     if args.views < 1 or any(a < 1 or a > args.views for a in at):
         raise ValueError(f"--views must be >= 1 and every --at value within 1..{args.views}")
     if args.workers is not None and args.workers < 0:
         raise ValueError("--workers: expected >= 0")
+    if args.guard_min_cells is not None and not args.guard:
+        raise ValueError("--guard-min-cells needs --guard")
     seeds = args.seeds[: args.envs] if args.envs else args.seeds
     out = Path(args.out) / args.dataset
     logs = evaluate(
         args.dataset, args.methods, seeds, args.views, out, progress=not args.quiet,
         workers=args.workers, address=args.address, backend=args.backend, gain_variant=args.gain_variant,
+        guard=args.guard, guard_min_cells=args.guard_min_cells,
     )  # fmt: skip
     table = summary_table(logs, at)
-    write_summary_csv(logs, args.views, out / f"{args.dataset}_summary.csv")
-    (out / f"{args.dataset}_table.md").write_text(table + "\n")
-    plots = save_plots(logs, args.views, args.dataset, out)
+    stem = f"{args.dataset}_{GUARDED}" if args.guard else args.dataset
+    write_summary_csv(logs, args.views, out / f"{stem}_summary.csv")
+    (out / f"{stem}_table.md").write_text(table + "\n")
+    plots = save_plots(logs, args.views, args.dataset, out, stem)
     print(table)
-    print(
-        f"wrote {out / f'{args.dataset}_summary.csv'}, {out / f'{args.dataset}_table.md'}, "
-        + ", ".join(map(str, plots))
-    )
+    print(f"wrote {out / f'{stem}_summary.csv'}, {out / f'{stem}_table.md'}, " + ", ".join(map(str, plots)))
     return 0

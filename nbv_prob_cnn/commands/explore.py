@@ -33,6 +33,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--noise", default="ideal", help="depth-sensor noise preset: ideal, kinect_v1, astra")
     parser.add_argument("--room-margin", type=float, default=None,
                         help="with --noise: walls this far [m] outside the grid (default: none)")  # fmt: skip
+    parser.add_argument("--no-guard", action="store_true",
+                        help="the paper's plain loop: a view that changed nothing may be taken again")  # fmt: skip
+    parser.add_argument("--guard-min-cells", type=int, default=None,
+                        help="a pose whose view changed fewer cells is never planned again "
+                             "(default: 5e-5 of the grid's cells)")  # fmt: skip
 
 
 def run(args: argparse.Namespace) -> int:
@@ -63,10 +68,15 @@ def run(args: argparse.Namespace) -> int:
         n_rays=args.n_rays,
         gain_variant=args.gain_variant,
     )
+    from nbv_prob_cnn.exploration.view_guard import ViewGuard
     from nbv_prob_cnn.sensing.sensor_noise import sensor_noise
 
+    if args.no_guard and args.guard_min_cells is not None:
+        raise ValueError("--guard-min-cells and --no-guard exclude each other")
+    guard = None if args.no_guard else ViewGuard.for_grid(world.shape, args.guard_min_cells)
+
     result = explore(world, planner, context, args.views, progress=not args.quiet, noise=sensor_noise(args.noise),
-                     room_margin_m=args.room_margin)  # fmt: skip
+                     room_margin_m=args.room_margin, guard=guard)  # fmt: skip
     write_csv(result.records, args.log)
     written = [args.log]
     if args.png:
@@ -81,6 +91,8 @@ def run(args: argparse.Namespace) -> int:
     print(
         f"{args.dataset} seed {world.seed} {planner.name}: {len(result.records)} views, "
         f"unknown fraction {last.unknown_fraction:.4f} (all cells {last.unknown_fraction_all:.4f}), "
-        f"mean planning time {mean_plan:.3f} s, {result.stop_reason}; wrote {', '.join(written)}"
+        f"mean planning time {mean_plan:.3f} s, {result.stop_reason}"
+        + ("" if guard is None else f", {len(guard.ruled_out)} views ruled out (< {guard.min_changed_cells} cells)")
+        + f"; wrote {', '.join(written)}"
     )
     return 0

@@ -32,6 +32,7 @@ from tqdm import tqdm
 
 from nbv_prob_cnn.basics.datasets import EVALUATION_SEEDS, dataset_spec
 from nbv_prob_cnn.exploration.explore import explore, write_csv
+from nbv_prob_cnn.exploration.view_guard import ViewGuard
 from nbv_prob_cnn.planners import PlanningContext, make_planner, method_spec
 
 #: Evaluation environments of a quick comparison: the first ten of the protocol's (test split).
@@ -43,6 +44,11 @@ FORWARDED_ENV = ("NBV_CACHE_DIR", "NBV_WEIGHTS_DIR", "NBV_OPENCL_DEVICE", "OCL_I
 WEIGHTS_KEY = "weights_sha256"
 #: Key of a run's ``.json`` that holds its gain variant (written only when not ``"paper"``).
 VARIANT_KEY = "gain_variant"
+#: Key of a run's ``.json`` that holds the view guard's threshold in cells (written only for a
+#: guarded run, :mod:`~nbv_prob_cnn.exploration.view_guard`; absent: the paper's plain loop).
+GUARD_KEY = "guard_min_cells"
+#: File-name label of guarded runs and their summaries (they sit beside the plain ones).
+GUARDED = "guarded"
 
 
 @dataclass
@@ -62,8 +68,10 @@ def read_run(path: Path, views: int | None = None) -> RunLog:
     return RunLog(column("unknown_fraction"), column("unknown_fraction_all"), column("time_total_s"))
 
 
-def run_path(out: Path, dataset: str, method: str, seed: int) -> Path:
-    return out / "runs" / f"{dataset}_{method}_seed{seed}.csv"
+def run_path(out: Path, dataset: str, method: str, seed: int, guarded: bool = False) -> Path:
+    """``runs/<dataset>_<method>[_guarded]_seed<seed>.csv`` under ``out``."""
+    label = f"_{GUARDED}" if guarded else ""
+    return out / "runs" / f"{dataset}_{method}{label}_seed{seed}.csv"
 
 
 def weights_fingerprint(dataset: str, method: str) -> str | None:
@@ -77,12 +85,15 @@ def weights_fingerprint(dataset: str, method: str) -> str | None:
     return hashlib.sha256(default_weights_path(dataset, weights).read_bytes()).hexdigest()[:16]
 
 
-def run_status(path: Path, views: int, weights: str | None = None, gain_variant: str = "paper") -> str:
+def run_status(
+    path: Path, views: int, weights: str | None = None, gain_variant: str = "paper", guard_min_cells: int | None = None
+) -> str:
     """``"done"``: the run CSV exists for at least ``views`` views (or stopped early in a run that
     asked for as many) and was made with the weights of fingerprint ``weights`` (None: a method
     without weights); ``"missing"``, ``"short"``, ``"other weights"`` (a run of a method with
     weights whose ``.json`` records another fingerprint or none), or ``"other gain variant"`` (its
-    ``.json`` records another ``gain_variant``; none recorded: ``"paper"``)."""
+    ``.json`` records another ``gain_variant``; none recorded: ``"paper"``), or ``"other guard"``
+    (another view-guard threshold, ``guard_min_cells``; None: the plain loop, none recorded)."""
     if not path.is_file():
         return "missing"
     meta_path = path.with_suffix(".json")
@@ -95,9 +106,13 @@ def run_status(path: Path, views: int, weights: str | None = None, gain_variant:
         recorded = meta.get(WEIGHTS_KEY)
         if meta.get(VARIANT_KEY, "paper") != gain_variant:
             return "other gain variant"
+        if meta.get(GUARD_KEY) != guard_min_cells:
+            return "other guard"
     else:
         if gain_variant != "paper":
             return "other gain variant"
+        if guard_min_cells is not None:
+            return "other guard"
         with open(path) as handle:
             enough = sum(1 for _ in handle) - 1 >= views
         recorded = None
@@ -107,24 +122,37 @@ def run_status(path: Path, views: int, weights: str | None = None, gain_variant:
 
 
 def run_one(
-    dataset: str, method: str, seed: int, views: int, backend: str = "auto", gain_variant: str = "paper"
+    dataset: str,
+    method: str,
+    seed: int,
+    views: int,
+    backend: str = "auto",
+    gain_variant: str = "paper",
+    guard_min_cells: int | None = None,
 ) -> tuple[str, dict]:
-    """One run of SPEC §9 (the body of a Ray task): the CSV text and its metadata."""
+    """One run of SPEC §9 (the body of a Ray task): the CSV text and its metadata.
+    ``guard_min_cells``: run with the view guard of this threshold (None: the plain loop)."""
     from nbv_prob_cnn.worlds import load_or_generate
 
     world = load_or_generate(dataset, seed)
     weights = weights_fingerprint(dataset, method)  # of the file this worker reads
     # same first view for every method: the rng is seeded by the environment only
     context = PlanningContext(
-        dataset_spec(dataset), rng=np.random.default_rng(seed), ground_truth=world.ground_truth, backend=backend,
+        dataset_spec(dataset),
+        rng=np.random.default_rng(seed),
+        ground_truth=world.ground_truth,
+        backend=backend,
         gain_variant=gain_variant,
     )
-    result = explore(world, make_planner(method), context, views, progress=False)
+    guard = None if guard_min_cells is None else ViewGuard(guard_min_cells)
+    result = explore(world, make_planner(method), context, views, progress=False, guard=guard)
     text = io.StringIO()
     write_csv(result.records, text)
     meta = {"views": views, "stop_reason": result.stop_reason, "host": os.uname().nodename, WEIGHTS_KEY: weights}
     if gain_variant != "paper":
         meta[VARIANT_KEY] = gain_variant
+    if guard_min_cells is not None:
+        meta[GUARD_KEY] = guard_min_cells
     return text.getvalue(), meta
 
 
@@ -156,6 +184,8 @@ def evaluate(
     address: str | None = None,
     backend: str = "auto",
     gain_variant: str = "paper",
+    guard: bool = False,
+    guard_min_cells: int | None = None,
 ) -> dict[str, list[RunLog]]:
     """Run (or read back) every method on every seed; returns the logs per method.
 
@@ -167,9 +197,16 @@ def evaluate(
         backend: ray-casting backend of the runs.
         gain_variant: gain variant of the runs (:mod:`nbv_prob_cnn.gain.variant`); a stored run
             of another variant is redone.
+        guard: every run with the view guard (:mod:`~nbv_prob_cnn.exploration.view_guard`), stored
+            as ``<dataset>_<method>_guarded_seed<seed>.csv`` beside the plain runs; False: the
+            paper's plain loop.
+        guard_min_cells: the guard's threshold (default: 5e-5 of the data set's grid cells).
     """
     for method in methods:
         method_spec(method)  # fail early on an unknown name
+    threshold = None
+    if guard:
+        threshold = ViewGuard.for_grid(dataset_spec(dataset).shape, guard_min_cells).min_changed_cells
     check_weights(dataset, methods)
     (out / "runs").mkdir(parents=True, exist_ok=True)
     jobs = [(seed, method) for seed in seeds for method in methods]
@@ -177,7 +214,9 @@ def evaluate(
     pending: list[tuple[int, str]] = []
     redo: dict[str, int] = {}  # method -> runs made with other weights
     for seed, method in jobs:
-        status = run_status(run_path(out, dataset, method, seed), views, fingerprints[method], gain_variant)
+        status = run_status(
+            run_path(out, dataset, method, seed, guard), views, fingerprints[method], gain_variant, threshold
+        )
         if status != "done":
             pending.append((seed, method))
         if status == "other weights":
@@ -190,19 +229,24 @@ def evaluate(
                       f"ones (sha256 {fingerprints[method]})", file=sys.stderr)  # fmt: skip
     if pending and workers == 0 and address is None:
         for seed, method in pending:
-            _store(run_path(out, dataset, method, seed), *run_one(dataset, method, seed, views, backend, gain_variant))
+            _store(
+                run_path(out, dataset, method, seed, guard),
+                *run_one(dataset, method, seed, views, backend, gain_variant, threshold),
+            )
             bar.update(1)
             bar.set_postfix(seed=seed, method=method)
     elif pending:
-        _run_on_ray(dataset, pending, views, out, workers, address, backend, bar, gain_variant)
+        _run_on_ray(dataset, pending, views, out, workers, address, backend, bar, gain_variant, threshold)
     bar.close()
     logs: dict[str, list[RunLog]] = {m: [] for m in methods}
     for seed, method in jobs:
-        logs[method].append(read_run(run_path(out, dataset, method, seed), views))
+        logs[method].append(read_run(run_path(out, dataset, method, seed, guard), views))
     return logs
 
 
-def _run_on_ray(dataset, pending, views, out, workers, address, backend, bar, gain_variant="paper") -> None:
+def _run_on_ray(
+    dataset, pending, views, out, workers, address, backend, bar, gain_variant="paper", guard_min_cells=None
+) -> None:
     import ray
 
     env = {k: os.environ[k] for k in FORWARDED_ENV if k in os.environ}
@@ -215,13 +259,15 @@ def _run_on_ray(dataset, pending, views, out, workers, address, backend, bar, ga
     try:
         task = ray.remote(num_cpus=1, max_retries=1)(run_one)
         futures = {
-            task.remote(dataset, method, seed, views, backend, gain_variant): (seed, method) for seed, method in pending
+            task.remote(dataset, method, seed, views, backend, gain_variant, guard_min_cells): (seed, method)
+            for seed, method in pending
         }
         remaining = list(futures)
         while remaining:
             done, remaining = ray.wait(remaining, num_returns=1)
             seed, method = futures[done[0]]
-            _store(run_path(out, dataset, method, seed), *ray.get(done[0]))  # written as soon as it finishes
+            path = run_path(out, dataset, method, seed, guard_min_cells is not None)
+            _store(path, *ray.get(done[0]))  # written as soon as it finishes
             bar.update(1)
             bar.set_postfix(seed=seed, method=method)
     finally:
@@ -248,8 +294,11 @@ def summary_table(logs: dict[str, list[RunLog]], at_views: list[int]) -> str:
     return "\n".join(lines)
 
 
-def save_plots(logs: dict[str, list[RunLog]], views: int, dataset: str, out: Path) -> list[Path]:
-    """Unknown fraction per view (mean ± std) and planning time against explored fraction."""
+def save_plots(
+    logs: dict[str, list[RunLog]], views: int, dataset: str, out: Path, stem: str | None = None
+) -> list[Path]:
+    """Unknown fraction per view (mean ± std) and planning time against explored fraction, as
+    ``<stem>_comparison.png`` (default stem: the data set)."""
     fig = Figure(figsize=(13, 5))
     ax_curve, ax_time = fig.add_subplot(1, 2, 1), fig.add_subplot(1, 2, 2)
     for method, runs in logs.items():
@@ -264,7 +313,8 @@ def save_plots(logs: dict[str, list[RunLog]], views: int, dataset: str, out: Pat
         ax_time.plot(explored, times, ".", ms=3, label=method)
     ax_curve.set_xlabel("views")
     ax_curve.set_ylabel("unknown empty cells (%)")
-    ax_curve.set_title(f"{dataset.upper()}: unknown fraction (mean ± std over environments)")
+    label = "" if stem in (None, dataset) else ", " + str(stem).removeprefix(f"{dataset}_").replace("_", " ")
+    ax_curve.set_title(f"{dataset.upper()}{label}: unknown fraction (mean ± std over environments)")
     ax_curve.grid(alpha=0.3)
     ax_curve.legend()
     ax_time.set_xlabel("explored cells before planning (%)")
@@ -273,7 +323,7 @@ def save_plots(logs: dict[str, list[RunLog]], views: int, dataset: str, out: Pat
     ax_time.grid(alpha=0.3)
     ax_time.legend()
     fig.tight_layout()
-    path = out / f"{dataset}_comparison.png"
+    path = out / f"{stem or dataset}_comparison.png"
     fig.savefig(path, dpi=90)
     return [path]
 
