@@ -142,8 +142,9 @@ def plot_views(
                         lw=2.0 if strong else 0.8, ms=2.5 if strong else 1.2, alpha=1.0 if strong else 0.6)  # fmt: skip
             ax.quiver(where[:, a], where[:, b], forward[:, a], forward[:, b], color="gold", scale=20, width=0.006)
             ax.plot(where[:, a], where[:, b], "o", color="gold", ms=3)
-            ax.set_xlim(*axis_extent(geometry, state.shape, a, b)[:2])
-            ax.set_ylim(*axis_extent(geometry, state.shape, a, b)[2:])
+            if not arms:  # the arm's base may stand outside the grid: then let the axes take it in
+                ax.set_xlim(*axis_extent(geometry, state.shape, a, b)[:2])
+                ax.set_ylim(*axis_extent(geometry, state.shape, a, b)[2:])
             ax.set_xlabel(f"{_AXES[a]} ({unit})")
             ax.set_ylabel(f"{_AXES[b]} ({unit})")
             handles = [
@@ -155,7 +156,7 @@ def plot_views(
                 handles.insert(2, Patch(facecolor=(0.95, 0.15, 0.15), label="seen occupied"))
             if arms:
                 handles.append(Line2D([], [], color="tab:cyan", lw=2, label="arm (last view strongest)"))
-            ax.legend(handles=handles, loc="upper center", bbox_to_anchor=(0.5, -0.12), ncol=2, fontsize=6.5)
+            ax.legend(handles=handles, loc="upper center", bbox_to_anchor=(0.5, -0.17), ncol=2, fontsize=6.5)
             ax.set_title(f"projection along {_AXES[hidden]}", fontsize=9)
             if heights is not None:
                 low, high = float(heights[0]), float(heights[1])
