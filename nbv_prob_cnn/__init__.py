@@ -35,6 +35,7 @@ _PUBLIC: dict[str, str] = {
         "nbv_prob_cnn.basics.grid",
     ),
     "GridGeometry": "nbv_prob_cnn.basics.geometry",
+    **dict.fromkeys(("ViewPose", "view_pose"), "nbv_prob_cnn.basics.view_pose"),
     **dict.fromkeys(("orientations", "in_frustum", "dataset_defaults"), "nbv_prob_cnn.basics.camera"),
     **dict.fromkeys(("DATASET_SPECS", "DatasetSpec", "dataset_spec"), "nbv_prob_cnn.basics.datasets"),
     "Sensor": "nbv_prob_cnn.basics.sensor",
@@ -42,7 +43,7 @@ _PUBLIC: dict[str, str] = {
     **dict.fromkeys(("SensorNoise", "sensor_noise"), "nbv_prob_cnn.sensing.sensor_noise"),
     **dict.fromkeys(
         ("ray_directions", "ray_gains", "origin_view_gains", "view_gains", "view_membership", "empty_origins",
-         "best_origin_view"),
+         "best_origin_view", "BestOriginView"),
         "nbv_prob_cnn.gain",
     ),
     **dict.fromkeys(("complete", "load_model"), "nbv_prob_cnn.completion"),
