@@ -5,10 +5,14 @@ from __future__ import annotations
 
 import argparse
 import math
+from collections.abc import Callable
 from pathlib import Path
 
 from nbv_prob_cnn.basics.datasets import DATASET_SPECS, LR_SCHEDULES, SPEC_LEARNING_RATE
 from nbv_prob_cnn.completion.tasks import TRAINABLE_MODELS
+
+#: Default early-stopping patience of the City-CNNs (epochs without a lower validation MSE).
+CITY_PATIENCE = 10
 
 NAME = "train"
 HELP = "Train a network (completion CNN or City-CNN) of a data set: weights, loss CSV/plot, model card."
@@ -37,7 +41,24 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--method", default="cnn_prob", choices=TRAINABLE_MODELS, help="network to train (default: cnn_prob)"
     )
-    parser.add_argument("--epochs", type=_positive, default=None, help=f"total epochs (default: {_defaults('epochs')})")
+    parser.add_argument(
+        "--epochs",
+        type=_positive,
+        default=None,
+        help=f"total epochs (default cnn_prob: {_defaults('epochs')}; City-CNNs: the paper's, {_city_epochs_text()})",
+    )
+    parser.add_argument(
+        "--patience",
+        type=_positive,
+        default=None,
+        help=f"stop when the validation MSE has not improved for N epochs (default: {CITY_PATIENCE} for "
+        "City-CNNs, none for cnn_prob)",
+    )
+    parser.add_argument(
+        "--no-cache",
+        action="store_true",
+        help="City-CNNs: ray-cast each step's targets instead of reading the cached training set",
+    )
     parser.add_argument(
         "--out", type=Path, default=None, help="weights file (default: nbv_prob_cnn/weights/<dataset>_<method>.pt)"
     )
@@ -71,20 +92,51 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default=None,
         help=f"constant, or cosine decay from --lr over the run's epochs (default: {_defaults('lr_schedule')})",
     )
-    parser.add_argument("--workers", type=_positive, default=1, help="processes generating missing training data")
+    parser.add_argument(
+        "--workers",
+        type=_positive,
+        default=1,
+        help="processes generating missing training data; with --ray: Ray Train workers (data-parallel)",
+    )
+    parser.add_argument(
+        "--ray", action="store_true", help="train data-parallel with Ray Train (TorchTrainer, DDP: gloo/NCCL)"
+    )
+    parser.add_argument(
+        "--address", default=None, help="with --ray: cluster address HOST:PORT (default: a local Ray instance)"
+    )
     parser.add_argument("--threads", type=_positive, default=None, help="torch threads (default: min(2, cores))")
     parser.add_argument("--device", default=None, help="torch device (default: cuda if available, else cpu)")
     parser.add_argument("--no-resume", action="store_true", help="start over instead of resuming <out>.last.ckpt")
     parser.add_argument("--note", default="", help="a sentence for the model card (e.g. why the run was short)")
 
 
+def paper_epochs(dataset: str, method: str) -> int:
+    """Default epochs: ``cnn_prob`` keeps the data set's (:class:`TrainingDefaults`); the
+    City-CNNs the paper's, up to 120, and 20 for B-City-CNN on 3DU and 3DT (paper §V)."""
+    if method == "cnn_prob":
+        return DATASET_SPECS[dataset].training.epochs
+    return 20 if method == "b_city_cnn" and DATASET_SPECS[dataset].dims == 3 else 120
+
+
+def _city_epochs_text() -> str:
+    return "120, b_city_cnn on 3du/3dt 20"
+
+
 def run(args: argparse.Namespace) -> int:
-    from nbv_prob_cnn.completion.train import train
+    from nbv_prob_cnn.completion.train import TrainResult, train
 
     training = DATASET_SPECS[args.dataset].training
-    result = train(
+    patience = args.patience if args.patience is not None else (None if args.method == "cnn_prob" else CITY_PATIENCE)
+    if args.address and not args.ray:
+        raise SystemExit("--address needs --ray")
+    trainer: Callable[..., TrainResult] = train
+    if args.ray:
+        from nbv_prob_cnn.completion.ray_train import train_with_ray
+
+        trainer = train_with_ray
+    result = trainer(
         args.dataset,
-        args.epochs or training.epochs,
+        args.epochs or paper_epochs(args.dataset, args.method),
         args.out,
         n_train_envs=args.train_envs,
         n_test_envs=args.test_envs,
@@ -100,6 +152,9 @@ def run(args: argparse.Namespace) -> int:
         note=args.note,
         lr=args.lr,
         lr_schedule=args.lr_schedule,
+        cache=not args.no_cache,
+        patience=patience,
+        **({"address": args.address} if args.ray else {}),
     )
     ece = f", test ECE {result.ece:.4f}" if result.ece is not None else ""
     print(
@@ -107,5 +162,11 @@ def run(args: argparse.Namespace) -> int:
         f"test MSE {result.test_mse:.5f}{ece}, {result.epochs_done} epochs; all-zero output: "
         f"validation MSE {result.validation_zero_mse:.5f}, test MSE {result.test_zero_mse:.5f})"
     )
+    if args.method != "cnn_prob":
+        print(
+            f"mean-target output: validation MSE {result.validation_mean_mse:.5f}, test MSE "
+            f"{result.test_mean_mse:.5f}; Spearman rho: validation {result.validation_rho:.3f}, "
+            f"test {result.test_rho:.3f}"
+        )
     print(f"history: {result.history_csv}, plot: {result.plot}, card: {result.card}")
     return 0

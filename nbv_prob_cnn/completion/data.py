@@ -279,6 +279,13 @@ class Rotation:
         axes = (first_axis + self.plane[0], first_axis + self.plane[1])
         return np.ascontiguousarray(np.rot90(array, self.k, axes=axes))
 
+    def rotated_shape(self, shape: tuple[int, ...]) -> tuple[int, ...]:
+        """The shape :meth:`apply` gives a grid of ``shape`` (odd quarter turns swap the plane's axes)."""
+        out = list(shape)
+        if self.k % 2:
+            out[self.plane[0]], out[self.plane[1]] = shape[self.plane[1]], shape[self.plane[0]]
+        return tuple(out)
+
     def invert(self, array: np.ndarray, first_axis: int = 0) -> np.ndarray:
         """Undo :meth:`apply`."""
         return Rotation(self.name + "^-1", (-self.k) % 4, self.plane).apply(array, first_axis)

@@ -36,6 +36,7 @@ import time
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import torch
@@ -43,6 +44,8 @@ from tqdm import tqdm
 
 from nbv_prob_cnn.basics.datasets import DATASET_SPECS, LR_SCHEDULES, SPEC_LEARNING_RATE, dataset_spec
 from nbv_prob_cnn.completion.calibration import Reliability, reliability, save_reliability_plot
+from nbv_prob_cnn.completion.city_cache import CITY_CACHE_VERSION, CachedCityExamples, CacheLayout, ensure_chunks
+from nbv_prob_cnn.completion.city_scores import CityScores, mean_target_per_channel, score_city
 from nbv_prob_cnn.completion.data import DATA_VERSION, TrainingSample, crop_box, load_samples, rotations
 from nbv_prob_cnn.completion.inference import clear_model_cache, default_weights_path, resolve_device, save_weights
 from nbv_prob_cnn.completion.model import CompletionNet, count_parameters
@@ -89,6 +92,11 @@ class TrainResult:
     epochs_done: int
     validation_zero_mse: float = float("nan")
     test_zero_mse: float = float("nan")
+    validation_mean_mse: float = float("nan")  # City-CNNs: MSE of predicting the mean training target
+    test_mean_mse: float = float("nan")
+    validation_rho: float = float("nan")  # City-CNNs: Spearman ρ, prediction vs target (city_scores)
+    test_rho: float = float("nan")
+    finished: bool = True  # False: a time budget ended the call before the last epoch
 
 
 def side_paths(out: str | Path) -> dict[str, Path]:
@@ -118,7 +126,10 @@ def _batch(examples: Sequence[Example], device: torch.device) -> tuple[torch.Ten
 
 
 def train_step(
-    model: CompletionNet, optimizer: torch.optim.Optimizer, examples: Sequence[Example], device: torch.device
+    model: CompletionNet | torch.nn.parallel.DistributedDataParallel,
+    optimizer: torch.optim.Optimizer,
+    examples: Sequence[Example],
+    device: torch.device,
 ) -> float:
     """One Adam step on examples of equal shape; returns the MSE of ``output · mask`` and the target."""
     model.train()
@@ -223,6 +234,7 @@ def retrain_args(
     test_crop: int | None = None,
     lr: float = SPEC_LEARNING_RATE,
     lr_schedule: str = "constant",
+    patience: int | None = None,
 ) -> str:
     """The ``nbv train`` command line that reproduces a run."""
     cmd = f"nbv train --dataset {dataset}"
@@ -244,11 +256,15 @@ def retrain_args(
         cmd += f" --lr {lr:g}"
     if lr_schedule != "constant":
         cmd += f" --lr-schedule {lr_schedule}"
+    if patience is not None:
+        cmd += f" --patience {patience}"
     return cmd
 
 
 def _write_history(history: list[dict], csv_path: Path, png_path: Path, title: str) -> None:
     fields = ["epoch", "train_mse", "validation_mse", "epoch_seconds", "elapsed_seconds", "lr"]
+    if any("validation_rho" in row for row in history):  # City-CNNs
+        fields.insert(3, "validation_rho")
     with open(csv_path, "w", newline="") as fh:
         writer = csv.DictWriter(fh, fieldnames=fields)
         writer.writeheader()
@@ -293,6 +309,13 @@ def _card_markdown(card: dict) -> str:
         "validation_zero_mse": "Validation MSE of an all-zero output (baseline)",
         "test_mse": "Test MSE of these weights",
         "test_zero_mse": "Test MSE of an all-zero output (baseline)",
+        "validation_mean_mse": "Validation MSE of predicting the mean training target (baseline)",
+        "test_mean_mse": "Test MSE of predicting the mean training target (baseline)",
+        "validation_rho": "Spearman ρ, prediction vs target, validation grids (mean over grids)",
+        "test_rho": "Spearman ρ, prediction vs target, test grids (mean over grids)",
+        "examples": "Training examples",
+        "patience": "Early stopping",
+        "stopped": "Stopped",
         "ece": "Calibration on the test split, unknown cells (ECE, 10 bins)",
         "final_validation_mse": "Validation MSE after the last epoch",
         "final_train_mse": "Train MSE of the last epoch",
@@ -344,6 +367,9 @@ def train(
     note: str = "",
     lr: float | None = None,
     lr_schedule: str | None = None,
+    cache: bool = True,
+    patience: int | None = None,
+    time_budget_s: float | None = None,
 ) -> TrainResult:
     """Train the network ``method`` of ``dataset`` and write the weights to ``out``.
 
@@ -371,11 +397,21 @@ def train(
         lr: Adam's (initial) learning rate (default: the data set's, :mod:`nbv_prob_cnn.basics.datasets`;
             the SPEC's 1e-3 except on 3DT).
         lr_schedule: ``constant`` or ``cosine`` (:func:`learning_rate`; default: the data set's).
+        cache: City-CNNs read their examples from the cached training set
+            (:mod:`~nbv_prob_cnn.completion.city_cache`, generated first where missing) instead of
+            ray-casting targets in every step. Ignored for ``cnn_prob``.
+        patience: stop early once the validation MSE has not improved for this many epochs
+            (None: run all ``epochs``).
+        time_budget_s: end this call after the first epoch that ends past this many seconds
+            (checkpoint written; no test scoring; ``finished`` is False): to share a CPU between
+            several runs that each resume later.
     """
     spec = dataset_spec(dataset)
     task = TrainingTask(method, spec, backend)
     if epochs < 1:
         raise ValueError(f"epochs: expected >= 1, got {epochs}")
+    if patience is not None and patience < 1:
+        raise ValueError(f"patience: expected >= 1 epochs, got {patience}")
     lr = spec.training.lr if lr is None else lr
     lr_schedule = spec.training.lr_schedule if lr_schedule is None else lr_schedule
     learning_rate(lr, lr_schedule, 0, epochs)  # validates both
@@ -396,7 +432,7 @@ def train(
     dev = resolve_device(device)
     command = retrain_args(
         dataset, epochs, out, n_train_envs, n_test_envs, crop, batch_size, method=method, n_val_envs=n_val_envs,
-        test_crop=crop_edge, lr=lr, lr_schedule=lr_schedule,
+        test_crop=crop_edge, lr=lr, lr_schedule=lr_schedule, patience=patience,
     )  # fmt: skip
     run_config = {
         "dataset": dataset,
@@ -410,30 +446,49 @@ def train(
         "seed": seed,
         "data_version": DATA_VERSION,
     }
+    cached = cache and not task.is_completion
+    rank, world = _rank_and_world()
+    if world > 1 and time_budget_s is not None:
+        raise ValueError("time_budget_s: not available in data-parallel training (the workers must stop together)")
+    progress = progress and rank == 0
+    if cached:  # absent otherwise: older checkpoints still resume
+        run_config["examples"] = f"cached v{CITY_CACHE_VERSION}"
     if lr != SPEC_LEARNING_RATE or lr_schedule != "constant":  # absent by default: older checkpoints still resume
         run_config["optimizer"] = _optimizer_text(lr, lr_schedule)
         if lr_schedule == "cosine":  # the schedule depends on the run's length
             run_config["epochs"] = epochs
 
-    n_envs = len(train_seeds) + len(val_seeds) + len(test_seeds)
-    with tqdm(total=n_envs, desc=f"training data {dataset}", disable=not progress) as bar:
-        train_samples = load_samples(dataset, train_seeds, workers, bar.update)
-        val_samples = load_samples(dataset, val_seeds, workers, bar.update)
-        test_samples = load_samples(dataset, test_seeds, workers, bar.update)
-    val_examples = fixed_examples(task, val_samples, crop_edge)
-    zero = {"validation_zero_mse": zero_output_mse(val_examples)}
     rots = rotations(dataset)
+    if cached:
+        layout = CacheLayout.for_training(dataset, crop, crop_edge)
+        chunk_seeds = {"train": train_seeds, "eval": val_seeds + test_seeds}
+        if world > 1:  # each worker generates its share, then every one checks it sees them all
+            ensure_chunks(layout, chunk_seeds, backend, progress and rank == 0, share=(rank, world))
+            torch.distributed.barrier()
+        ensure_chunks(layout, chunk_seeds, backend, progress and rank == 0)
+        source: _CachedSource | _SampleSource = _CachedSource(
+            CachedCityExamples(method, layout, train_seeds, val_seeds, test_seeds, crop)
+        )
+    else:
+        n_envs = len(train_seeds) + len(val_seeds) + len(test_seeds)
+        with tqdm(total=n_envs, desc=f"training data {dataset}", disable=not progress) as bar:
+            train_samples = load_samples(dataset, train_seeds, workers, bar.update)
+            val_samples = load_samples(dataset, val_seeds, workers, bar.update)
+            test_samples = load_samples(dataset, test_seeds, workers, bar.update)
+        source = _SampleSource(task, train_samples, val_samples, test_samples, crop, crop_edge)
+    val_examples = source.validation()
+    mean_target = (
+        np.zeros(1, np.float32) if task.is_completion else mean_target_per_channel(source.mean_target_examples())
+    )
+    zero: dict[str, float] = {"validation_zero_mse": zero_output_mse(val_examples)} if task.is_completion else {}
 
     torch.manual_seed(seed)
     model = task.build(first_channels).to(dev)
     if model.head == "sigmoid" and model.final.bias is not None:  # City-CNN gain heads (a resume overwrites it)
-        init_rng = np.random.default_rng([seed, 0x1B1A5])
-        first = train_samples[:8]
-        boxes = [crop_box(s.state.shape, crop, init_rng, task.align) for s in first]
-        start_at_mean_target(model, [task.example(s.state, s.truth, b) for s, b in zip(first, boxes, strict=True)])
+        start_at_mean_target(model, source.first_examples(8, np.random.default_rng([seed, 0x1B1A5])))
     optimizer = torch.optim.Adam(model.parameters(), lr=lr)
     history: list[dict] = []
-    best = {"validation_mse": float("inf"), "epoch": 0}
+    best: dict[str, Any] = {"validation_mse": float("inf"), "epoch": 0}
     best_state: dict[str, torch.Tensor] | None = None  # the kept epoch's weights (also in the checkpoint)
     elapsed = 0.0
     if resume and paths["last"].is_file():
@@ -448,10 +503,13 @@ def train(
         history, best, elapsed = ckpt["history"], ckpt["best"], float(ckpt["elapsed_s"])
         best_state = ckpt.get("best_model")  # None in checkpoints written before it was stored
 
-    generator_versions = sorted({s.generator_version for s in train_samples + val_samples + test_samples})
-    card_args = (dataset, method, model, run_config, generator_versions, rots, dev, command, note, zero)
+    net = model if world == 1 else torch.nn.parallel.DistributedDataParallel(model)
+    generator_versions = source.generator_versions()
+    card_config = {**run_config, **({"patience": patience} if patience is not None else {})}
+    card_args = (dataset, method, model, card_config, generator_versions, rots, dev, command, note, zero)
     start_epoch = len(history)
-    items_per_epoch = len(train_samples) * len(rots)
+    call_start = time.perf_counter()
+    items_per_epoch = len(train_seeds) * len(rots)
     steps_per_epoch = -(-items_per_epoch // batch_size)
     bar = tqdm(
         total=steps_per_epoch * epochs,
@@ -461,6 +519,8 @@ def train(
         disable=not progress,
     )
     for epoch in range(start_epoch, epochs):
+        if _stopped_early(history, best, patience):
+            break
         t0 = time.perf_counter()
         epoch_lr = learning_rate(lr, lr_schedule, epoch, epochs)
         for group_params in optimizer.param_groups:
@@ -469,18 +529,37 @@ def train(
         order = rng.permutation(items_per_epoch)
         loss_sum, n_items = 0.0, 0
         for start in range(0, items_per_epoch, batch_size):
+            items = [int(item) for item in order[start : start + batch_size]]
+            # data-parallel: worker r builds items r, r + world, ...; every worker draws every
+            # item's random crop so that all follow the single-process random sequence
+            mine = [k % world == rank for k in range(len(items))] if len(items) >= world else [False] * len(items)
             examples = []
-            for item in order[start : start + batch_size]:
-                sample, rot = train_samples[item // len(rots)], rots[item % len(rots)]
-                state, truth = rot.apply(sample.state), rot.apply(sample.truth)
-                examples.append(task.example(state, truth, crop_box(state.shape, crop, rng, task.align)))
-            for group in _same_shape_groups(examples):
-                loss = train_step(model, optimizer, group, dev)
+            for item, own in zip(items, mine, strict=True):
+                example = source.train_example(item // len(rots), item % len(rots), rng, build=own)
+                if example is not None:
+                    examples.append(example)
+            groups = _same_shape_groups(examples)
+            if world > 1 and len(groups) > 1:
+                raise ValueError("data-parallel training needs equal-shape examples in a step: set a crop")
+            for group in groups:
+                loss = train_step(net, optimizer, group, dev)
                 loss_sum += loss * len(group)
                 n_items += len(group)
             bar.update(1)
-            bar.set_postfix(epoch=epoch + 1, loss=f"{loss_sum / n_items:.4f}", val=_fmt(history))
-        val_mse = evaluate(model, val_examples, dev, batch_size)
+            bar.set_postfix(epoch=epoch + 1, loss=f"{loss_sum / max(n_items, 1):.4f}", val=_fmt(history))
+        if world > 1:
+            loss_sum, n_items = _sum_over_workers(loss_sum, n_items)
+        val_scores = None
+        if task.is_completion:
+            val_mse = evaluate(model, val_examples, dev, batch_size)
+            if world > 1:
+                val_mse = _from_rank0(val_mse)
+        else:
+            val_scores = score_city(model, method, spec, val_examples, mean_target, dev, batch_size)
+            val_mse = val_scores.mse
+            if world > 1:  # rank 0's score decides for all (early stopping must agree)
+                val_mse = _from_rank0(val_mse)
+            zero.update(_baselines("validation", val_scores))  # in place: card_args holds this dict
         epoch_s = time.perf_counter() - t0
         elapsed += epoch_s
         history.append(
@@ -491,18 +570,36 @@ def train(
                 "epoch_seconds": round(epoch_s, 2),
                 "elapsed_seconds": round(elapsed, 2),
                 "lr": epoch_lr,
+                **({"validation_rho": round(val_scores.rho, 5)} if val_scores is not None else {}),
             }
         )
         bar.set_postfix(epoch=epoch + 1, loss=f"{history[-1]['train_mse']:.4f}", val=_fmt(history))
         if val_mse < best["validation_mse"]:
             best = {"validation_mse": val_mse, "epoch": epoch + 1}
+            if val_scores is not None:
+                best["validation_rho"] = val_scores.rho
             best_state = {k: v.detach().to("cpu", copy=True) for k, v in model.state_dict().items()}
-            save_weights(model, out, dataset, _card(*card_args, history, best, elapsed), name=method)
-            clear_model_cache()
-        _write_history(history, paths["csv"], paths["png"], f"{method}, {dataset}")
-        _save_last(paths["last"], model, optimizer, history, best, elapsed, run_config, best_state)
-        _update_card_file(paths, _card(*card_args, history, best, elapsed))
+            if rank == 0:
+                save_weights(model, out, dataset, _card(*card_args, history, best, elapsed), name=method)
+                clear_model_cache()
+        if rank == 0:
+            _write_history(history, paths["csv"], paths["png"], f"{method}, {dataset}")
+            _save_last(paths["last"], model, optimizer, history, best, elapsed, run_config, best_state)
+            _update_card_file(paths, _card(*card_args, history, best, elapsed))
+        out_of_time = time_budget_s is not None and time.perf_counter() - call_start > time_budget_s
+        if out_of_time and epoch + 1 < epochs and not _stopped_early(history, best, patience):
+            bar.close()
+            return TrainResult(
+                    out, paths["last"], paths["csv"], paths["png"], paths["card"], float(best["validation_mse"]),
+                    float("nan"), None, len(history), finished=False,
+                    validation_rho=float(best.get("validation_rho", float("nan"))),
+                )  # fmt: skip
     bar.close()
+    if rank != 0:  # rank 0 scores the kept weights and writes the card
+        return TrainResult(
+            out, paths["last"], paths["csv"], paths["png"], paths["card"], float(best["validation_mse"]),
+            float("nan"), None, len(history),
+        )  # fmt: skip
 
     # The kept (best-validation) weights, scored once on the test split: taken from the run's
     # own state, not from `out`, which a resumed run may have found overwritten by another run.
@@ -514,12 +611,22 @@ def train(
         from nbv_prob_cnn.completion.inference import load_model
 
         kept = load_model(out, dataset, dev, model_name=method)
-    test_examples = fixed_examples(task, test_samples, crop_edge)
-    test_mse = evaluate(kept, test_examples, dev, batch_size)
-    zero["test_zero_mse"] = zero_output_mse(test_examples)
-    best = {**best, "test_mse": test_mse}
+    test_examples = source.test()
     if task.is_completion:
-        table = calibration_of(kept, task, test_samples, crop_edge, dev, batch_size)
+        test_mse = evaluate(kept, test_examples, dev, batch_size)
+        zero["test_zero_mse"] = zero_output_mse(test_examples)
+    else:
+        kept_val = score_city(kept, method, spec, val_examples, mean_target, dev, batch_size)
+        test_scores = score_city(kept, method, spec, test_examples, mean_target, dev, batch_size)
+        test_mse = test_scores.mse
+        zero.update({**_baselines("validation", kept_val), **_baselines("test", test_scores)})
+        best = {**best, "validation_rho": kept_val.rho, "test_rho": test_scores.rho}
+    best = {**best, "test_mse": test_mse}
+    if _stopped_early(history, best, patience) and len(history) < epochs:
+        best["stopped"] = f"early at epoch {len(history)} of {epochs}: no lower validation MSE for {patience} epochs"
+    if task.is_completion:
+        assert isinstance(source, _SampleSource)
+        table = calibration_of(kept, task, source.test_samples, crop_edge, dev, batch_size)
         save_reliability_plot(table, paths["calibration"], f"{dataset}: calibration on the test split")
         best["ece"] = table.ece
     card = _card(*card_args, history, best, elapsed)
@@ -538,7 +645,110 @@ def train(
         len(history),
         zero["validation_zero_mse"],
         zero["test_zero_mse"],
+        zero.get("validation_mean_mse", float("nan")),
+        zero.get("test_mean_mse", float("nan")),
+        float(best.get("validation_rho", float("nan"))),
+        float(best.get("test_rho", float("nan"))),
     )
+
+
+def _rank_and_world() -> tuple[int, int]:
+    """``(rank, world size)`` of the torch.distributed group (``(0, 1)`` outside one)."""
+    if torch.distributed.is_available() and torch.distributed.is_initialized():
+        return torch.distributed.get_rank(), torch.distributed.get_world_size()
+    return 0, 1
+
+
+def _sum_over_workers(loss_sum: float, n_items: int) -> tuple[float, int]:
+    totals = torch.tensor([loss_sum, float(n_items)], dtype=torch.float64)
+    torch.distributed.all_reduce(totals)
+    return float(totals[0]), int(totals[1])
+
+
+def _from_rank0(value: float) -> float:
+    tensor = torch.tensor([value], dtype=torch.float64)
+    torch.distributed.broadcast(tensor, src=0)
+    return float(tensor[0])
+
+
+class _SampleSource:
+    """Examples computed from the simulated samples on the fly (``cnn_prob``; City-CNNs with
+    ``cache=False``: their targets are ray-cast in every step)."""
+
+    def __init__(
+        self,
+        task: TrainingTask,
+        train_samples: list[TrainingSample],
+        val_samples: list[TrainingSample],
+        test_samples: list[TrainingSample],
+        crop: int | None,
+        crop_edge: int | None,
+    ) -> None:
+        self.task, self.crop, self.crop_edge = task, crop, crop_edge
+        self.train_samples, self.val_samples, self.test_samples = train_samples, val_samples, test_samples
+        self.rots = rotations(task.spec.name)
+
+    def train_example(self, index: int, rotation: int, rng: np.random.Generator, build: bool = True) -> Example | None:
+        """The item's example (its random crop drawn from ``rng``); None, with the same draw,
+        when ``build`` is False."""
+        sample, rot = self.train_samples[index], self.rots[rotation]
+        box = crop_box(rot.rotated_shape(sample.state.shape), self.crop, rng, self.task.align)
+        if not build:
+            return None
+        return self.task.example(rot.apply(sample.state), rot.apply(sample.truth), box)
+
+    def first_examples(self, n: int, rng: np.random.Generator) -> list[Example]:
+        first = self.train_samples[:n]
+        boxes = [crop_box(s.state.shape, self.crop, rng, self.task.align) for s in first]
+        return [self.task.example(s.state, s.truth, b) for s, b in zip(first, boxes, strict=True)]
+
+    def mean_target_examples(self) -> list[Example]:
+        """The mean-target baseline's examples: the fixed crops of the first 8 training grids."""
+        return fixed_examples(self.task, self.train_samples[:8], self.crop)
+
+    def validation(self) -> list[Example]:
+        return fixed_examples(self.task, self.val_samples, self.crop_edge)
+
+    def test(self) -> list[Example]:
+        return fixed_examples(self.task, self.test_samples, self.crop_edge)
+
+    def generator_versions(self) -> list[int]:
+        return sorted({s.generator_version for s in self.train_samples + self.val_samples + self.test_samples})
+
+
+class _CachedSource:
+    """City-CNN examples read from the cached training set (no ray casting)."""
+
+    def __init__(self, examples: CachedCityExamples) -> None:
+        self.examples = examples
+
+    def train_example(self, index: int, rotation: int, rng: np.random.Generator, build: bool = True) -> Example | None:
+        return self.examples.train_example(index, rotation, rng, build)
+
+    def first_examples(self, n: int, rng: np.random.Generator) -> list[Example]:
+        return self.examples.first_examples(n, rng)
+
+    def mean_target_examples(self) -> Sequence[Example]:
+        """The mean-target baseline's examples: the unrotated stored example of every training grid."""
+        return self.examples.unrotated_training()
+
+    def validation(self) -> Sequence[Example]:
+        return self.examples.fixed(self.examples.validation_seeds)
+
+    def test(self) -> Sequence[Example]:
+        return self.examples.fixed(self.examples.test_seeds)
+
+    def generator_versions(self) -> list[int]:
+        return self.examples.generator_versions()
+
+
+def _stopped_early(history: list[dict], best: dict, patience: int | None) -> bool:
+    """True once ``patience`` epochs have passed since the best validation epoch."""
+    return patience is not None and bool(history) and len(history) - int(best["epoch"]) >= patience
+
+
+def _baselines(split: str, scores: CityScores) -> dict[str, float]:
+    return {f"{split}_zero_mse": scores.zero_mse, f"{split}_mean_mse": scores.mean_mse}
 
 
 def _fmt(history: list[dict]) -> str:
@@ -594,6 +804,15 @@ def _card(
         card[key] = round(float(value), 6)
     if "ece" in best:
         card["ece"] = round(float(best["ece"]), 5)
+    for key in ("validation_rho", "test_rho"):
+        if key in best:
+            card[key] = round(float(best[key]), 4)
+    if "stopped" in best:
+        card["stopped"] = best["stopped"]
+    if "patience" in run_config:
+        card["patience"] = f"{run_config['patience']} epochs without a lower validation MSE"
+    if "examples" in run_config:
+        card["examples"] = run_config["examples"] + " City-CNN training set (city_cache: no ray casting in a step)"
     if note:
         card["note"] = note
     return card

@@ -118,12 +118,17 @@ def output_mask(geometry: CityGeometry, state: np.ndarray) -> np.ndarray:
     """``(*out_spatial)`` float32 mask of the network output: 1 at empty lattice cells (D-City:
     their boundary sub-cells), 0 elsewhere (and at the central sub-cells)."""
     s = geometry.stride
-    empty = (state == 0)[tuple(slice(None, None, s) for _ in range(state.ndim))].astype(np.float32)
+    return lattice_output_mask(geometry, (state == 0)[tuple(slice(None, None, s) for _ in range(state.ndim))])
+
+
+def lattice_output_mask(geometry: CityGeometry, empty_lattice: np.ndarray) -> np.ndarray:
+    """:func:`output_mask` from the empty mask of the output lattice cells (``(*lattice)`` bool)."""
+    empty = empty_lattice.astype(np.float32)
     if geometry.method != "d_city_cnn":
         return empty
     n = geometry.n_rays
-    composite = np.zeros((n,) * state.ndim, dtype=np.float32)
-    composite[tuple(boundary_subcells(state.ndim, n).T)] = 1.0
+    composite = np.zeros((n,) * empty.ndim, dtype=np.float32)
+    composite[tuple(boundary_subcells(empty.ndim, n).T)] = 1.0
     return np.kron(empty, composite).astype(np.float32)
 
 
@@ -156,8 +161,23 @@ def city_targets(
     state = check_state(state)
     truth = check_ground_truth(truth, state.shape, name="truth")
     geometry = CityGeometry.of(method, spec)
-    s = geometry.stride
     box = box or tuple(slice(0, n) for n in state.shape)
+    origins, local, lattice = lattice_origins_in_box(geometry, state, box)
+    gains = omniscient_ray_gains(state, truth, geometry, origins, backend) if origins.size else None
+    return assemble_city_target(method, spec, gains, local, lattice)
+
+
+def lattice_origins_in_box(
+    geometry: CityGeometry, state: np.ndarray, box: tuple[slice, ...]
+) -> tuple[np.ndarray, np.ndarray, tuple[int, ...]]:
+    """The empty lattice cells inside a crop ``box`` (starts on the lattice): their grid indices
+    ``(N, dims)`` in ``np.argwhere`` order, their lattice cells inside the box ``(N, dims)`` and
+    the box's lattice shape.
+
+    Raises:
+        ValueError: a box off the lattice.
+    """
+    s = geometry.stride
     start = np.array([b.start for b in box], dtype=np.int64)
     if np.any(start % s):
         raise ValueError(f"box: starts {start.tolist()} are not on the {s}-cell output lattice")
@@ -165,15 +185,31 @@ def city_targets(
     origins = geometry.origins(state)
     inside = np.all((origins >= start) & (origins < np.array([b.stop for b in box])), axis=1)
     origins = origins[inside]
-    gains = omniscient_ray_gains(state, truth, geometry, origins, backend) if origins.size else None
-    local = (origins - start) // s  # lattice cells inside the box
+    return origins, (origins - start) // s, lattice
+
+
+def assemble_city_target(
+    method: str, spec: DatasetSpec, gains: np.ndarray | None, local: np.ndarray, lattice: tuple[int, ...]
+) -> np.ndarray:
+    """The target ``(C, *lattice)`` of a City-CNN variant from the ray gains ``(N, R)`` of the
+    lattice cells ``local`` (``(N, dims)``; ``gains`` None when there is none): ray-casting
+    (:func:`omniscient_ray_gains`) and assembly are separate so that cached ray gains
+    (:mod:`nbv_prob_cnn.completion.city_cache`) make the same targets."""
+    geometry = CityGeometry.of(method, spec)
+    dims = len(lattice)
+    if gains is not None:
+        gains = np.asarray(gains, dtype=np.float32)
+        if gains.shape != (local.shape[0], geometry.directions.shape[0]):
+            raise ValueError(
+                f"gains: expected shape {(local.shape[0], geometry.directions.shape[0])}, got {gains.shape}"
+            )
     if method == "d_city_cnn":
         n = geometry.n_rays
         target = np.zeros(tuple(size * n for size in lattice), dtype=np.float32)
         if gains is not None:
-            sub = boundary_subcells(state.ndim, n)  # (R, dims)
+            sub = boundary_subcells(dims, n)  # (R, dims)
             index = local[:, None, :] * n + sub[None, :, :]  # (N, R, dims)
-            target[tuple(index.reshape(-1, state.ndim).T)] = gains.reshape(-1)
+            target[tuple(index.reshape(-1, dims).T)] = gains.reshape(-1)
         return target[None]
     views = (gains @ geometry.membership) / geometry.view_scale if gains is not None else None
     cells = tuple(local.T)
@@ -182,7 +218,7 @@ def city_targets(
         if views is not None:
             target[(slice(None), *cells)] = views.T
         return target
-    target = np.zeros((2 if state.ndim == 2 else 4, *lattice), dtype=np.float32)
+    target = np.zeros((2 if dims == 2 else 4, *lattice), dtype=np.float32)
     if views is not None:
         best = np.argmax(views, axis=1)
         target[(slice(None), *cells)] = (views[np.arange(len(best)), best][:, None] * _view_vectors(spec)[best]).T
