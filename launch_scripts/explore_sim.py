@@ -1,13 +1,22 @@
 #!/usr/bin/env python3
 """Start the simulated node graph and explore a scene through the Explore action.
 
-    arm_sim -> sim_camera -> integrator -> nbv_planner <-> completion_server, gain_server
-       ^------------- joint goals (move_to_joints) ---'  ^-- explore_client (Explore goal, records the run)
+    robot side (stand-ins for real drivers)          our nodes
+    arm_sim  --/robot_description, /joint_states (arm | gripper), /tf, /tf_static-->  integrator,
+             <--/arm_controller/follow_joint_trajectory (control_msgs)----------   nbv_planner, gain_server
+    sim_camera --/camera/depth/image (16UC1) + camera_info (optical frame)----->   integrator -> /nbv/grid
+                                   nbv_planner <-> completion_server, gain_server <- explore_client (Explore goal)
 
-By default the camera rides on the simulated arm (``arm_sim``; ``sim_camera`` with ``follow_arm``)
-and ``nbv_planner`` plans only views the arm reaches collision-free (``use_arm``) and drives the
-arm there (``move_mode:=arm``). ``--no-arm`` runs the free-flying camera (teleported by
-``sim_camera/move_to``) as before.
+By default the camera rides on the simulated arm and the robot side talks to our nodes through
+the standard interfaces only, as a real arm (robot_state_publisher, joint_state_broadcaster, a
+joint_trajectory_controller) and a depth camera driver would: ``arm_sim`` publishes the robot
+description with the camera mounted in it, the joint states (the gripper's in its own message),
+TF, and serves FollowJointTrajectory; ``sim_camera`` publishes 16UC1 depth + CameraInfo in the
+optical frame, taking its own pose from TF. ``nbv_planner`` plans views the arm reaches
+collision-free (``use_arm``, the robot read from ``/robot_description``) and sends the timed joint
+path to the controller (``move_mode:=trajectory``). ``--move-mode arm`` uses our own
+``arm_sim/move_to_joints`` service instead; ``--no-arm`` runs the free-flying camera (teleported by
+``sim_camera/move_to``).
 
 Every process gets localhost discovery, its own ROS_DOMAIN_ID and the Fast DDS shared-memory
 profile. Ctrl-C cancels the exploration and stops every process (no orphans), then removes the
@@ -28,7 +37,7 @@ from nbv_prob_cnn.ros.graph import NodeGraph, ros_environment, run_graph
 
 #: Arm parameters of sim_camera and integrator in the arm graph: the camera rides on the arm and
 #: sees it, the integrator removes it from the depth before integration.
-SIM_CAMERA_WITH_ARM = {"follow_arm": True, "render_arm": True}
+SIM_CAMERA_WITH_ARM = {"follow_arm": True, "render_arm": True, "encoding": "16UC1"}
 INTEGRATOR_WITH_ARM = {"self_filter": True}
 #: The arm's start: the Panda's camera 0.90 m above the floor at x = 0.25 m, y = 0.742 m, looking at
 #: the table centre (0.74, 0.742, 0) (solved with ``arm.ik.solve_camera_pose`` from the ready pose).
@@ -49,6 +58,10 @@ def parse_args(argv=None) -> argparse.Namespace:
     parser.add_argument("--method", default="cnn_prob", help="cnn_prob, cnn_prob_d, prob_ig or ig")
     parser.add_argument("--in-process", action="store_true", help="planner completes and ray-casts itself")
     parser.add_argument("--no-arm", action="store_true", help="free-flying camera (no arm_sim, no reachability)")
+    parser.add_argument(
+        "--move-mode", default="trajectory", choices=["trajectory", "arm"],
+        help="arm: FollowJointTrajectory (trajectory, default) or arm_sim/move_to_joints (arm)",
+    )  # fmt: skip
     parser.add_argument("--motion-weight", type=float, default=0.0, help="λ of gain − λ·joint path (arm only)")
     parser.add_argument(
         "--free-above", type=float, default=0.25,
@@ -89,7 +102,7 @@ def main(argv=None) -> int:
         graph.start_node("gain_server", "gain_server", {**common, "completion": "service", **arm_prior})
         planner = {**common, "method": args.method, "in_process": args.in_process}
         if arm:
-            planner.update(arm_prior, move_mode="arm", motion_weight=args.motion_weight)
+            planner.update(arm_prior, move_mode=args.move_mode, motion_weight=args.motion_weight)
             planner.update(arm_min_view_height_m=ARM_MIN_VIEW_HEIGHT_M, arm_top_k=20000, arm_max_checks=300)
         graph.start_node("nbv_planner", "nbv_planner", planner)
 

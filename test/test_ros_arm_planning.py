@@ -211,10 +211,16 @@ def test_evaluate_views_reports_reachability_and_ik_solutions(ros):
     assert [list(s.name) for s in reply.ik_solutions[1:]] == [[], []]
     assert list(reply.validity)[1:] == [EvaluateViews.Request.OUTSIDE_GRID, EvaluateViews.Request.INVALID_POSE]
 
-    bench.joints = (["panda_joint1", "shoulder"], [0.0, 0.0])  # wrong names: a clear error ...
+    bench.joints = ([*robot.joint_names, "drive_joint"], [*robot.reference_q, 0.3])  # an extra name is ignored
+    time.sleep(0.5)
+    extra = wait(client.call_async(request))
+    assert extra.success and list(extra.reachable) == [True, False, False], extra.message
+    bench.joints = (["panda_joint1", "panda_joint1"], [0.0, 0.0])  # malformed (a name twice): a clear error ...
     time.sleep(0.5)
     wrong = wait(client.call_async(request))
-    assert not wrong.success and "unknown joint names ['shoulder']" in wrong.message
+    assert not wrong.success and "duplicate joint names ['panda_joint1']" in wrong.message
+    assert list(wrong.validity) == [EvaluateViews.Request.INVALID_POSE] * 3  # an error reply marks no pose valid
+    assert list(wrong.reachable) == []
     bench.joints = (robot.joint_names, robot.reference_q)  # ... and the server keeps serving
     time.sleep(0.5)
     again = wait(client.call_async(request))

@@ -2,8 +2,8 @@
 
 * :func:`time_parameterise` times a straight joint-space path (the planner's move from the
   current configuration to a view's IK solution) within per-joint velocity, acceleration and jerk
-  limits with Ruckig's phase-synchronised profiles (every joint follows the same straight line,
-  starting and ending at rest), sampled every ``dt``.
+  limits: Ruckig's time-optimal jerk-limited profile of the path parameter (every joint on the
+  same straight line, starting and ending at rest), sampled every ``dt``.
 * :func:`check_trajectory` refuses what a controller refuses: unknown, duplicate or missing
   joints, times that do not increase, positions outside the limits, speeds over the limits.
 * :func:`tolerance_violation` compares the actual state with the desired one.
@@ -61,14 +61,18 @@ def time_parameterise(
     max_jerk: np.ndarray,
     dt: float = 0.05,
 ) -> TimedPath:
-    """The straight joint path ``start → goal``, from rest to rest, as fast as the limits allow
-    (Ruckig, phase synchronisation: all joints in proportion, so the path stays the straight line
-    the planner checked for collisions), sampled every ``dt`` seconds plus the end.
+    """The straight joint path ``start → goal``, from rest to rest, as fast as the limits allow,
+    sampled every ``dt`` seconds plus the end.
+
+    The path is ``q(s) = start + s (goal − start)`` with ``s`` from 0 to 1; Ruckig times ``s`` with
+    the tightest of the joints' limits divided by their distance to go (``v_s = min_i v_i / |Δq_i|``,
+    likewise acceleration and jerk), so every joint stays within its limits and on the straight
+    line the planner checked for collisions.
 
     Raises:
         ValueError: shapes differ, non-finite values, non-positive limits or ``dt``.
     """
-    from ruckig import InputParameter, Result, Ruckig, Synchronization, Trajectory
+    from ruckig import InputParameter, Result, Ruckig, Trajectory
 
     start, goal = np.asarray(start, dtype=np.float64).ravel(), np.asarray(goal, dtype=np.float64).ravel()
     limits = [np.broadcast_to(np.asarray(v, dtype=np.float64), start.shape) for v in (max_velocity, max_acceleration,
@@ -78,27 +82,29 @@ def time_parameterise(
     if not all(np.all(np.isfinite(v) & (v > 0)) for v in limits) or not dt > 0:
         raise ValueError("time parameterisation: velocity, acceleration and jerk limits and dt must be positive")
     n = start.size
-    if np.allclose(start, goal, atol=1e-12, rtol=0.0):
+    delta = goal - start
+    moving = np.abs(delta) > 1e-12
+    if not np.any(moving):
         zero = np.zeros((1, n))
         return TimedPath(np.zeros(1), goal[None].copy(), zero, zero.copy())
-    inp = InputParameter(n)
-    inp.current_position, inp.target_position = start.tolist(), goal.tolist()
-    inp.current_velocity = inp.current_acceleration = [0.0] * n
-    inp.target_velocity = inp.target_acceleration = [0.0] * n
-    inp.max_velocity, inp.max_acceleration, inp.max_jerk = (v.tolist() for v in limits)
-    inp.synchronization = Synchronization.Phase
-    trajectory = Trajectory(n)
-    result = Ruckig(n).calculate(inp, trajectory)
+    path_limits = [float(np.min(v[moving] / np.abs(delta[moving]))) for v in limits]
+    inp = InputParameter(1)
+    inp.current_position, inp.target_position = [0.0], [1.0]
+    inp.current_velocity = inp.current_acceleration = [0.0]
+    inp.target_velocity = inp.target_acceleration = [0.0]
+    inp.max_velocity, inp.max_acceleration, inp.max_jerk = ([v] for v in path_limits)
+    trajectory = Trajectory(1)
+    result = Ruckig(1).calculate(inp, trajectory)
     if result not in (Result.Working, Result.Finished):
         raise ValueError(f"time parameterisation: Ruckig failed ({result})")
     duration = float(trajectory.duration)
     times = np.append(np.arange(0.0, duration, dt), duration)
     if times.size > 1 and times[-1] - times[-2] < 1e-6:
         times = np.delete(times, -2)
-    samples = [trajectory.at_time(float(t)) for t in times]
-    positions = np.array([s[0] for s in samples])
+    samples = np.array([[value[0] for value in trajectory.at_time(float(t))] for t in times])  # (k, 3): s, ṡ, s̈
+    positions = start + samples[:, :1] * delta
     positions[-1] = goal  # exactly the goal the planner checked
-    return TimedPath(times, positions, np.array([s[1] for s in samples]), np.array([s[2] for s in samples]))
+    return TimedPath(times, positions, samples[:, 1:2] * delta, samples[:, 2:3] * delta)
 
 
 def check_trajectory(

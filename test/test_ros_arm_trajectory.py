@@ -1,0 +1,233 @@
+"""The robot side through standard interfaces, each node in its own process: ``arm_sim`` as a
+driver (``/robot_description``, arm and gripper ``/joint_states`` apart, ``/tf`` + ``/tf_static``,
+``control_msgs/FollowJointTrajectory``), and ``nbv_planner move_mode:=trajectory`` falling back to
+the next ranked view when the controller rejects a trajectory."""
+
+from __future__ import annotations
+
+import os
+import threading
+import time
+
+import numpy as np
+import pytest
+
+rclpy = pytest.importorskip("rclpy")
+pytest.importorskip("nbv_prob_cnn_msgs")
+pytest.importorskip("control_msgs")
+pytest.importorskip("tf2_msgs")
+pytest.importorskip("pinocchio")
+
+from action_msgs.msg import GoalStatus  # noqa: E402
+from builtin_interfaces.msg import Duration  # noqa: E402
+from control_msgs.action import FollowJointTrajectory  # noqa: E402
+from control_msgs.msg import JointTolerance  # noqa: E402
+from nbv_prob_cnn_msgs.action import Explore  # noqa: E402
+from rclpy.action import ActionClient, ActionServer, GoalResponse  # noqa: E402
+from rclpy.callback_groups import ReentrantCallbackGroup  # noqa: E402
+from sensor_msgs.msg import JointState  # noqa: E402
+from std_msgs.msg import String  # noqa: E402
+from test_ros_arm_planning import ARM_PLANNER, GraphBench, SeeingIntegrator, assert_pose_close, scene  # noqa: E402
+from test_ros_explore import spun_node  # noqa: E402
+from test_ros_explore import wait as wait_future  # noqa: E402
+from tf2_msgs.msg import TFMessage  # noqa: E402
+from trajectory_msgs.msg import JointTrajectoryPoint  # noqa: E402
+
+from nbv_prob_cnn.arm.description import read_description  # noqa: E402
+from nbv_prob_cnn.arm.robot import DEFAULT_BASE_XYZ, DEFAULT_HAND_FROM_CAMERA_XYZ, RobotModel  # noqa: E402
+from nbv_prob_cnn.ros.conversions import pose_to_arrays  # noqa: E402
+from nbv_prob_cnn.ros.graph import NodeGraph  # noqa: E402
+from nbv_prob_cnn.ros.robot_params import DESCRIPTION_QOS, description_config  # noqa: E402
+
+pytestmark = pytest.mark.slow  # multi-process ROS graphs
+
+ACTION = "/arm_controller/follow_joint_trajectory"
+_counter = iter(range(1000))
+
+
+@pytest.fixture
+def ros(tmp_path, ros_domain):
+    """Domains 150..159 (this module only); a client node spun in a background thread."""
+    env = ros_domain(150 + (os.getpid() + next(_counter)) % 10)
+    with spun_node("arm_trajectory_test") as node:
+        graph = NodeGraph(env, log_dir=tmp_path / "logs")
+        yield node, graph
+        graph.stop()
+
+
+def wait(future, timeout_s: float = 120.0):
+    return wait_future(future, timeout_s)
+
+
+def seconds(value: float) -> Duration:
+    return Duration(sec=int(value), nanosec=int(round((value - int(value)) * 1e9)))
+
+
+def goal_of(names: list[str], points: list[tuple[float, list[float]]], **fields) -> FollowJointTrajectory.Goal:
+    goal = FollowJointTrajectory.Goal(**fields)
+    goal.trajectory.joint_names = names
+    goal.trajectory.points = [JointTrajectoryPoint(positions=p, time_from_start=seconds(t)) for t, p in points]
+    return goal
+
+
+def test_arm_sim_is_a_robot_driver_with_a_trajectory_controller(ros):
+    node, graph = ros
+    robot = RobotModel()  # the Panda as arm_sim's default parameters place it
+    arm = robot.joint_names[:7]
+    graph.start_node("arm_sim", "arm_sim", {"velocity_scale": 0.5, "rate_hz": 50.0})
+    seen: dict[str, object] = {}
+    states: list[JointState] = []
+    node.create_subscription(String, "/robot_description", lambda m: seen.setdefault("description", m.data),
+                             DESCRIPTION_QOS)  # fmt: skip
+    node.create_subscription(TFMessage, "/tf_static", lambda m: seen.setdefault("static", m), DESCRIPTION_QOS)
+    node.create_subscription(TFMessage, "/tf", lambda m: seen.__setitem__("tf", m), 10)
+    node.create_subscription(JointState, "/joint_states", states.append, 100)
+    client = ActionClient(node, FollowJointTrajectory, ACTION)
+    assert client.wait_for_server(timeout_sec=120.0)
+    deadline = time.monotonic() + 30.0
+    while time.monotonic() < deadline and (len(seen) < 3 or len(states) < 4):
+        time.sleep(0.1)
+    # the description with the camera and the base in it gives the model of the parameters
+    config = description_config(read_description(seen["description"]), [], "world", [0, 0, 0], [0, 0, 0],
+                                "camera_optical", "", [0, 0, 0], [0, 0, 0])  # fmt: skip
+    from_description = RobotModel(config)
+    q = robot.reference_q + 0.05
+    np.testing.assert_allclose(from_description.camera_pose(q), robot.camera_pose(q), atol=1e-12)
+    # the fixed joints on /tf_static: base and camera mount as given
+    static = {(t.header.frame_id, t.child_frame_id): t.transform for t in seen["static"].transforms}
+    base = static[("world", "panda_link0")].translation
+    np.testing.assert_allclose([base.x, base.y, base.z], DEFAULT_BASE_XYZ, atol=1e-12)
+    mount = static[("panda_hand", "camera_optical")].translation
+    np.testing.assert_allclose([mount.x, mount.y, mount.z], DEFAULT_HAND_FROM_CAMERA_XYZ, atol=1e-12)
+    moving = {(t.header.frame_id, t.child_frame_id) for t in seen["tf"].transforms}
+    assert ("panda_link0", "panda_link1") in moving and ("panda_hand", "panda_leftfinger") in moving
+    # the arm and the gripper in separate joint_states messages
+    groups = {tuple(m.name) for m in states}
+    assert groups == {tuple(arm), ("panda_finger_joint1", "panda_finger_joint2")}
+
+    start = robot.reference_q[:7]
+    target = start + np.array([0.3, -0.2, 0.0, 0.1, 0.0, 0.0, 0.0])
+    # rejected: a gripper joint is not the arm controller's, a joint missing, out of limits, too fast
+    for bad in (
+        goal_of([*arm, "panda_finger_joint1"], [(2.0, [*target, 0.0])]),
+        goal_of(arm[:6], [(2.0, list(target[:6]))]),
+        goal_of(arm, [(2.0, [*target[:3], 0.5, *target[4:]])]),  # panda_joint4 must stay below 0
+        goal_of(arm, [(0.1, list(target))]),  # 0.3 rad in 0.1 s: over the 2.175 rad/s limit
+    ):
+        handle = wait(client.send_goal_async(bad))
+        assert not handle.accepted
+    # accepted and executed: SUCCESSFUL, the joints at the goal, feedback on the way
+    feedback: list = []
+    handle = wait(client.send_goal_async(goal_of(arm, [(1.0, list(start + (target - start) / 2)), (2.0, list(target))]),
+                                         feedback_callback=feedback.append))  # fmt: skip
+    assert handle.accepted
+    done = wait(handle.get_result_async(), 30.0)
+    assert done.status == GoalStatus.STATUS_SUCCEEDED
+    assert done.result.error_code == FollowJointTrajectory.Result.SUCCESSFUL
+    assert feedback and list(feedback[-1].feedback.joint_names) == arm
+    time.sleep(0.3)
+    latest = next(m for m in reversed(states) if tuple(m.name) == tuple(arm))
+    np.testing.assert_allclose(latest.position, target, atol=1e-6)
+    # a trajectory at the URDF limit, with arm_sim at half of it, lags: goal tolerance violated
+    back = goal_of(arm, [(0.3 / 2.175 * 1.01, list(target - np.array([0.3, 0, 0, 0, 0, 0, 0])))],
+                   goal_tolerance=[JointTolerance(name=n, position=1e-3) for n in arm],
+                   goal_time_tolerance=seconds(0.01))  # fmt: skip
+    handle = wait(client.send_goal_async(back))
+    assert handle.accepted
+    done = wait(handle.get_result_async(), 30.0)
+    assert done.status == GoalStatus.STATUS_ABORTED
+    assert done.result.error_code == FollowJointTrajectory.Result.GOAL_TOLERANCE_VIOLATED
+    assert "panda_joint1" in done.result.error_string
+    assert graph.alive()["arm_sim"]
+
+
+class FakeController:
+    """A FollowJointTrajectory server in the test process that rejects its first ``reject`` goals
+    and executes the others by publishing the arm at their last point (the bench publishes the
+    joint states), recording every goal."""
+
+    def __init__(self, node, bench: GraphBench, robot: RobotModel, reject: int) -> None:
+        self.bench, self.robot, self.reject = bench, robot, reject
+        self.goals: list[FollowJointTrajectory.Goal] = []
+        self.lock = threading.Lock()
+        self.q: np.ndarray | None = None  # where the last executed goal left the arm
+        node.create_timer(0.1, self.publish_pose)
+        ActionServer(node, FollowJointTrajectory, "/fake_controller/follow_joint_trajectory",
+                     execute_callback=self.execute, goal_callback=self.decide,
+                     callback_group=ReentrantCallbackGroup())  # fmt: skip
+
+    def decide(self, goal) -> GoalResponse:
+        with self.lock:
+            self.goals.append(goal)
+            return GoalResponse.REJECT if len(self.goals) <= self.reject else GoalResponse.ACCEPT
+
+    def execute(self, handle):
+        trajectory = handle.request.trajectory
+        q = np.array(self.bench.joints[1], dtype=np.float64)
+        for name, value in zip(trajectory.joint_names, trajectory.points[-1].positions, strict=True):
+            q[self.robot.joint_names.index(name)] = value
+        self.bench.joints = (self.robot.joint_names, q)
+        self.q = q
+        handle.succeed()
+        return FollowJointTrajectory.Result(error_code=0)
+
+    def publish_pose(self) -> None:
+        """The camera pose at the arm's configuration, stamped now (what the SeeingIntegrator sees from)."""
+        if self.q is not None:
+            self.bench.latest["pose"] = pose_msg(self.robot.camera_pose(self.q), self.bench.node)
+
+
+def pose_msg(pose: np.ndarray, node):
+    from geometry_msgs.msg import PoseStamped
+
+    from nbv_prob_cnn.basics.camera import quaternion_from_matrix
+
+    msg = PoseStamped()
+    msg.header.stamp = node.get_clock().now().to_msg()
+    msg.pose.position.x, msg.pose.position.y, msg.pose.position.z = (float(v) for v in pose[:3, 3])
+    o = msg.pose.orientation
+    o.x, o.y, o.z, o.w = (float(v) for v in quaternion_from_matrix(pose[:3, :3]))
+    return msg
+
+
+def test_a_rejected_trajectory_makes_the_exploration_take_the_next_ranked_view(ros):
+    node, graph = ros
+    robot = RobotModel()
+    bench = GraphBench(node)
+    bench.joints = (robot.joint_names, robot.reference_q)
+    controller = FakeController(node, bench, robot, reject=1)
+    planner = {**ARM_PLANNER, "move_mode": "trajectory", "max_joint_acceleration": 2.0, "max_joint_jerk": 20.0,
+               "trajectory_action": "/fake_controller/follow_joint_trajectory"}  # fmt: skip
+    graph.start_node("nbv_planner", "nbv_planner", planner)
+    SeeingIntegrator(node, bench)
+    bench.publish_grid()
+    client = ActionClient(node, Explore, "/nbv/explore")
+    assert client.wait_for_server(timeout_sec=120.0), "the Explore server did not come up"
+    feedback: list = []
+    handle = wait(client.send_goal_async(Explore.Goal(max_views=2), feedback_callback=feedback.append))
+    assert handle.accepted
+    done = wait(handle.get_result_async(), 300.0)
+    assert done.status == GoalStatus.STATUS_SUCCEEDED, done.result.reason_stopped
+    assert done.result.views == 2 and done.result.failed_executions == 1, done.result.reason_stopped
+    fbs = [m.feedback for m in feedback]
+    assert [fb.executed for fb in fbs] == [False, True, True]
+    assert "rejected" in fbs[0].execution_error and fbs[1].execution_error == ""
+    assert fbs[0].view_index == fbs[1].view_index == 0
+    rejected, taken = (tuple(np.round(np.concatenate(pose_to_arrays(fb.pose.pose)), 4)) for fb in fbs[:2])
+    assert rejected != taken  # the next ranked view, not the rejected one again
+    assert fbs[1].gain <= fbs[0].gain + 1e-6  # ranked after it
+    # every goal the controller got is the straight joint path, within the limits, from rest to rest
+    assert len(controller.goals) == 3
+    vmax = np.asarray(robot.model.velocityLimit)[:7] * 0.5
+    for goal in controller.goals:
+        trajectory = goal.trajectory
+        assert list(trajectory.joint_names) == robot.joint_names[:7]
+        t = np.array([p.time_from_start.sec + p.time_from_start.nanosec * 1e-9 for p in trajectory.points])
+        v = np.array([p.velocities for p in trajectory.points])
+        a = np.array([p.accelerations for p in trajectory.points])
+        assert np.all(np.diff(t) > 0)
+        assert np.all(np.abs(v) <= vmax * (1 + 1e-6)) and np.all(np.abs(a) <= 2.0 * (1 + 1e-6))
+        np.testing.assert_allclose(v[-1], 0.0, atol=1e-9)
+    goal_q = np.array(controller.goals[1].trajectory.points[-1].positions)
+    assert_pose_close(robot.camera_pose(np.r_[goal_q, robot.reference_q[7:]]), *pose_to_arrays(fbs[1].pose.pose))
+    assert (bench.state == -1).sum() < (scene() == -1).sum()
