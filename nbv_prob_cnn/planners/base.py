@@ -170,7 +170,7 @@ def search_views(
     """
     sensor = context.active_sensor
     variant = context.gain_variant
-    gain_options = {"variant": variant, "free_hits": mode == "prob" and uses_free_hits(variant, probability)}
+    free_hits = mode == "prob" and uses_free_hits(variant, probability)
     min_range = ig_min_range(variant, sensor.min_range) if mode == "ig" else sensor.min_range
     if top_k == 1 and prune and view_mask is None and _uses_opencl(context.backend) and origins.shape[0] > 0:
         t0 = time.perf_counter()
@@ -178,7 +178,7 @@ def search_views(
         index, view, gain = best_origin_view(
             state, prob, context.directions, sensor.r_max, context.membership, origins, "opencl",
             mode=mode, eps=context.eps, min_range=min_range, block_size=block, prune_views=prune_views,
-            **gain_options,
+            variant=variant, free_hits=free_hits,
         )  # fmt: skip
         times = {"cnn": 0.0, "raycast": time.perf_counter() - t0, "views": 0.0}
         return [ViewChoice(origins[index].copy(), int(view), float(gain), times)] if gain > 0.0 else []
@@ -192,7 +192,7 @@ def search_views(
         t0 = time.perf_counter()
         views = origin_view_gains(
             state, prob, context.directions, sensor.r_max, context.membership, chunk, context.backend,
-            mode=mode, eps=context.eps, min_range=min_range, **gain_options,
+            mode=mode, eps=context.eps, min_range=min_range, variant=variant, free_hits=free_hits,
         )  # fmt: skip
         if view_mask is not None:
             allowed = np.asarray(view_mask(chunk), dtype=bool)
