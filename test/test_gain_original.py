@@ -191,3 +191,33 @@ def test_bad_variant_and_free_hits():
         ray_gains(state, None, X, 4, mode="ig", variant="original", free_hits=True)
     with pytest.raises(ValueError, match="gain variant"):
         PlanningContext.for_dataset("2d", gain_variant="Original")
+
+
+def test_evaluation_runs_record_and_check_the_variant(tmp_path):
+    import json
+
+    from nbv_prob_cnn.exploration.evaluation import run_status
+
+    path = tmp_path / "2d_prob_ig_seed120.csv"
+    path.write_text("unknown_fraction\n0.9\n0.8\n0.7\n")
+    path.with_suffix(".json").write_text(json.dumps({"views": 3}))  # a paper run (no key)
+    assert run_status(path, 3) == "done"
+    assert run_status(path, 3, gain_variant="original") == "other gain variant"
+    path.with_suffix(".json").write_text(json.dumps({"views": 3, "gain_variant": "original"}))
+    assert run_status(path, 3, gain_variant="original") == "done"
+    assert run_status(path, 3) == "other gain variant"
+
+
+@pytest.mark.parametrize("command", ["explore", "evaluate"])
+def test_cli_gain_variant_option(command):
+    import argparse
+    import importlib
+
+    module = importlib.import_module(f"nbv_prob_cnn.commands.{command}")
+    parser = argparse.ArgumentParser()
+    module.add_arguments(parser)
+    base = ["--dataset", "2d"] + (["--log", "run.csv"] if command == "explore" else [])
+    assert parser.parse_args(base).gain_variant == "paper"
+    assert parser.parse_args([*base, "--gain-variant", "original"]).gain_variant == "original"
+    with pytest.raises(SystemExit):
+        parser.parse_args([*base, "--gain-variant", "authors"])
