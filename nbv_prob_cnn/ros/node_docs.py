@@ -14,6 +14,8 @@ import dataclasses
 import importlib
 import inspect
 import re
+import sys
+import textwrap
 from dataclasses import dataclass
 from types import ModuleType
 from typing import Any
@@ -96,15 +98,32 @@ def parameters(name: str) -> list[ParamDoc]:
     return rows
 
 
+def _profile_text(profile: Any) -> str:
+    """``reliable, transient local, depth 1`` of an rclpy ``QoSProfile``."""
+    reliability = profile.reliability.name.lower().replace("_", " ")
+    durability = profile.durability.name.lower().replace("_", " ")
+    return f"{reliability}, {durability}, depth {profile.depth}"
+
+
 def _qos_text(expr: ast.expr | None, module: ModuleType, assigned: dict[str, ast.expr]) -> str:
     if expr is None:
         return ""
     if isinstance(expr, ast.Name) and expr.id in assigned:
         expr = assigned[expr.id]
-    if isinstance(expr, ast.Constant) and isinstance(expr.value, int):
-        return f"reliable, volatile, depth {expr.value}"
+    if isinstance(expr, ast.IfExp):
+        test = re.sub(r"\b(?:self\.config|self|cfg)\.", "", ast.unparse(expr.test))
+        body, orelse = _qos_text(expr.body, module, assigned), _qos_text(expr.orelse, module, assigned)
+        return f"{body} with {test}, else {orelse}"
     if isinstance(expr, ast.Name) and expr.id == "GRID_QOS":
         return "reliable, transient local, depth 1 (late joiners get the last grid)"
+    try:
+        value = eval(compile(ast.Expression(expr), module.__name__, "eval"), vars(module))  # noqa: S307
+    except Exception:  # a run-time value
+        value = None
+    if isinstance(value, int):
+        return f"reliable, volatile, depth {value}"
+    if value is not None and hasattr(value, "reliability") and hasattr(value, "durability"):
+        return _profile_text(value)
     if isinstance(expr, ast.Call):
         called = ast.unparse(expr.func)
         if called == "subscription_qos":
@@ -124,7 +143,10 @@ def _name_text(expr: ast.expr, module: ModuleType) -> str:
         value = eval(compile(ast.Expression(expr), module.__name__, "eval"), vars(module))  # noqa: S307
     except Exception:  # a loop variable or another run-time value
         text = ast.unparse(expr)
-        return "(each recorded camera topic)" if "default_topic" in text else f"(per `{text}`)"
+        attribute = re.fullmatch(r"(?:self\.config|self|cfg)\.(\w+)", text)
+        if attribute:
+            return f"(parameter {attribute.group(1)})"
+        return "(each recorded topic)" if "topic" in text else f"(from {text})"
     return "/" + str(value).lstrip("/")
 
 
@@ -134,17 +156,28 @@ def _condition(node: ast.AST, parents: dict[ast.AST, ast.AST]) -> str:
         parent = parents[node]
         if isinstance(parent, ast.If) and node in parent.body:
             tests.append(ast.unparse(parent.test))
-        elif isinstance(parent, ast.For):
-            tests.append(f"for {ast.unparse(parent.target)} in {ast.unparse(parent.iter)}")
+        elif isinstance(parent, ast.If) and node in parent.orelse:
+            tests.append(f"not ({ast.unparse(parent.test)})")
         node = parent
     text = " and ".join(reversed(tests))
     return re.sub(r"\b(?:self\.config|self|cfg)\.", "", text)
 
 
-def interfaces(name: str) -> list[InterfaceDoc]:
-    """The topics, services and actions node ``name`` creates, in source order."""
-    module = node_module(name)
-    tree = ast.parse(inspect.getsource(module))
+def _helper_class(call: ast.Call, module: ModuleType) -> type | None:
+    """The class of a call ``Helper(self, ...)`` when ``Helper`` is a class of another module of
+    :mod:`nbv_prob_cnn.ros` (it creates interfaces on the node it is given, e.g. ``TfListener``)."""
+    if not (isinstance(call.func, ast.Name) and call.args and ast.unparse(call.args[0]) == "self"):
+        return None
+    obj = vars(module).get(call.func.id)
+    if inspect.isclass(obj) and obj.__module__.startswith("nbv_prob_cnn.ros.") and obj.__module__ != module.__name__:
+        return obj
+    return None
+
+
+def _scan(source: str, module: ModuleType, outer: str = "") -> list[InterfaceDoc]:
+    """The ``create_*`` / action calls of ``source`` (names resolved in ``module``), and those of
+    the helper classes it hands the node to; ``outer`` is the condition of the whole source."""
+    tree = ast.parse(source)
     parents = {child: parent for parent in ast.walk(tree) for child in ast.iter_child_nodes(parent)}
     assigned: dict[str, ast.expr] = {}
     for node in ast.walk(tree):
@@ -153,6 +186,11 @@ def interfaces(name: str) -> list[InterfaceDoc]:
     found = []
     for node in ast.walk(tree):
         if not isinstance(node, ast.Call):
+            continue
+        condition = " and ".join(c for c in (outer, _condition(node, parents)) if c)
+        helper = _helper_class(node, module)
+        if helper is not None:
+            found += _scan(textwrap.dedent(inspect.getsource(helper)), sys.modules[helper.__module__], condition)
             continue
         called = node.func.attr if isinstance(node.func, ast.Attribute) else getattr(node.func, "id", "")
         if called not in _CALLS:
@@ -164,19 +202,28 @@ def interfaces(name: str) -> list[InterfaceDoc]:
         qos = args[3] if kind == "topic" and direction == "subscribes" and len(args) > 3 else None
         if kind == "topic" and direction == "publishes":
             qos = args[2] if len(args) > 2 else None
-        found.append(
-            InterfaceDoc(kind, direction, _name_text(args[1], module), ast.unparse(args[0]).split(".")[-1],
-                         _qos_text(qos, module, assigned) if kind == "topic" else "", _condition(node, parents))
-        )  # fmt: skip
+        type_name = ast.unparse(args[0]).split(".")[-1]
+        type_name = type_name if re.fullmatch(r"[A-Z]\w*", type_name) else "(per topic)"
+        qos_text = _qos_text(qos, module, assigned) if kind == "topic" else ""
+        found.append(InterfaceDoc(kind, direction, _name_text(args[1], module), type_name, qos_text, condition))
+    return found
+
+
+def interfaces(name: str) -> list[InterfaceDoc]:
+    """The topics, services and actions node ``name`` creates (also through helper classes such as
+    the TF listener), sorted by kind, direction and name."""
+    module = node_module(name)
+    found = _scan(inspect.getsource(module), module)
     order = {"topic": 0, "service": 1, "action": 2}
-    return sorted(found, key=lambda i: (order[i.kind], i.direction, i.name))
+    return sorted(set(found), key=lambda i: (order[i.kind], i.direction, i.name, i.condition))
 
 
 def summary(name: str) -> str:
     """The first paragraph of the node module's docstring, without its ``name:`` prefix."""
     text = (node_module(name).__doc__ or "").strip().split("\n\n")[0]
     text = re.sub(r"^(?:Node )?``\w+``:\s*", "", " ".join(text.split()))
-    return re.sub(r"\s*\(SPEC[^)]*\)", "", text)
+    text = re.sub(r"\s*\(SPEC[^)]*\)", "", text)
+    return text[:1].upper() + text[1:]
 
 
 def _value(value: Any) -> str:
@@ -233,7 +280,9 @@ def nodes_markdown() -> str:
         ]
         for i in interfaces(name):
             extra = "; ".join(t for t in (i.qos, f"only {i.condition}" if i.condition else "") if t)
-            out.append(f"| {i.direction} | {i.kind} | `{i.name}` | `{i.type}` | {_cell(extra)} |")
+            shown = i.name if i.name.startswith("(") else f"`{i.name}`"
+            typed = i.type if i.type.startswith("(") else f"`{i.type}`"
+            out.append(f"| {i.direction} | {i.kind} | {shown} | {typed} | {_cell(extra)} |")
         out += ["", "| parameter | type | default | allowed | run time | description |", "|---|---|---|---|---|---|"]
         for p in parameters(name):
             out.append(f"| `{p.name}` | {p.type} | `{_cell(_value(p.default))}` | {_cell(p.allowed)} | "
