@@ -28,6 +28,7 @@ from nbv_prob_cnn.arm.views import ArmPlanningSetup, reachable_poses
 from nbv_prob_cnn.basics.camera import DATASETS
 from nbv_prob_cnn.basics.geometry import GridGeometry
 from nbv_prob_cnn.basics.modes import BACKEND_NAMES, Backend
+from nbv_prob_cnn.gain.variant import GAIN_VARIANTS
 from nbv_prob_cnn.planners import PlanningContext, check_ros_method
 from nbv_prob_cnn.planners.methods import cnn_completion, probability_map
 from nbv_prob_cnn.planners.pose_scoring import INVALID_POSE, score_poses
@@ -61,6 +62,10 @@ class GainServerConfig(ArmViewParams):
     method: str = param("prob_ig", "method when a request names none", dynamic=True, check=check_ros_method)
     backend: Backend = param("auto", "ray-casting backend", choices=BACKEND_NAMES)
     n_rays: int = param(0, "ray sub-cells per side (0 = data set default)", min_value=0, max_value=64)
+    gain_variant: str = param(
+        "paper", "gain: 'paper' (SPEC) or 'original' (the authors' host choices, docs/original_code.md)",
+        choices=GAIN_VARIANTS,
+    )  # fmt: skip
     completion: str = param(
         "service", "CNN maps from the completion service or in this process", choices=("service", "in_process"),
         attribute="completion_mode",
@@ -148,6 +153,7 @@ class GainServer(Node):
                 self.dataset, geometry, self.backend, self.n_rays, self._rng,
                 request.hfov_deg, request.vfov_deg, request.max_range_m,
             )  # fmt: skip
+            context.gain_variant = self.gain_variant
             positions = np.array([[p.pose.position.x, p.pose.position.y, p.pose.position.z] for p in request.poses])
             o = [p.pose.orientation for p in request.poses]
             quats = np.array([[q.x, q.y, q.z, q.w] for q in o])
@@ -188,6 +194,7 @@ class GainServer(Node):
             state, geometry = msg_to_grid(grid)
             frame = grid.header.frame_id or self.frame_id
             context = planning_context(self.dataset, geometry, self.backend, self.n_rays, self._rng)
+            context.gain_variant = self.gain_variant
             given = None
             if request.probability.size_x:
                 given, _ = msg_to_probability(request.probability)

@@ -61,6 +61,7 @@ from nbv_prob_cnn.arm.views import ArmPlanningSetup
 from nbv_prob_cnn.basics.camera import DATASETS
 from nbv_prob_cnn.basics.grid import unknown_fraction_all
 from nbv_prob_cnn.basics.modes import BACKEND_NAMES, MOVE_MODES, Backend, MoveMode
+from nbv_prob_cnn.gain.variant import GAIN_VARIANTS
 from nbv_prob_cnn.perception.messages import stamp_ns
 from nbv_prob_cnn.planners import check_ros_method, make_planner, ros_method
 from nbv_prob_cnn.planners.requests import choice_from_pose, flat_cells, origin_filter, planning_context, view_pose
@@ -130,6 +131,10 @@ class PlannerConfig(ArmViewParams):
     in_process: bool = param(False, "complete and ray-cast here instead of via the servers")
     backend: Backend = param("auto", "ray-casting backend (in-process mode)", choices=BACKEND_NAMES)
     n_rays: int = param(0, "ray sub-cells per side (0 = default)", min_value=0, max_value=64)
+    gain_variant: str = param(
+        "paper", "gain in-process ('paper' or 'original', docs/original_code.md; else gain_server's)",
+        choices=GAIN_VARIANTS,
+    )  # fmt: skip
     frame_id: str = param("world", "frame of grids that carry none")
     service_timeout_s: float = param(
         60.0, "completion/ranking wait", min_value=0.1, max_value=600.0, dynamic=True, check=positive_seconds
@@ -324,6 +329,7 @@ class NbvPlanner(Node):
             frame = grid.header.frame_id or self.frame_id
             method = ros_method(request.method, self.method)
             context = planning_context(self.dataset, geometry, self.backend, self.n_rays, self._rng)
+            context.gain_variant = self.gain_variant
             box_min, box_max = self._planning_box(request)
             top_k = max(1, int(request.top_k), self.markers_top_k)
             keep = origin_filter(geometry, box_min is not None, box_min, box_max, int(request.max_origins), self._rng)
