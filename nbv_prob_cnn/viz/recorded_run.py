@@ -111,6 +111,8 @@ def render_run(run: RecordedRun, out: str | Path, cell_m: float = 0.02) -> tuple
             ax.scatter(run.next_best_views[:, i], run.next_best_views[:, j], marker="*", s=80, c="tab:red",
                        label="next best views")  # fmt: skip
         ax.set_title(label)
+        ax.set_xlabel(f"{'xyz'[i]} (m)")
+        ax.set_ylabel(f"{'xyz'[j]} (m)")
         ax.set_aspect("equal")
         ax.legend(loc="upper right", fontsize=7)
     heat = axes[2]
@@ -121,6 +123,8 @@ def render_run(run: RecordedRun, out: str | Path, cell_m: float = 0.02) -> tuple
         image = heat.imshow(grid.T, origin="lower", extent=extent, cmap="inferno", vmin=0.0, vmax=1.0)
         fig.colorbar(image, ax=heat, label="best gain / that plan's best")
     heat.set_title(f"best gain per {cell_m * 100:g} cm cell ({len(run.candidates)} candidates)")
+    heat.set_xlabel("x (m)")
+    heat.set_ylabel("y (m)")
     heat.set_aspect("equal")
     fig.tight_layout()
     fig.savefig(out, dpi=110)
