@@ -106,8 +106,8 @@ def run_all(cfgs: list[Config], dataset: str, seeds: list[int], views: int, guar
 
 def summarise(cfgs: list[Config], dataset: str, seeds: list[int], views: int, guard: bool, out: Path) -> list[dict]:
     """Rows of the table (configurations whose runs all exist)."""
-    rows = []
-    ideal = {}
+    rows: list[dict] = []
+    ideal: dict[str, dict] = {}
     listed: set[Path] = set()
     for config in cfgs:
         paths = [config.run_path(out, dataset, s, guard) for s in seeds]
@@ -118,7 +118,7 @@ def summarise(cfgs: list[Config], dataset: str, seeds: list[int], views: int, gu
         curves = padded([log.unknown_fraction for log in logs], views)
         extra = [_columns(p, views) for p in paths]
         room = "exact (no room)" if config.sensor == "ideal" else config.room
-        row = {"sensor": config.sensor, "method": config.method, "room": room, "runs": len(paths)}
+        row: dict = {"sensor": config.sensor, "method": config.method, "room": room, "runs": len(paths)}
         for v in AT_VIEWS:
             if v <= views:
                 row[f"unknown_after_{v}"] = float(curves[:, v - 1].mean())

@@ -4,7 +4,8 @@
   (``/nbv/rank_views``) through the servers, or everything in this process with
   ``in_process:=true``. Publishes ``/nbv/next_best_view`` and ``/nbv/markers``.
 * ``/nbv/explore`` (Explore action): plan, move the camera (``/sim_camera/move_to``, or publish
-  ``/camera/goal_pose`` and wait for ``/camera/pose`` to arrive there, or with ``move_mode:=arm``
+  ``/camera/goal_pose`` and wait for the camera to arrive there (``camera_frame`` in the grid frame
+  by TF, or ``/camera/pose`` with ``pose_source:=topic``), or with ``move_mode:=arm``
   send the joint goal to ``/arm_sim/move_to_joints`` and wait for ``/joint_states`` to reach it,
   or with ``move_mode:=trajectory`` send the straight joint path, timed within the velocity,
   acceleration and jerk limits (:func:`~nbv_prob_cnn.arm.trajectory.time_parameterise`), to a
@@ -14,6 +15,9 @@
   A move that is rejected or fails (arm / trajectory modes) rules that view out and the next
   feasible ranked view is tried (at most ``max_failed_executions`` in a row); each failure is
   reported in the feedback (``executed`` false, ``execution_error``) and never aborts the goal.
+  A view that changed fewer than ``guard_min_cells`` grid cells rules its pose out for the rest
+  of the exploration (the view guard, :mod:`~nbv_prob_cnn.exploration.view_guard`; feedback
+  ``ruled_out_views``).
 
 Every plan keeps the camera inside the workspace: the ``workspace_min`` / ``workspace_max`` box
 and the ``min_camera_height_m`` / ``max_camera_height_m`` heights (grid frame), intersected with
@@ -61,11 +65,14 @@ from nbv_prob_cnn.arm.views import ArmPlanningSetup
 from nbv_prob_cnn.basics.camera import DATASETS
 from nbv_prob_cnn.basics.grid import unknown_fraction_all
 from nbv_prob_cnn.basics.modes import BACKEND_NAMES, MOVE_MODES, Backend, MoveMode
+from nbv_prob_cnn.exploration.view_guard import ViewGuard
 from nbv_prob_cnn.gain.variant import GAIN_VARIANTS
 from nbv_prob_cnn.perception.messages import stamp_ns
+from nbv_prob_cnn.perception.tf_buffer import TransformError
 from nbv_prob_cnn.planners import check_ros_method, make_planner, ros_method
 from nbv_prob_cnn.planners.requests import choice_from_pose, flat_cells, origin_filter, planning_context, view_pose
 from nbv_prob_cnn.ros import names
+from nbv_prob_cnn.ros.camera_sensor import CameraInfoSensor, SensorParams
 from nbv_prob_cnn.ros.common import GRID_QOS, call_service, declare_config, param, positive_seconds, run_node
 from nbv_prob_cnn.ros.conversions import (
     arrays_to_pose_stamped,
@@ -77,6 +84,7 @@ from nbv_prob_cnn.ros.conversions import (
 )
 from nbv_prob_cnn.ros.markers import planning_markers
 from nbv_prob_cnn.ros.robot_params import ArmViewParams, JointStateTracker, joint_state_msg
+from nbv_prob_cnn.ros.tf_listener import POSE_SOURCES, TfListener
 
 #: Joint-space step (rad) between the configurations whose bodies are carved free (joint_states
 #: samples kept, samples of a commanded path), as ``SweptVolume``'s default.
@@ -122,10 +130,15 @@ class RecordingPlanner:
 
 
 @dataclass
-class PlannerConfig(ArmViewParams):
+class PlannerConfig(SensorParams, ArmViewParams):
     """Parameters of ``nbv_planner`` (``method`` and ``service_timeout_s`` may change at run time):
-    the robot description and ``use_arm`` (:class:`ArmViewParams`), then these."""
+    the robot description and ``use_arm`` (:class:`ArmViewParams`), the planning frustum
+    (:class:`SensorParams`: CameraInfo + range), then these."""
 
+    pose_source: str = param(
+        "tf", "camera pose (move_mode topic: arrival): tf (camera_frame in the grid frame, newest) or topic "
+        "(/camera/pose)", choices=POSE_SOURCES,
+    )  # fmt: skip
     dataset: str = param("3dt", "sensor/ray defaults and CNN weights", choices=tuple(sorted(DATASETS)))
     method: str = param("cnn_prob", "method when a request names none", dynamic=True, check=check_ros_method)
     in_process: bool = param(False, "complete and ray-cast here instead of via the servers")
@@ -165,6 +178,10 @@ class PlannerConfig(ArmViewParams):
                                    max_value=10.0)  # fmt: skip
     goal_tolerance: float = param(0.01, "move_mode trajectory: goal position tolerance sent with the goal (rad or m)",
                                   min_value=0.0, max_value=10.0)  # fmt: skip
+    guard_min_cells: int = param(
+        -1, "Explore: a pose whose view changed fewer grid cells is never planned again (-1: 5e-5 of the grid's "
+        "cells, 0: off)", min_value=-1, max_value=1_000_000_000,
+    )  # fmt: skip
     max_failed_executions: int = param(
         5, "arm / trajectory modes: views in a row whose move failed before the exploration stops", min_value=1,
         max_value=1000,
@@ -222,6 +239,8 @@ class NbvPlanner(Node):
         self._seen_lock = threading.Lock()  # guards _seen_q (not _arm_lock: a plan holds that for long)
         self._seen_q: list[np.ndarray] = []  # configurations seen on joint_states, >= one swept step apart
         self._last_arm_plan: tuple[ArmViewSelector, np.ndarray, ArmView] | None = None
+        self._view_guard: ViewGuard | None = None  # of the running exploration (guard_min_cells)
+        self._last_choice = None  # the last plan's view (cell, orientation), for the view guard
         group = ReentrantCallbackGroup()
         if self.use_arm:
             cfg = self.config
@@ -232,7 +251,13 @@ class NbvPlanner(Node):
             self._joints = JointStateTracker(self._arm.robot)
             self.create_subscription(JointState, names.JOINT_STATES, self._on_joint_state, 10, callback_group=group)
         self.create_subscription(VoxelGrid, names.GRID, self._on_grid, GRID_QOS, callback_group=group)
-        self.create_subscription(TransformStamped, names.CAMERA_POSE, self._on_camera_pose, 10, callback_group=group)
+        self._tf = TfListener(self, callback_group=group) if self.pose_source == "tf" else None
+        if self._tf is None:
+            self.create_subscription(TransformStamped, names.CAMERA_POSE, self._on_camera_pose, 10,
+                                     callback_group=group)  # fmt: skip
+        else:  # the arrival wait re-checks TF as /camera/pose messages would wake it
+            self.create_timer(0.02, self._on_camera_pose, callback_group=group)
+        self._sensor = CameraInfoSensor(self, self.config, self.dataset, callback_group=group)
         self._nbv_pub = self.create_publisher(PoseStamped, names.NEXT_BEST_VIEW, 10)
         self._marker_pub = self.create_publisher(MarkerArray, names.MARKERS, 10)
         self._goal_pub = self.create_publisher(PoseStamped, names.GOAL_POSE, 10)
@@ -259,10 +284,26 @@ class NbvPlanner(Node):
             self._grid = msg
             self._grid_lock.notify_all()
 
-    def _on_camera_pose(self, msg: TransformStamped) -> None:
+    def _on_camera_pose(self, msg: TransformStamped | None = None) -> None:
         with self._camera_lock:
-            self._camera_pose = msg
+            if msg is not None:
+                self._camera_pose = msg
             self._camera_lock.notify_all()
+
+    def _camera_position(self, frame: str) -> tuple[np.ndarray, int] | None:
+        """The camera's newest position in ``frame`` and its stamp (ns): by TF (``camera_frame``)
+        or from /camera/pose; None before there is one."""
+        if self._tf is not None:
+            try:
+                matrix, stamp = self._tf.lookup(frame, self.config.camera_frame)
+            except TransformError:
+                return None
+            return matrix[:3, 3], stamp
+        pose = self._camera_pose
+        if pose is None:
+            return None
+        t = pose.transform.translation
+        return np.array([t.x, t.y, t.z]), stamp_ns(pose.header.stamp)
 
     def _on_joint_state(self, msg: JointState) -> None:
         error = self._joints.on_joint_state(msg)
@@ -328,7 +369,11 @@ class NbvPlanner(Node):
             state, geometry = msg_to_grid(grid)
             frame = grid.header.frame_id or self.frame_id
             method = ros_method(request.method, self.method)
-            context = planning_context(self.dataset, geometry, self.backend, self.n_rays, self._rng)
+            frustum = self._sensor.frustum()
+            context = planning_context(
+                self.dataset, geometry, self.backend, self.n_rays, self._rng,
+                frustum.hfov_deg, frustum.vfov_deg, frustum.max_range_m, frustum.min_range_m,
+            )  # fmt: skip
             context.gain_variant = self.gain_variant
             box_min, box_max = self._planning_box(request)
             top_k = max(1, int(request.top_k), self.markers_top_k)
@@ -338,8 +383,10 @@ class NbvPlanner(Node):
                 hooks = self._server_hooks(grid, state, geometry, request, context, planner)
                 context.completion, context.ranker = hooks
             report = None
-            if self._arm is None:
+            if self._arm is None and self._view_guard is None:
                 planner.rank(state, context, top_k)
+            elif self._arm is None:  # never a view the running exploration has ruled out
+                planner.ranked = self._view_guard.rank(planner, state, context, top_k)
             else:
                 current_q, _ = self._joints.current()  # raises on missing / wrong joint states
                 with self._arm_lock:
@@ -370,6 +417,7 @@ class NbvPlanner(Node):
                 response.joint_goal.header.frame_id = frame
                 response.joint_path_length = report.view.path_length
             response.ranked = ranked_msgs[: max(1, int(request.top_k))]
+            self._last_choice = ranked[0] if report is None else report.view.choice
             response.success = True
             self._nbv_pub.publish(response.best_pose)
             sensor = context.active_sensor
@@ -600,17 +648,30 @@ class NbvPlanner(Node):
         self._goal_pub.publish(target)
         sent = self.get_clock().now().nanoseconds
 
+        frame = target.header.frame_id or self.frame_id
+        reached: list[int] = []
+
         def arrived() -> bool:
-            pose = self._camera_pose
-            if pose is None or stamp_ns(pose.header.stamp) < sent:
+            current = self._camera_position(frame)
+            if current is None or current[1] < sent:
                 return False
-            t = pose.transform.translation
-            return float(np.linalg.norm(np.array([t.x, t.y, t.z]) - goal_position)) <= self.arrival_tolerance_m
+            if float(np.linalg.norm(current[0] - goal_position)) > self.arrival_tolerance_m:
+                return False
+            reached.append(current[1])
+            return True
 
         with self._camera_lock:
             if not self._camera_lock.wait_for(arrived, self.move_timeout_s):
                 raise TimeoutError(f"camera did not report arrival within {self.move_timeout_s:.0f} s")
-            return stamp_ns(self._camera_pose.header.stamp)
+            return reached[-1]
+
+    def _new_view_guard(self, shape: tuple[int, ...]) -> ViewGuard | None:
+        """The view guard of one exploration (``guard_min_cells``; None when 0 = off). With
+        ``use_arm`` the arm's selector never plans a taken view again anyway; the guard then only
+        counts the views that changed too little (feedback ``ruled_out_views``)."""
+        if self.guard_min_cells == 0:
+            return None
+        return ViewGuard.for_grid(shape, None if self.guard_min_cells < 0 else self.guard_min_cells)
 
     def _explore(self, goal_handle) -> Explore.Result:
         """Run one exploration; the goal ends SUCCEEDED when a stop condition is met, CANCELED
@@ -642,7 +703,9 @@ class NbvPlanner(Node):
         """The exploration loop; returns (outcome: succeeded/canceled/aborted, reason, unknown fraction)."""
         fraction = 1.0
         try:
-            fraction = unknown_fraction_all(msg_to_grid(self._wait_for_grid(0, self.grid_timeout_s))[0])
+            previous = msg_to_grid(self._wait_for_grid(0, self.grid_timeout_s))[0]
+            fraction = unknown_fraction_all(previous)
+            guard = self._view_guard = self._new_view_guard(previous.shape)
             if self._joints is not None:  # the arm's first joint state may still be on its way
                 self._joints.wait_for_first(self.move_timeout_s)
             index, failures = 0, 0  # views taken; failed moves in a row
@@ -654,7 +717,9 @@ class NbvPlanner(Node):
                 planned = self.plan(goal_plan_request(goal))
                 if not planned.success:
                     if planned.message == NO_POSITIVE_GAIN or planned.message.startswith(NO_REACHABLE_VIEW):
-                        return "succeeded", planned.message, fraction
+                        ruled = len(guard.ruled_out) if guard is not None else 0
+                        reason = planned.message + (f" ({ruled} ruled out by the view guard)" if ruled else "")
+                        return "succeeded", reason, fraction
                     return "aborted", f"error: planning failed: {planned.message}", fraction
                 if planned.best_gain <= goal.stop_gain:
                     return "succeeded", f"best gain {planned.best_gain:.4f} <= {goal.stop_gain}", fraction
@@ -685,23 +750,30 @@ class NbvPlanner(Node):
                 waiting = time.perf_counter()
                 grid = self._wait_for_grid(frame_ns, self.grid_timeout_s)
                 done = time.perf_counter()
-                fraction = unknown_fraction_all(msg_to_grid(grid)[0])
+                seen = msg_to_grid(grid)[0]
+                fraction = unknown_fraction_all(seen)
+                changed = int(np.count_nonzero(seen != previous)) if seen.shape == previous.shape else seen.size
+                previous = seen
+                if guard is not None and self._last_choice is not None:
+                    guard.record(self._last_choice, changed)
                 result.poses.append(planned.best_pose)
                 feedback = Explore.Feedback(
                     view_index=index, pose=planned.best_pose, gain=planned.best_gain, unknown_fraction=fraction,
-                    executed=True,
+                    executed=True, ruled_out_views=0 if guard is None else len(guard.ruled_out),
                 )  # fmt: skip
                 if self.move_mode in ("arm", "trajectory"):
                     feedback.joint_goal, feedback.joint_travel = planned.joint_goal, planned.joint_path_length
                 goal_handle.publish_feedback(feedback)
                 self.get_logger().info(
-                    f"view {index}: gain {planned.best_gain:.4f}, unknown fraction {fraction:.4f}; "
-                    f"{stage_times(planned, waiting - moving, done - waiting)}"
+                    f"view {index}: gain {planned.best_gain:.4f}, unknown fraction {fraction:.4f}, "
+                    f"{changed} cells changed; {stage_times(planned, waiting - moving, done - waiting)}"
                 )
                 index += 1
         except (ValueError, TimeoutError, RuntimeError) as exc:
             self.get_logger().error(f"explore: {exc}")
             return "aborted", f"error: {exc}", fraction
+        finally:
+            self._view_guard = None
         if goal_handle.is_cancel_requested:
             return "canceled", f"canceled after {goal.max_views} views", fraction
         return "succeeded", f"reached {goal.max_views} views", fraction
