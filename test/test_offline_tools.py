@@ -154,3 +154,32 @@ def test_node_help_lists_parameters_without_starting(capsys):
     assert 'qos_reliability (str, default "best_effort")  one of `best_effort`, `reliable`' in text
     assert "publishes  topic   /nbv/grid  [VoxelGrid]" in text
     assert main(["node", "no_such_node", "--help"]) == 2
+
+
+def test_exploration_picture_names_what_it_draws(tmp_path):
+    from nbv_prob_cnn.basics.geometry import GridGeometry
+    from nbv_prob_cnn.viz.exploration import COLOUR_SEEN_OCCUPIED, COLOUR_UNSEEN_OCCUPIED, plot_views, state_image_2d
+
+    state = np.full((20, 10), -1, dtype=np.int8)
+    state[:5] = 0
+    state[5, :5] = 1  # seen occupied
+    truth = np.zeros((20, 10), dtype=np.uint8)
+    truth[5, :] = 1  # the wall goes on where nobody has looked
+    rgb = state_image_2d(state, truth)
+    assert tuple(rgb[5, 2]) == COLOUR_SEEN_OCCUPIED and tuple(rgb[5, 8]) == COLOUR_UNSEEN_OCCUPIED
+    assert COLOUR_SEEN_OCCUPIED != COLOUR_UNSEEN_OCCUPIED
+    geometry = GridGeometry((2.0, -1.0, 0.0), 0.5, state.shape)
+    fig = plot_views(state, [[1, 1]], [[0, 0, 0, 1]], tmp_path / "p.png", truth=truth, geometry=geometry)
+    ax = fig.axes[0]
+    labels = [t.get_text() for t in ax.get_legend().get_texts()]
+    assert "seen occupied" in labels and "occupied, not seen (ground truth)" in labels
+    assert (ax.get_xlabel(), ax.get_ylabel()) == ("x (m)", "y (m)")
+    # metres: the map spans origin .. origin + 20 * 0.5 m in x, and the view sits at its cell centre
+    assert ax.images[0].get_extent() == [2.0, 12.0, -1.0, 4.0]
+    np.testing.assert_allclose(ax.lines[0].get_xydata()[0], [2.75, -0.25])
+
+
+def test_explore_csv_names_its_units(tmp_path):
+    from nbv_prob_cnn.exploration.explore import CSV_COLUMNS
+
+    assert {"x_m", "y_m", "z_m", "time_total_s"} <= set(CSV_COLUMNS) and "x" not in CSV_COLUMNS

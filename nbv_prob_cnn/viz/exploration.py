@@ -88,14 +88,14 @@ def plot_views(
     arms: list[np.ndarray] | None = None,
     geometry: GridGeometry | None = None,
     curve_label: str = "unknown cells of the grid (%)",
-) -> None:
+) -> Figure:
     """Save a PNG of a grid with camera views (cell indices + quaternions) and, optionally, the
     unknown-fraction curve ``(view indices, fractions)`` and, in 3D, the arm at each view
     (``arms``: one polyline ``(n, 3)`` per view in continuous index coordinates, e.g.
     ``geometry.to_index(arm_polyline(robot, q))``; the last view drawn strongest).
 
     With ``geometry`` the axes are in metres of the grid frame, else in cells. Each panel has a
-    legend naming what its colours show."""
+    legend naming what its colours show. Returns the figure (already saved)."""
     from matplotlib import colormaps
     from matplotlib.cm import ScalarMappable
     from matplotlib.colors import Normalize
@@ -176,6 +176,7 @@ def plot_views(
     fig.suptitle(title)
     fig.tight_layout()
     fig.savefig(path, dpi=90, bbox_inches="tight")  # "tight": the legends below the axes
+    return fig
 
 
 def save_exploration_png(result, world, path: str | Path, title: str = "") -> None:
