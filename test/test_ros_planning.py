@@ -138,7 +138,8 @@ def test_evaluate_views_matches_core_and_survives_bad_requests(ros):
             pose_msg(positions[1], quats[1], frame="map"),
             pose_msg([50.0, 0, 0], [0, 0, 0, 1]),
             pose_msg(positions[2], quats[2]),
-        ]
+        ],
+        method="prob_ig",  # the node default is cnn_prob (needs the completion server)
     )
     reply = call(node, context, EvaluateViews, "/nbv/evaluate_views", bad)
     assert reply.success

@@ -60,6 +60,15 @@ class Intrinsics:
         """Image shape ``(height, width)``."""
         return (int(self.height), int(self.width))
 
+    @property
+    def fov_deg(self) -> tuple[float, float]:
+        """Horizontal and vertical field of view [deg]: the angle between the rays through the
+        outer edges of the first and last pixel (pixel centres at integer coordinates, so the
+        image spans -0.5 .. width - 0.5), for any principal point."""
+        h = math.atan((self.cx + 0.5) / self.fx) + math.atan((self.width - 0.5 - self.cx) / self.fx)
+        v = math.atan((self.cy + 0.5) / self.fy) + math.atan((self.height - 0.5 - self.cy) / self.fy)
+        return math.degrees(h), math.degrees(v)
+
     def pixel_rays(self) -> np.ndarray:
         """``(H, W, 3)`` float64 ray directions in the optical frame with unit z component, so a
         ray parameter equals the z-depth."""

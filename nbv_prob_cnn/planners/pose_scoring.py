@@ -73,14 +73,22 @@ def score_poses(
     quats: np.ndarray,
     context: PlanningContext,
     mode: str = "prob",
+    score_unknown_cells: bool = False,
 ) -> PoseScores:
     """Gain of each camera pose (position in metres, optical-frame quaternion x, y, z, w).
 
     The camera is placed at the centre of the cell containing it (the method's candidate
     origins are cell centres); its frustum comes from the pose's own orientation and the
-    context's sensor (fields of view, range).
+    context's sensor (fields of view, range). With ``score_unknown_cells`` a pose in an unknown
+    cell is scored like one in an empty cell (for a caller that checks collisions itself) and
+    reported valid, its reason saying so.
     """
     validity, cells = classify_poses(state, geometry, positions, quats)
+    reasons = [REASONS[int(v)] for v in validity]
+    if score_unknown_cells:
+        for i in np.flatnonzero(validity == IN_UNKNOWN_CELL):
+            reasons[i] = f"{REASONS[IN_UNKNOWN_CELL]} (scored: score_unknown_cells)"
+        validity[validity == IN_UNKNOWN_CELL] = VALID
     gains = np.zeros(validity.shape[0], dtype=np.float32)
     ok = np.flatnonzero(validity == VALID)
     if ok.size:
@@ -94,4 +102,4 @@ def score_poses(
         orientations = np.array([yaw_of(v) for v in q]) if state.ndim == 2 else q
         member = in_frustum(context.directions, orientations, sensor.hfov_deg, sensor.vfov_deg)  # (R, P)
         gains[ok] = np.einsum("pr,rp->p", per_ray[which.reshape(-1)], member.astype(np.float32))
-    return PoseScores(gains, validity, [REASONS[int(v)] for v in validity])
+    return PoseScores(gains, validity, reasons)

@@ -39,6 +39,7 @@ def planning_context(
     hfov_deg: float = 0.0,
     vfov_deg: float = 0.0,
     max_range_m: float = 0.0,
+    min_range_m: float = 0.0,
 ) -> PlanningContext:
     """The data set's defaults with the node's/request's sensor overrides (0 = default).
 
@@ -48,17 +49,25 @@ def planning_context(
     defaults = dataset_defaults(dataset)
     if defaults.dims != geometry.dims:
         raise ValueError(f"grid is {geometry.dims}D but the node is configured for {dataset!r} ({defaults.dims}D)")
-    for name, value in (("hfov_deg", hfov_deg), ("vfov_deg", vfov_deg), ("max_range_m", max_range_m)):
+    overrides = (("hfov_deg", hfov_deg), ("vfov_deg", vfov_deg), ("max_range_m", max_range_m),
+                 ("min_range_m", min_range_m))  # fmt: skip
+    for name, value in overrides:
         if not math.isfinite(value) or value < 0:
             raise ValueError(f"{name}: expected a finite non-negative value (0 = default), got {value}")
     sensor = defaults.sensor
-    if hfov_deg or vfov_deg or max_range_m:
+    if hfov_deg or vfov_deg or max_range_m or min_range_m:
         sensor = replace(
             sensor,
             hfov_deg=min(hfov_deg, 179.0) if hfov_deg else sensor.hfov_deg,
             vfov_deg=(min(vfov_deg, 179.0) if vfov_deg else sensor.vfov_deg) if defaults.dims == 3 else None,
             r_max=max(1, round(max_range_m / geometry.resolution)) if max_range_m else sensor.r_max,
+            min_range=min_range_m / geometry.resolution if min_range_m else sensor.min_range,
         )
+        if sensor.min_range >= sensor.r_max:
+            raise ValueError(
+                f"min_range_m ({sensor.min_range * geometry.resolution:g} m) must be below the maximum range "
+                f"({sensor.r_max * geometry.resolution:g} m)"
+            )
     return PlanningContext(defaults, rng=rng, backend=backend, n_rays=n_rays or None, sensor=sensor)
 
 

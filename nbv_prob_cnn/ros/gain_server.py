@@ -2,7 +2,14 @@
 views over candidate origins (``/nbv/rank_views``) with the OpenCL ray-casting kernel.
 
 The CNN methods get their probability map from the completion server (``/nbv/complete``) or,
-with ``completion:=in_process``, from the CNN loaded in this process.
+with ``completion:=in_process``, from the CNN loaded in this process. The default method is
+``cnn_prob``, as ``nbv_planner``'s.
+
+Poses given in another frame than the grid's are transformed into it by TF (``/tf`` +
+``/tf_static``, :class:`~nbv_prob_cnn.ros.tf_listener.TfListener`) at their stamp (0: the newest
+transform); a pose TF cannot transform is invalid, its reason naming the missing frame or the
+time gap. The planning frustum comes from the depth camera's CameraInfo and the range
+parameters (:class:`~nbv_prob_cnn.ros.camera_sensor.CameraInfoSensor`).
 
 With ``use_arm:=true`` (robot description parameters of :class:`RobotParams`) ``/nbv/evaluate_views``
 also reports per pose whether the arm reaches it: an IK solution (seeded from the latest
@@ -25,10 +32,12 @@ from rclpy.node import Node
 from sensor_msgs.msg import JointState
 
 from nbv_prob_cnn.arm.views import ArmPlanningSetup, reachable_poses
-from nbv_prob_cnn.basics.camera import DATASETS
+from nbv_prob_cnn.basics.camera import DATASETS, quaternion_from_matrix
 from nbv_prob_cnn.basics.geometry import GridGeometry
 from nbv_prob_cnn.basics.modes import BACKEND_NAMES, Backend
 from nbv_prob_cnn.gain.variant import GAIN_VARIANTS
+from nbv_prob_cnn.perception.messages import stamp_ns
+from nbv_prob_cnn.perception.tf_buffer import TransformError, matrix_from_translation_quaternion
 from nbv_prob_cnn.planners import PlanningContext, check_ros_method
 from nbv_prob_cnn.planners.methods import cnn_completion, probability_map
 from nbv_prob_cnn.planners.pose_scoring import INVALID_POSE, score_poses
@@ -41,6 +50,7 @@ from nbv_prob_cnn.planners.requests import (
     view_pose,
 )
 from nbv_prob_cnn.ros import names
+from nbv_prob_cnn.ros.camera_sensor import CameraInfoSensor, SensorParams
 from nbv_prob_cnn.ros.common import GRID_QOS, call_service, declare_config, param, positive_seconds, run_node
 from nbv_prob_cnn.ros.conversions import (
     arrays_to_pose_stamped,
@@ -49,17 +59,19 @@ from nbv_prob_cnn.ros.conversions import (
     msg_to_probability,
 )
 from nbv_prob_cnn.ros.robot_params import ArmViewParams, JointStateTracker, joint_state_msg
+from nbv_prob_cnn.ros.tf_listener import TfListener
 
 MAX_POSES = 100_000
 
 
 @dataclass
-class GainServerConfig(ArmViewParams):
+class GainServerConfig(SensorParams, ArmViewParams):
     """Parameters of ``gain_server`` (``method`` and ``completion_timeout_s`` may change at run time):
-    the robot description and ``use_arm`` (:class:`ArmViewParams`), then these."""
+    the robot description and ``use_arm`` (:class:`ArmViewParams`), the planning frustum
+    (:class:`SensorParams`), then these."""
 
     dataset: str = param("3dt", "sensor/ray defaults and CNN weights", choices=tuple(sorted(DATASETS)))
-    method: str = param("prob_ig", "method when a request names none", dynamic=True, check=check_ros_method)
+    method: str = param("cnn_prob", "method when a request names none", dynamic=True, check=check_ros_method)
     backend: Backend = param("auto", "ray-casting backend", choices=BACKEND_NAMES)
     n_rays: int = param(0, "ray sub-cells per side (0 = data set default)", min_value=0, max_value=64)
     gain_variant: str = param(
@@ -95,10 +107,14 @@ class GainServer(Node):
             self._joints = JointStateTracker(self._arm.robot)
             self.create_subscription(JointState, names.JOINT_STATES, self._on_joint_state, 10, callback_group=group)
         self.create_subscription(VoxelGrid, names.GRID, self._on_grid, GRID_QOS, callback_group=group)
+        self._tf = TfListener(self, callback_group=group)
+        self._sensor = CameraInfoSensor(self, self.config, self.dataset, callback_group=group)
         self._complete_client = self.create_client(CompleteGrid, names.COMPLETE, callback_group=group)
         self.create_service(EvaluateViews, names.EVALUATE_VIEWS, self._evaluate_views, callback_group=group)
         self.create_service(RankViews, names.RANK_VIEWS, self._rank_views, callback_group=group)
-        self.get_logger().info(f"gain_server ready: dataset {self.dataset}, method {self.method}")
+        self.get_logger().info(
+            f"gain_server ready: dataset {self.dataset}, method {self.method}, TF by {self._tf.backend}"
+        )
 
     def _on_grid(self, msg: VoxelGrid) -> None:
         with self._lock:
@@ -149,23 +165,28 @@ class GainServer(Node):
             state, geometry = msg_to_grid(grid)
             frame = grid.header.frame_id or self.frame_id
             method = gain_method(request.method, self.method)
+            frustum = self._sensor.frustum(request.hfov_deg, request.vfov_deg, request.max_range_m)
             context = planning_context(
                 self.dataset, geometry, self.backend, self.n_rays, self._rng,
-                request.hfov_deg, request.vfov_deg, request.max_range_m,
+                frustum.hfov_deg, frustum.vfov_deg, frustum.max_range_m, frustum.min_range_m,
             )  # fmt: skip
             context.gain_variant = self.gain_variant
             positions = np.array([[p.pose.position.x, p.pose.position.y, p.pose.position.z] for p in request.poses])
             o = [p.pose.orientation for p in request.poses]
             quats = np.array([[q.x, q.y, q.z, q.w] for q in o])
-            wrong_frame = np.array([bool(p.header.frame_id) and p.header.frame_id != frame for p in request.poses])
-            positions[wrong_frame] = np.nan  # scored as invalid below, with its own reason
+            frame_errors = self._poses_into_grid_frame(request.poses, frame, positions, quats)
             context.completion = self._completion(grid.header, geometry)
             prob = probability_map(method, state, context)
-            scores = score_poses(state, prob, geometry, positions, quats, context, method.mode)
+            scores = score_poses(state, prob, geometry, positions, quats, context, method.mode,
+                                 score_unknown_cells=request.score_unknown_cells)  # fmt: skip
             reasons = list(scores.reasons)
-            for i in np.flatnonzero(wrong_frame):
+            for i, error in frame_errors.items():
                 scores.validity[i] = INVALID_POSE
-                reasons[i] = f"unknown frame {request.poses[i].header.frame_id!r} (grid frame is {frame!r}; no tf here)"
+                scores.gains[i] = 0.0
+                reasons[i] = (
+                    f"pose in frame {request.poses[i].header.frame_id!r}, which TF cannot transform into the "
+                    f"grid frame {frame!r}: {error}"
+                )
             response.gains = array.array("f", scores.gains.astype(np.float32).tobytes())
             response.validity = array.array("B", scores.validity.astype(np.uint8).tobytes())
             response.reasons = reasons
@@ -188,12 +209,38 @@ class GainServer(Node):
         response.computation_time_s = time.perf_counter() - start
         return response
 
+    def _poses_into_grid_frame(self, poses, frame: str, positions: np.ndarray, quats: np.ndarray) -> dict[int, str]:
+        """Transform (in place) the poses given in another frame than the grid's ``frame`` by TF,
+        each at its stamp (0: the newest transform). Returns, per pose TF cannot transform, why
+        (its position is then NaN, so it is scored as invalid)."""
+        errors: dict[int, str] = {}
+        for i, pose in enumerate(poses):
+            source = pose.header.frame_id.lstrip("/")
+            if not source or source == frame.lstrip("/"):
+                continue
+            try:
+                stamp = stamp_ns(pose.header.stamp) or None
+                grid_from_source, _ = self._tf.lookup(frame, source, stamp)
+                pose_matrix = matrix_from_translation_quaternion(positions[i], quats[i])
+            except (TransformError, ValueError) as exc:
+                errors[i] = str(exc)
+                positions[i] = np.nan
+                continue
+            moved = grid_from_source @ pose_matrix
+            positions[i] = moved[:3, 3]
+            quats[i] = quaternion_from_matrix(moved[:3, :3])
+        return errors
+
     def _rank_views(self, request: RankViews.Request, response: RankViews.Response):
         try:
             grid = request.grid if request.grid.size_x else self._latest_grid()
             state, geometry = msg_to_grid(grid)
             frame = grid.header.frame_id or self.frame_id
-            context = planning_context(self.dataset, geometry, self.backend, self.n_rays, self._rng)
+            frustum = self._sensor.frustum()
+            context = planning_context(
+                self.dataset, geometry, self.backend, self.n_rays, self._rng,
+                frustum.hfov_deg, frustum.vfov_deg, frustum.max_range_m, frustum.min_range_m,
+            )  # fmt: skip
             context.gain_variant = self.gain_variant
             given = None
             if request.probability.size_x:

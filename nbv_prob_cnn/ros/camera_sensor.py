@@ -1,0 +1,128 @@
+"""The planning frustum of the real depth camera: its fields of view from the ``CameraInfo`` it
+publishes (``K``, width, height; :attr:`~nbv_prob_cnn.perception.Intrinsics.fov_deg`), the
+range from parameters. Not a node: ``gain_server`` and ``nbv_planner`` each own one.
+
+Precedence, per quantity: a request's own field (``EvaluateViews`` ``hfov_deg``, ...), then the
+node parameter (``hfov_deg``, ``vfov_deg``, ``min_range_m``, ``max_range_m``; 0 = not set), then
+the latest ``CameraInfo`` on ``camera_info_topic`` (fields of view only, with
+``sensor_from_camera_info``), then the data set's sensor (SPEC §2). What is used is logged at
+start-up and again when the first (or a changed) ``CameraInfo`` arrives.
+"""
+
+from __future__ import annotations
+
+import threading
+from dataclasses import dataclass
+
+from rclpy.node import Node
+from rclpy.qos import QoSProfile, ReliabilityPolicy
+from sensor_msgs.msg import CameraInfo
+
+from nbv_prob_cnn.basics.camera import dataset_defaults
+from nbv_prob_cnn.perception.messages import camera_info_to_intrinsics
+from nbv_prob_cnn.ros import names
+from nbv_prob_cnn.ros.common import param
+
+#: Best effort matches both best-effort (SENSOR_DATA) and reliable camera_info publishers.
+CAMERA_INFO_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.BEST_EFFORT)
+
+
+@dataclass
+class SensorParams:
+    """Parameters of the planning frustum (a mixin of the planning nodes' configs)."""
+
+    sensor_from_camera_info: bool = param(
+        True, "planning fields of view from the depth camera's CameraInfo on camera_info_topic (until one "
+        "arrives, and with false: the data set's sensor)",
+    )  # fmt: skip
+    camera_info_topic: str = param(names.CAMERA_INFO, "the depth camera's CameraInfo (K, width, height)")
+    hfov_deg: float = param(0.0, "planning horizontal field of view [deg]; 0 = from CameraInfo / data set",
+                            min_value=0.0, max_value=179.0)  # fmt: skip
+    vfov_deg: float = param(0.0, "planning vertical field of view [deg]; 0 = from CameraInfo / data set",
+                            min_value=0.0, max_value=179.0)  # fmt: skip
+    min_range_m: float = param(0.0, "planning minimum range [m]; 0 = the data set's", min_value=0.0,
+                               max_value=100.0)  # fmt: skip
+    max_range_m: float = param(0.0, "planning maximum range [m]; 0 = the data set's", min_value=0.0,
+                               max_value=100.0)  # fmt: skip
+
+
+@dataclass(frozen=True)
+class Frustum:
+    """Sensor overrides for :func:`~nbv_prob_cnn.planners.requests.planning_context` (0 = the data set's)."""
+
+    hfov_deg: float = 0.0
+    vfov_deg: float = 0.0
+    max_range_m: float = 0.0
+    min_range_m: float = 0.0
+
+
+class CameraInfoSensor:
+    """The frustum a node plans with: parameters, the latest CameraInfo, the data set."""
+
+    def __init__(self, node: Node, params: SensorParams, dataset: str, callback_group=None) -> None:
+        self._node = node
+        self._params = params
+        self._dataset = dataset
+        self._lock = threading.Lock()
+        self._fov: tuple[float, float] | None = None  # from the latest CameraInfo
+        self._described = ""
+        if params.sensor_from_camera_info:
+            node.create_subscription(
+                CameraInfo, params.camera_info_topic, self._on_camera_info, CAMERA_INFO_QOS,
+                callback_group=callback_group,
+            )  # fmt: skip
+        node.get_logger().info(f"planning sensor: {self.describe()}")
+
+    def _on_camera_info(self, msg: CameraInfo) -> None:
+        try:
+            intrinsics = camera_info_to_intrinsics(msg)
+        except ValueError as exc:
+            self._node.get_logger().warning(f"{self._params.camera_info_topic}: {exc}; ignored",
+                                            throttle_duration_sec=10.0)  # fmt: skip
+            return
+        fov = intrinsics.fov_deg
+        with self._lock:
+            changed = self._fov is None or max(abs(a - b) for a, b in zip(fov, self._fov, strict=True)) > 1e-6
+            self._fov = fov
+        if changed:
+            self._node.get_logger().info(
+                f"planning sensor from CameraInfo {intrinsics.width}x{intrinsics.height} px, fx {intrinsics.fx:g} "
+                f"fy {intrinsics.fy:g}: {self.describe()}"
+            )
+
+    def camera_fov(self) -> tuple[float, float] | None:
+        """Fields of view [deg] of the latest CameraInfo (None before one arrived)."""
+        with self._lock:
+            return self._fov
+
+    def frustum(self, hfov_deg: float = 0.0, vfov_deg: float = 0.0, max_range_m: float = 0.0) -> Frustum:
+        """The overrides to plan with, given a request's own (0 = not set)."""
+        p = self._params
+        fov = self.camera_fov() or (0.0, 0.0)
+        return Frustum(
+            hfov_deg=hfov_deg or p.hfov_deg or fov[0],
+            vfov_deg=vfov_deg or p.vfov_deg or fov[1],
+            max_range_m=max_range_m or p.max_range_m,
+            min_range_m=p.min_range_m,
+        )
+
+    def describe(self) -> str:
+        """What the frustum is now and where each part comes from."""
+        p = self._params
+        sensor = dataset_defaults(self._dataset).sensor
+        fov = self.camera_fov()
+        source = "parameter" if p.hfov_deg else ("CameraInfo" if fov else f"data set {self._dataset}")
+        hfov = p.hfov_deg or (fov[0] if fov else sensor.hfov_deg)
+        text = f"hfov {hfov:.1f} deg ({source})"
+        if sensor.vfov_deg is not None:
+            source = "parameter" if p.vfov_deg else ("CameraInfo" if fov else f"data set {self._dataset}")
+            vfov = p.vfov_deg or (fov[1] if fov else sensor.vfov_deg)
+            text += f", vfov {vfov:.1f} deg ({source})"
+        resolution = dataset_defaults(self._dataset).resolution_m
+        max_range = p.max_range_m or sensor.r_max * resolution
+        min_range = p.min_range_m or sensor.min_range * resolution
+        source = "parameters" if p.max_range_m or p.min_range_m else "data set"
+        text += f", range {min_range:g}..{max_range:g} m ({source})"
+        if p.sensor_from_camera_info and not fov:
+            text += f"; fields of view from {self._node.resolve_topic_name(p.camera_info_topic)} once it arrives"
+        return text
