@@ -221,3 +221,47 @@ def test_cli_gain_variant_option(command):
     assert parser.parse_args([*base, "--gain-variant", "original"]).gain_variant == "original"
     with pytest.raises(SystemExit):
         parser.parse_args([*base, "--gain-variant", "authors"])
+
+
+def test_original_ray_sets_by_hand():
+    from nbv_prob_cnn.gain.original_sets import original_rays
+
+    rays, bins = original_rays(2)
+    assert rays.shape == (256, 2)  # every cell of the 16 x 16 square, interior included
+    distinct, counts = np.unique(np.round(bins, 9), axis=0, return_counts=True)
+    assert distinct.shape[0] == 60 and counts.sum() == 256
+    boundary = np.round(ray_directions(2, 16), 9)
+    assert {tuple(b) for b in distinct} == {tuple(b) for b in boundary}
+    # the corner bin (-7.5, -7.5) collects the diagonal cells (i, i), i = 0..7
+    corner = np.round(np.array([-1.0, -1.0]) / np.sqrt(2.0), 9)
+    assert counts[np.flatnonzero((distinct == corner).all(axis=1))[0]] == 8
+    rays3, bins3 = original_rays(3)
+    assert rays3.shape == (16**3 - 14**3, 3) and np.allclose(bins3, rays3)  # boundary bearings bin to themselves
+    assert {tuple(r) for r in np.round(rays3, 9)} == {tuple(r) for r in np.round(ray_directions(3, 16), 9)}
+
+
+def test_original_orientation_sets_by_hand():
+    from nbv_prob_cnn.basics.camera import optical_axis
+    from nbv_prob_cnn.gain.original_sets import original_orientations
+
+    quats = original_orientations(3)
+    assert quats.shape == (52, 4)
+    axes = np.round([optical_axis(q, 3) for q in quats], 6) + 0.0  # + 0.0: no -0.0
+    distinct = {tuple(a) for a in axes}
+    h = np.round(np.sqrt(0.5), 6)
+    horizontal = {(1.0, 0.0, 0.0), (h, h, 0.0), (0.0, 1.0, 0.0), (-h, h, 0.0), (-1.0, 0.0, 0.0), (-h, -h, 0.0),
+                  (0.0, -1.0, 0.0), (h, -h, 0.0)}  # fmt: skip
+    assert distinct == horizontal | {(0.0, 0.0, 1.0), (0.0, 0.0, -1.0)}  # 10 optical axes
+    yaws = original_orientations(2)
+    assert yaws.shape == (60,) and np.isclose(np.rad2deg(yaws).max(), 180 - np.rad2deg(np.arctan2(0.5, 7.5)))
+
+
+def test_context_with_the_original_view_set_plans():
+    context = PlanningContext.for_dataset("2d", view_set="original", gain_variant="original", backend="opencl")
+    assert context.directions.shape == (256, 2) and context.membership.shape == (256, 60)
+    state = np.full((60, 60), U, dtype=np.int8)
+    state[20:40, 20:40] = E
+    choice = make_planner("prob_ig").plan(state, context)
+    assert choice is not None and choice.gain > 0
+    with pytest.raises(ValueError, match="view_set"):
+        PlanningContext.for_dataset("2d", view_set="original", n_rays=8)

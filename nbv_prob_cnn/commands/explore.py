@@ -29,6 +29,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--gain-variant", choices=GAIN_VARIANTS, default="paper",
         help="gain: the paper's equations, or the authors' code's host choices (docs/original_code.md)",
     )  # fmt: skip
+    parser.add_argument(
+        "--view-set", choices=("spec", "original"), default="spec",
+        help="rays and orientations: the SPEC's, or the authors' code's (docs/original_code.md; not with --n-rays)",
+    )  # fmt: skip
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
     parser.add_argument("--noise", default="ideal", help="depth-sensor noise preset: ideal, kinect_v1, astra")
     parser.add_argument("--room-margin", type=float, default=None,
@@ -67,6 +71,7 @@ def run(args: argparse.Namespace) -> int:
         backend=args.backend,
         n_rays=args.n_rays,
         gain_variant=args.gain_variant,
+        view_set=args.view_set,
     )
     from nbv_prob_cnn.exploration.view_guard import ViewGuard
     from nbv_prob_cnn.sensing.sensor_noise import sensor_noise

@@ -13,8 +13,11 @@ from nbv_prob_cnn.basics.camera import DatasetDefaults, Sensor, dataset_defaults
 from nbv_prob_cnn.basics.geometry import GridGeometry
 from nbv_prob_cnn.basics.view_pose import ViewPose, view_pose
 from nbv_prob_cnn.gain import best_origin_view, empty_origins, origin_view_gains, ray_directions, view_membership
+from nbv_prob_cnn.gain.original_sets import original_view_set
 from nbv_prob_cnn.gain.variant import check_variant, ig_min_range, uses_free_hits
 
+#: Ray and orientation sets of :class:`PlanningContext`: the SPEC's, or the authors' code's.
+VIEW_SETS = ("spec", "original")
 #: Upper bound on origins × views per gain call (bounds the (origins, views) gains in memory).
 MAX_VIEWS_PER_CALL = 64_000_000
 
@@ -49,6 +52,8 @@ class PlanningContext:
         origin_stride: overrides the data set's origin stride (1 = every empty cell).
         gain_variant: ``"paper"`` (SPEC §4–§5) or ``"original"`` (the authors' host choices,
             :mod:`nbv_prob_cnn.gain.variant`, docs/original_code.md).
+        view_set: ``"spec"`` (SPEC §4–§5 rays and orientations) or ``"original"`` (the authors'
+            ray and orientation sets, :mod:`nbv_prob_cnn.gain.original_sets`; not with ``n_rays``).
     """
 
     defaults: DatasetDefaults
@@ -62,15 +67,22 @@ class PlanningContext:
     ranker: RankHook | None = None
     origin_stride: int | None = None
     gain_variant: str = "paper"
+    view_set: str = "spec"
 
     def __post_init__(self) -> None:
         check_variant(self.gain_variant)
+        if self.view_set not in VIEW_SETS or (self.view_set == "original" and self.n_rays):
+            raise ValueError(f"view_set: expected one of {VIEW_SETS} ('original': no n_rays), got {self.view_set!r}")
         if self.origin_stride is not None and (not isinstance(self.origin_stride, int) or self.origin_stride < 1):
             raise ValueError(f"origin_stride: expected a positive integer, got {self.origin_stride!r}")
         sensor = self.active_sensor
         self.directions = ray_directions(self.defaults.dims, self.n_rays or self.defaults.n_rays)
         self.orientations = orientations(self.defaults.dims)
         self.membership = view_membership(self.directions, self.orientations, sensor.hfov_deg, sensor.vfov_deg)
+        if self.view_set == "original":
+            self.directions, self.orientations, self.membership = original_view_set(
+                self.defaults.dims, sensor.hfov_deg, sensor.vfov_deg
+            )
 
     @classmethod
     def for_dataset(cls, name: str, **kwargs) -> PlanningContext:
