@@ -77,7 +77,10 @@ def test_plan_on_a_saved_grid(grid_file, tmp_path, capsys):
         assert math.isclose(float(np.linalg.norm(quat)), 1.0, abs_tol=1e-5)
         index = int(np.flatnonzero((origins == cell).all(axis=1))[0])
         assert float(row["gain"]) == pytest.approx(float(view_gains[index, int(row["view_index"])]), rel=1e-4)
-    assert "#1: gain" in capsys.readouterr().out
+    printed = capsys.readouterr().out
+    assert "#1: gain" in printed
+    # 5 cm cells against the 3DU model's 1.16 cm: its 24-cell range is 24 * 0.05 = 1.20 m here
+    assert "the grid's cells are 5 cm, the 3du sensor model's 1.16 cm; its range of 24 cells is 1.20 m" in printed
 
 
 def test_plan_keeps_to_the_workspace(grid_file, tmp_path):

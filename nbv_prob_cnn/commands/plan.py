@@ -49,11 +49,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from nbv_prob_cnn.perception.saved_grid import read_saved_grid
-    from nbv_prob_cnn.planners.offline import infer_dataset, plan_views, write_views_csv
+    from nbv_prob_cnn.planners.offline import infer_dataset, plan_views, resolution_note, write_views_csv
     from nbv_prob_cnn.viz.exploration import plot_views
 
     saved = read_saved_grid(args.grid)
     dataset = infer_dataset(saved.state.shape, args.dataset)
+    note = resolution_note(dataset, saved.geometry)
+    if note:
+        print(note)
     poses = plan_views(
         saved.state, saved.geometry, dataset, args.method, args.top_k, args.workspace, args.backend, args.seed
     )

@@ -89,10 +89,13 @@ def _render_camera_bag(args: argparse.Namespace, camera_positions) -> int:
 
 def _render_grid(args: argparse.Namespace, state, geometry, name: str, camera_positions) -> int:
     from nbv_prob_cnn.basics.datasets import DATASET_SPECS
-    from nbv_prob_cnn.planners.offline import best_gain_per_origin, infer_dataset
+    from nbv_prob_cnn.planners.offline import best_gain_per_origin, infer_dataset, resolution_note
     from nbv_prob_cnn.viz.saved_grid import render_saved_grid
 
     dataset = infer_dataset(state.shape, args.dataset)
+    note = resolution_note(dataset, geometry)
+    if note:
+        print(note)
     origins, gains = best_gain_per_origin(state, geometry, dataset, args.method, backend=args.backend)
     stride = DATASET_SPECS[dataset].origin_stride
     title = f"{name}: grid {tuple(state.shape)} of {geometry.resolution * 100:.3g} cm cells"

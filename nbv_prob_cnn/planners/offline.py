@@ -46,6 +46,18 @@ def infer_dataset(shape: Sequence[int], dataset: str | None = None) -> str:
     return dataset
 
 
+def resolution_note(dataset: str, geometry: GridGeometry) -> str | None:
+    """A note when the grid's cells differ from the data set's (the sensor range is in cells), else None."""
+    spec = DATASET_SPECS[dataset]
+    if abs(geometry.resolution - spec.resolution_m) <= 0.01 * spec.resolution_m:
+        return None
+    return (
+        f"note: the grid's cells are {geometry.resolution * 100:.3g} cm, the {dataset} sensor model's "
+        f"{spec.resolution_m * 100:.3g} cm; its range of {spec.sensor.r_max} cells is "
+        f"{spec.sensor.r_max * geometry.resolution:.2f} m here (--dataset picks another model)"
+    )
+
+
 def check_offline_method(method: str) -> None:
     """Raise ``ValueError`` for an unknown method or one that needs the ground truth."""
     spec = METHODS.get(method)
