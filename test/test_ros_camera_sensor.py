@@ -30,7 +30,7 @@ from nbv_prob_cnn.ros.tf_listener import TF_STATIC_QOS  # noqa: E402
 
 pytestmark = pytest.mark.slow  # multi-process ROS graphs
 
-ros = ros_fixture(233, 4)  # 233..236: no other test module uses these
+ros = ros_fixture(101, 4)  # 101..104: no other test module uses these
 #: A RealSense D435-like depth stream: 848 x 480 px, fx = fy = 424 px, principal point at the centre.
 D435 = {"width": 848, "height": 480, "fx": 424.0, "cx": 423.5, "cy": 239.5}
 #: By hand: 2 atan(424 / 424) = 90°, 2 atan(240 / 424) = 59.0230°.
@@ -65,7 +65,7 @@ def test_d435_intrinsics_give_its_fields_of_view():
     assert shifted.fov_deg[0] == pytest.approx(73.771, abs=1e-3)
 
 
-def test_gain_server_plans_with_the_camera_info_tf_and_unknown_cells(ros):
+def test_gain_server_plans_with_the_camera_info_tf_and_unknown_cells(ros, tmp_path):
     node, graph, context = ros
     graph.start_node("gain_server", "gain_server", {"dataset": "3du", "backend": "opencl"})
     state = random_grid(11)
@@ -97,6 +97,9 @@ def test_gain_server_plans_with_the_camera_info_tf_and_unknown_cells(ros):
         return np.allclose(evaluate().gains, d435.gains, rtol=1e-6, atol=1e-7)
 
     assert wait_for(with_d435, 30.0, 0.5), "gain_server did not take the frustum from CameraInfo"
+    log = (tmp_path / "logs" / "gain_server.log").read_text()
+    assert "planning sensor: hfov 60.0 deg (data set 3du), vfov 46.0 deg (data set 3du)" in log  # at start-up
+    assert "planning sensor from CameraInfo 848x480 px, fx 424 fy 424: hfov 90.0 deg (CameraInfo), vfov 59.0 deg" in log
     # a request's own field of view still wins
     narrow = EvaluateViews.Request(poses=request.poses, method="prob_ig", hfov_deg=30.0, vfov_deg=20.0)
     np.testing.assert_allclose(evaluate(narrow).gains, scored(state, positions, quats, 30.0, 20.0).gains,

@@ -200,3 +200,44 @@ def test_a_default_qos_subscriber_gets_the_grid(ros_domain, tmp_path: Path) -> N
         assert elapsed <= 2.0
         assert wait_for(lambda: all(graph.alive().values()), 1.0)
         assert_clean_stop(graph)
+
+
+def test_sim_camera_on_the_arm_publishes_only_image_and_camera_info(ros_domain, tmp_path: Path) -> None:
+    """On the arm (follow_arm, pose_source tf) sim_camera renders at the newest TF pose of its optical
+    frame, stamps each frame with that transform's stamp and publishes no pose; the free camera
+    broadcasts its pose on /tf, at its frames' stamps."""
+    env = ros_domain(perception_domain(8))
+    with NodeGraph(env, log_dir=tmp_path) as graph, RosClient(int(env["ROS_DOMAIN_ID"])) as client:
+        small = {"width": 32, "height": 24, "rate_hz": 10.0}
+        graph.start_node("sim_camera", "sim_camera", {**small, "follow_arm": True})
+        graph.start_node("free_camera", "sim_camera", {**small, "camera_frame": "free_optical"}, namespace="/free")
+        node = client.node
+        images: list[Image] = []
+        node.create_subscription(Image, "/camera/depth/image", images.append, 10)
+        broadcast: list[TransformStamped] = []
+        free_images: list[Image] = []
+        node.create_subscription(TFMessage, "/tf", lambda m: broadcast.extend(m.transforms), TF_QOS)
+        node.create_subscription(Image, "/free/camera/depth/image", free_images.append, 10)
+        tf = node.create_publisher(TFMessage, "/tf", TF_QOS)
+        assert client.spin_until(lambda: tf.get_subscription_count() >= 2, START_TIMEOUT_S)
+        assert client.spin_until(lambda: len(free_images) >= 2, START_TIMEOUT_S), "the free camera sent nothing"
+        assert images == []  # no camera pose in TF yet: no frame
+        # the arm's link chain, as arm_sim / robot_state_publisher publish it
+        stamps = [node.get_clock().now().nanoseconds + k * S // 10 for k in range(3)]
+        for stamp in stamps:
+            tf.publish(TFMessage(transforms=[transform("world", "camera_optical", stamp, (0.74, 0.2, 0.8),
+                                                       (1.0, 0.0, 0.0, 0.0))]))  # fmt: skip
+            client.spin_until(lambda: False, 0.15)
+        assert client.spin_until(lambda: bool(images), 10.0), log_text(tmp_path, "sim_camera")[-1500:]
+        client.spin_until(lambda: False, 0.3)
+        assert {stamp_ns(i.header.stamp) for i in images} <= set(stamps)  # each frame at a TF stamp
+        assert stamp_ns(images[-1].header.stamp) == stamps[-1]
+        assert images[-1].header.frame_id == "camera_optical"
+        assert node.count_publishers("/camera/pose") == 0  # a camera driver publishes no pose
+        assert node.count_publishers("/free/camera/pose") == 1
+        recent = {stamp_ns(i.header.stamp) for i in free_images[-3:]}
+        client.spin_until(lambda: False, 0.5)  # their /tf messages may still be queued here
+        pairs = {(t.header.frame_id, t.child_frame_id, stamp_ns(t.header.stamp)) for t in broadcast}
+        assert {("world", "free_optical", stamp) for stamp in recent} <= pairs  # a /tf sample per frame
+        assert all(graph.alive().values())
+        assert_clean_stop(graph)
