@@ -4,7 +4,8 @@
   (``/nbv/rank_views``) through the servers, or everything in this process with
   ``in_process:=true``. Publishes ``/nbv/next_best_view`` and ``/nbv/markers``.
 * ``/nbv/explore`` (Explore action): plan, move the camera (``/sim_camera/move_to``, or publish
-  ``/camera/goal_pose`` and wait for ``/camera/pose`` to arrive there, or with ``move_mode:=arm``
+  ``/camera/goal_pose`` and wait for the camera to arrive there (``camera_frame`` in the grid frame
+  by TF, or ``/camera/pose`` with ``pose_source:=topic``), or with ``move_mode:=arm``
   send the joint goal to ``/arm_sim/move_to_joints`` and wait for ``/joint_states`` to reach it,
   or with ``move_mode:=trajectory`` send the straight joint path, timed within the velocity,
   acceleration and jerk limits (:func:`~nbv_prob_cnn.arm.trajectory.time_parameterise`), to a
@@ -67,9 +68,11 @@ from nbv_prob_cnn.basics.modes import BACKEND_NAMES, MOVE_MODES, Backend, MoveMo
 from nbv_prob_cnn.exploration.view_guard import ViewGuard
 from nbv_prob_cnn.gain.variant import GAIN_VARIANTS
 from nbv_prob_cnn.perception.messages import stamp_ns
+from nbv_prob_cnn.perception.tf_buffer import TransformError
 from nbv_prob_cnn.planners import check_ros_method, make_planner, ros_method
 from nbv_prob_cnn.planners.requests import choice_from_pose, flat_cells, origin_filter, planning_context, view_pose
 from nbv_prob_cnn.ros import names
+from nbv_prob_cnn.ros.camera_sensor import CameraInfoSensor, SensorParams
 from nbv_prob_cnn.ros.common import GRID_QOS, call_service, declare_config, param, positive_seconds, run_node
 from nbv_prob_cnn.ros.conversions import (
     arrays_to_pose_stamped,
@@ -81,6 +84,7 @@ from nbv_prob_cnn.ros.conversions import (
 )
 from nbv_prob_cnn.ros.markers import planning_markers
 from nbv_prob_cnn.ros.robot_params import ArmViewParams, JointStateTracker, joint_state_msg
+from nbv_prob_cnn.ros.tf_listener import POSE_SOURCES, TfListener
 
 #: Joint-space step (rad) between the configurations whose bodies are carved free (joint_states
 #: samples kept, samples of a commanded path), as ``SweptVolume``'s default.
@@ -126,10 +130,15 @@ class RecordingPlanner:
 
 
 @dataclass
-class PlannerConfig(ArmViewParams):
+class PlannerConfig(SensorParams, ArmViewParams):
     """Parameters of ``nbv_planner`` (``method`` and ``service_timeout_s`` may change at run time):
-    the robot description and ``use_arm`` (:class:`ArmViewParams`), then these."""
+    the robot description and ``use_arm`` (:class:`ArmViewParams`), the planning frustum
+    (:class:`SensorParams`: CameraInfo + range), then these."""
 
+    pose_source: str = param(
+        "tf", "camera pose (move_mode topic: arrival): tf (camera_frame in the grid frame, newest) or topic "
+        "(/camera/pose)", choices=POSE_SOURCES,
+    )  # fmt: skip
     dataset: str = param("3dt", "sensor/ray defaults and CNN weights", choices=tuple(sorted(DATASETS)))
     method: str = param("cnn_prob", "method when a request names none", dynamic=True, check=check_ros_method)
     in_process: bool = param(False, "complete and ray-cast here instead of via the servers")
@@ -242,7 +251,13 @@ class NbvPlanner(Node):
             self._joints = JointStateTracker(self._arm.robot)
             self.create_subscription(JointState, names.JOINT_STATES, self._on_joint_state, 10, callback_group=group)
         self.create_subscription(VoxelGrid, names.GRID, self._on_grid, GRID_QOS, callback_group=group)
-        self.create_subscription(TransformStamped, names.CAMERA_POSE, self._on_camera_pose, 10, callback_group=group)
+        self._tf = TfListener(self, callback_group=group) if self.pose_source == "tf" else None
+        if self._tf is None:
+            self.create_subscription(TransformStamped, names.CAMERA_POSE, self._on_camera_pose, 10,
+                                     callback_group=group)  # fmt: skip
+        else:  # the arrival wait re-checks TF as /camera/pose messages would wake it
+            self.create_timer(0.02, self._on_camera_pose, callback_group=group)
+        self._sensor = CameraInfoSensor(self, self.config, self.dataset, callback_group=group)
         self._nbv_pub = self.create_publisher(PoseStamped, names.NEXT_BEST_VIEW, 10)
         self._marker_pub = self.create_publisher(MarkerArray, names.MARKERS, 10)
         self._goal_pub = self.create_publisher(PoseStamped, names.GOAL_POSE, 10)
@@ -269,17 +284,36 @@ class NbvPlanner(Node):
             self._grid = msg
             self._grid_lock.notify_all()
 
-    def _on_camera_pose(self, msg: TransformStamped) -> None:
+    def _on_camera_pose(self, msg: TransformStamped | None = None) -> None:
         with self._camera_lock:
-            self._camera_pose = msg
+            if msg is not None:
+                self._camera_pose = msg
             self._camera_lock.notify_all()
+
+    def _camera_position(self, frame: str) -> tuple[np.ndarray, int] | None:
+        """The camera's newest position in ``frame`` and its stamp (ns): by TF (``camera_frame``)
+        or from /camera/pose; None before there is one."""
+        if self._tf is not None:
+            try:
+                matrix, stamp = self._tf.lookup(frame, self.config.camera_frame)
+            except TransformError:
+                return None
+            return matrix[:3, 3], stamp
+        pose = self._camera_pose
+        if pose is None:
+            return None
+        t = pose.transform.translation
+        return np.array([t.x, t.y, t.z]), stamp_ns(pose.header.stamp)
 
     def _on_joint_state(self, msg: JointState) -> None:
         error = self._joints.on_joint_state(msg)
         if error:
             self.get_logger().error(f"{error}", throttle_duration_sec=5.0)
         elif self.arm_carve_swept:
-            q, _ = self._joints.current()
+            try:
+                q, _ = self._joints.current()
+            except ValueError:  # a joint has not arrived yet (arm and gripper publish apart)
+                return
             with self._seen_lock:
                 if not self._seen_q or np.abs(q - self._seen_q[-1]).max() >= SWEPT_STEP:
                     self._seen_q.append(q)
@@ -338,7 +372,11 @@ class NbvPlanner(Node):
             state, geometry = msg_to_grid(grid)
             frame = grid.header.frame_id or self.frame_id
             method = ros_method(request.method, self.method)
-            context = planning_context(self.dataset, geometry, self.backend, self.n_rays, self._rng)
+            frustum = self._sensor.frustum()
+            context = planning_context(
+                self.dataset, geometry, self.backend, self.n_rays, self._rng,
+                frustum.hfov_deg, frustum.vfov_deg, frustum.max_range_m, frustum.min_range_m,
+            )  # fmt: skip
             context.gain_variant = self.gain_variant
             box_min, box_max = self._planning_box(request)
             top_k = max(1, int(request.top_k), self.markers_top_k)
@@ -613,17 +651,22 @@ class NbvPlanner(Node):
         self._goal_pub.publish(target)
         sent = self.get_clock().now().nanoseconds
 
+        frame = target.header.frame_id or self.frame_id
+        reached: list[int] = []
+
         def arrived() -> bool:
-            pose = self._camera_pose
-            if pose is None or stamp_ns(pose.header.stamp) < sent:
+            current = self._camera_position(frame)
+            if current is None or current[1] < sent:
                 return False
-            t = pose.transform.translation
-            return float(np.linalg.norm(np.array([t.x, t.y, t.z]) - goal_position)) <= self.arrival_tolerance_m
+            if float(np.linalg.norm(current[0] - goal_position)) > self.arrival_tolerance_m:
+                return False
+            reached.append(current[1])
+            return True
 
         with self._camera_lock:
             if not self._camera_lock.wait_for(arrived, self.move_timeout_s):
                 raise TimeoutError(f"camera did not report arrival within {self.move_timeout_s:.0f} s")
-            return stamp_ns(self._camera_pose.header.stamp)
+            return reached[-1]
 
     def _new_view_guard(self, shape: tuple[int, ...]) -> ViewGuard | None:
         """The view guard of one exploration (``guard_min_cells``; None when 0 = off). With
