@@ -143,24 +143,48 @@ def _name_text(expr: ast.expr, module: ModuleType) -> str:
         value = eval(compile(ast.Expression(expr), module.__name__, "eval"), vars(module))  # noqa: S307
     except Exception:  # a loop variable or another run-time value
         text = ast.unparse(expr)
-        attribute = re.fullmatch(r"(?:self\.config|self|cfg)\.(\w+)", text)
+        attribute = re.fullmatch(_CONFIG_PREFIX[2:] + r"(\w+)", text)
         if attribute:
             return f"(parameter {attribute.group(1)})"
-        return "(each recorded topic)" if "topic" in text else f"(from {text})"
+        return "(per topic)" if "topic" in text else f"(from {text})"
     return "/" + str(value).lstrip("/")
 
 
-def _condition(node: ast.AST, parents: dict[ast.AST, ast.AST]) -> str:
+#: Prefixes of the node's config in conditions (``self.config.use_arm`` -> ``use_arm``).
+_CONFIG_PREFIX = r"\b(?:self\.config|self\._params|self|cfg|params)\."
+
+
+def _optional_helpers(tree: ast.AST) -> dict[str, str]:
+    """``self._x = Helper(...) if COND else None`` -> ``{"self._x": COND}``."""
+    found = {}
+    for node in ast.walk(tree):
+        if (isinstance(node, ast.Assign) and len(node.targets) == 1 and isinstance(node.value, ast.IfExp)
+                and isinstance(node.value.orelse, ast.Constant) and node.value.orelse.value is None):  # fmt: skip
+            found[ast.unparse(node.targets[0])] = ast.unparse(node.value.test)
+    return found
+
+
+def _condition(node: ast.AST, parents: dict[ast.AST, ast.AST], optional: dict[str, str] | None = None) -> str:
     tests = []
     while node in parents:
         parent = parents[node]
-        if isinstance(parent, ast.If) and node in parent.body:
-            tests.append(ast.unparse(parent.test))
-        elif isinstance(parent, ast.If) and node in parent.orelse:
-            tests.append(f"not ({ast.unparse(parent.test)})")
+        test = ast.unparse(parent.test) if isinstance(parent, (ast.If, ast.IfExp)) else ""
+        for attribute, condition in (optional or {}).items():  # "self._tf is None" -> "not (pose_source == 'tf')"
+            test = test.replace(f"{attribute} is None", f"not ({condition})").replace(f"{attribute} is not None",
+                                                                                        condition)  # fmt: skip
+        if isinstance(parent, (ast.If, ast.IfExp)) and node in ([parent.body] if isinstance(parent, ast.IfExp)
+                                                                else parent.body):  # fmt: skip
+            tests.append(test)
+        elif (
+            isinstance(parent, ast.If)
+            and node in parent.orelse
+            or isinstance(parent, ast.IfExp)
+            and node is parent.orelse
+        ):
+            tests.append(f"not ({test})")
         node = parent
     text = " and ".join(reversed(tests))
-    return re.sub(r"\b(?:self\.config|self|cfg)\.", "", text)
+    return re.sub(_CONFIG_PREFIX, "", text)
 
 
 def _helper_class(call: ast.Call, module: ModuleType) -> type | None:
@@ -183,11 +207,12 @@ def _scan(source: str, module: ModuleType, outer: str = "") -> list[InterfaceDoc
     for node in ast.walk(tree):
         if isinstance(node, ast.Assign) and len(node.targets) == 1 and isinstance(node.targets[0], ast.Name):
             assigned.setdefault(node.targets[0].id, node.value)
+    optional = _optional_helpers(tree)
     found = []
     for node in ast.walk(tree):
         if not isinstance(node, ast.Call):
             continue
-        condition = " and ".join(c for c in (outer, _condition(node, parents)) if c)
+        condition = " and ".join(c for c in (outer, _condition(node, parents, optional)) if c)
         helper = _helper_class(node, module)
         if helper is not None:
             found += _scan(textwrap.dedent(inspect.getsource(helper)), sys.modules[helper.__module__], condition)
