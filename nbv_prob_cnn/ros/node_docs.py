@@ -88,7 +88,7 @@ def parameters(name: str) -> list[ParamDoc]:
     rows = []
     for item in dataclasses.fields(config_class(node_module(name))):
         spec: ParamSpec = item.metadata["param"]
-        default = item.default if item.default is not dataclasses.MISSING else item.default_factory()  # type: ignore[misc]
+        default = item.default if item.default is not dataclasses.MISSING else item.default_factory()  # type: ignore[misc,operator]
         allowed = ""
         if spec.choices is not None:
             allowed = "one of " + ", ".join(f"`{c}`" for c in spec.choices)
