@@ -4,6 +4,7 @@ Ctrl-C stops everything cleanly."""
 from __future__ import annotations
 
 import csv
+import json
 import os
 import signal
 import subprocess
@@ -69,9 +70,44 @@ def test_simulated_graph_explores_a_small_scene(tmp_path):
     assert (out / "explored.png").stat().st_size > 10_000
 
 
+#: What a real arm's and depth camera's drivers exchange with our nodes, and nothing else.
+STANDARD_INTERFACES = {
+    "/robot_description": "std_msgs/msg/String",
+    "/joint_states": "sensor_msgs/msg/JointState",
+    "/tf": "tf2_msgs/msg/TFMessage",
+    "/tf_static": "tf2_msgs/msg/TFMessage",
+    "/camera/depth/image": "sensor_msgs/msg/Image",
+    "/camera/depth/camera_info": "sensor_msgs/msg/CameraInfo",
+    "/arm_controller/follow_joint_trajectory/_action/feedback": (
+        "control_msgs/action/FollowJointTrajectory_FeedbackMessage"
+    ),
+    "/arm_controller/follow_joint_trajectory/_action/status": "action_msgs/msg/GoalStatusArray",
+    "/arm_controller/follow_joint_trajectory/_action/send_goal": "control_msgs/action/FollowJointTrajectory_SendGoal",
+    "/arm_controller/follow_joint_trajectory/_action/get_result": "control_msgs/action/FollowJointTrajectory_GetResult",
+    "/arm_controller/follow_joint_trajectory/_action/cancel_goal": "action_msgs/srv/CancelGoal",
+}
+ROBOT_SIDE = {"/arm_sim", "/sim_camera"}
+OUR_NODES = {"/integrator", "/nbv_planner", "/gain_server", "/completion_server"}
+
+
+def exchanged(report: dict, senders: set[str], receivers: set[str]) -> dict[str, str]:
+    """Topics published by ``senders`` and subscribed by ``receivers``, services served by
+    ``senders`` and called by ``receivers``: name → type."""
+    out = {}
+    for offer, use in (("publishes", "subscribes"), ("serves", "calls")):
+        offered = {name: kind for node in senders for name, kind in report[node][offer]}
+        for node in receivers:
+            for name, kind in report[node][use]:
+                if name in offered and not name.startswith(("/rosout", "/parameter_events")):
+                    out[name] = kind
+    return out
+
+
 def test_simulated_graph_with_the_arm_explores_the_table(tmp_path):
-    """The main job's graph (arm_sim, sim_camera following the arm, planner driving the arm),
-    2 views with prob_ig: the CSV's joint goals put the camera at the logged views."""
+    """The main job's graph (arm_sim as the robot's driver and trajectory controller, sim_camera
+    on the arm as the camera's driver, the planner sending FollowJointTrajectory goals), 2 views
+    with prob_ig: robot side and our nodes meet on standard interfaces only, and the CSV's joint
+    goals put the camera at the logged views."""
     from nbv_prob_cnn.arm.robot import RobotModel
 
     out = tmp_path / "arm"
@@ -94,6 +130,18 @@ def test_simulated_graph_with_the_arm_explores_the_table(tmp_path):
             assert float(r["joint_travel"]) == pytest.approx(np.linalg.norm(q[:7] - previous[:7]), abs=1e-5)
         previous = q
     assert float(rows[-1]["unknown_fraction"]) < float(rows[0]["unknown_fraction"])
+    report = json.loads((out / "graph.json").read_text())
+    assert set(report) >= ROBOT_SIDE | OUR_NODES
+    between = exchanged(report, ROBOT_SIDE, OUR_NODES) | exchanged(report, OUR_NODES, ROBOT_SIDE)
+    assert between and set(between) <= set(STANDARD_INTERFACES), sorted(set(between) - set(STANDARD_INTERFACES))
+    for name, kind in between.items():
+        assert kind == STANDARD_INTERFACES[name]
+    assert {"/joint_states", "/tf", "/tf_static", "/camera/depth/image", "/camera/depth/camera_info"} <= set(between)
+    assert "/arm_controller/follow_joint_trajectory/_action/send_goal" in between
+    # the robot model came from /robot_description (read at start-up by a helper node, gone by now)
+    for node in ("nbv_planner", "gain_server", "integrator", "sim_camera"):
+        log = (out / "logs" / f"{node}.log").read_text()
+        assert "characters from /robot_description" in log, node
 
 
 def test_ctrl_c_stops_the_whole_graph(tmp_path):

@@ -1,11 +1,13 @@
 """A command-line client of the Explore action: sends a goal, prints progress per view, and
-writes the per-view CSV and a PNG of the explored grid (run by the launch scripts as its own
+writes the per-view CSV, a PNG of the explored grid and ``graph.json`` (every node's topics and
+services at the end) (run by the launch scripts as its own
 process: ``python -m nbv_prob_cnn.ros.explore_client --views 10 --out DIR``)."""
 
 from __future__ import annotations
 
 import argparse
 import csv
+import json
 import sys
 import threading
 import time
@@ -96,6 +98,30 @@ class ExploreClient:
             future = handle.cancel_goal_async()
             self._executor.spin_until_future_complete(future, timeout_sec=5.0)
 
+    def graph_report(self) -> dict[str, dict[str, list[list[str]]]]:
+        """Every node of the graph with the topics it publishes and subscribes and the services it
+        serves and calls (``[name, type]`` pairs; actions appear as their ``_action`` topics and
+        services): what the robot side and our nodes exchange."""
+        node = self.node
+        report = {}
+        for name, namespace in node.get_node_names_and_namespaces():
+            if name == node.get_name():
+                continue
+            full = f"{namespace.rstrip('/')}/{name}"
+            try:
+                report[full] = {
+                    kind: sorted([topic, ",".join(types)] for topic, types in query(name, namespace))
+                    for kind, query in (
+                        ("publishes", node.get_publisher_names_and_types_by_node),
+                        ("subscribes", node.get_subscriber_names_and_types_by_node),
+                        ("serves", node.get_service_names_and_types_by_node),
+                        ("calls", node.get_client_names_and_types_by_node),
+                    )
+                }
+            except Exception as exc:  # a node that left meanwhile (rclpy raises NodeNameNonExistentError)
+                report[full] = {"error": [[str(exc), ""]]}
+        return report
+
     def destroy(self) -> None:
         self._executor.shutdown()
         self.node.destroy_node()
@@ -104,17 +130,19 @@ class ExploreClient:
 def write_outputs(client: ExploreClient, result: Explore.Result, out_dir: Path, title: str) -> list[Path]:
     """Per-view CSV and a PNG of the last grid with the chosen views; when the planner drove the
     arm (feedback with joint goals) the CSV adds the joint travel and goal of each view and the
-    PNG the arm at each view (default robot description)."""
+    PNG the arm at each view (default robot description). Moves that failed (``executed`` false)
+    are not views: they are counted in the result's ``failed_executions``."""
     from nbv_prob_cnn.viz.exploration import plot_views
 
     out_dir.mkdir(parents=True, exist_ok=True)
     csv_path = out_dir / "views.csv"
-    joint_names = next((list(fb.joint_goal.name) for _, fb in client.feedback if fb.joint_goal.name), [])
+    taken = [(elapsed, fb) for elapsed, fb in client.feedback if fb.executed]
+    joint_names = next((list(fb.joint_goal.name) for _, fb in taken if fb.joint_goal.name), [])
     with open(csv_path, "w", newline="") as handle:
         writer = csv.writer(handle)
         header = ["view", "elapsed_s", "gain", "unknown_fraction", "x_m", "y_m", "z_m", "qx", "qy", "qz", "qw"]
         writer.writerow(header + (["joint_travel", *joint_names] if joint_names else []))
-        for elapsed, fb in client.feedback:
+        for elapsed, fb in taken:
             position, quat = pose_to_arrays(fb.pose.pose)
             arm = [f"{fb.joint_travel:.6f}", *(f"{v:.6f}" for v in fb.joint_goal.position)] if joint_names else []
             writer.writerow(
@@ -128,11 +156,17 @@ def write_outputs(client: ExploreClient, result: Explore.Result, out_dir: Path, 
         poses = [pose_to_arrays(p.pose) for p in result.poses]
         cells = np.array([geometry.to_index(p) for p, _ in poses]).reshape(-1, geometry.dims)
         quats = np.array([q for _, q in poses]).reshape(-1, 4)
-        curve = ([fb.view_index for _, fb in client.feedback], [fb.unknown_fraction for _, fb in client.feedback])
+        curve = ([fb.view_index for _, fb in taken], [fb.unknown_fraction for _, fb in taken])
         png = out_dir / "explored.png"
-        arms = arm_polylines([fb.joint_goal for _, fb in client.feedback], geometry) if joint_names else None
+        arms = arm_polylines([fb.joint_goal for _, fb in taken], geometry) if joint_names else None
         plot_views(
-            state, cells, quats, png, f"{title} (unknown {unknown_fraction_all(state):.3f})", curve=curve, arms=arms,
+            state,
+            cells,
+            quats,
+            png,
+            f"{title} (unknown {unknown_fraction_all(state):.3f})",
+            curve=curve,
+            arms=arms,
             geometry=geometry,
         )
         np.savez_compressed(
@@ -142,16 +176,19 @@ def write_outputs(client: ExploreClient, result: Explore.Result, out_dir: Path, 
     return written
 
 
-def arm_polylines(joint_goals: list, geometry) -> list[np.ndarray]:
+def arm_polylines(joint_goals: list, geometry) -> list[np.ndarray] | None:
     """The default robot drawn at each joint goal, in continuous index coordinates of the grid."""
     from nbv_prob_cnn.arm.robot import RobotModel
     from nbv_prob_cnn.arm.views import arm_polyline
 
     robot = RobotModel()
-    return [
-        geometry.to_index(arm_polyline(robot, robot.joint_state_configuration(goal.name, goal.position)))
-        for goal in joint_goals
-    ]
+    try:
+        return [
+            geometry.to_index(arm_polyline(robot, robot.joint_state_configuration(goal.name, goal.position)))
+            for goal in joint_goals
+        ]
+    except ValueError:  # another robot than the default Panda: the picture shows the views only
+        return None
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -175,6 +212,10 @@ def main(argv: list[str] | None = None) -> int:
         goal = Explore.Goal(method=args.method, max_views=args.views, stop_unknown_fraction=args.stop_unknown)
 
         def progress(fb, elapsed):
+            if not fb.executed:
+                print(f"[explore] view {fb.view_index + 1}/{args.views}: move failed, trying the next ranked view "
+                      f"({fb.execution_error})", flush=True)  # fmt: skip
+                return
             rate = (fb.view_index + 1) / elapsed if elapsed > 0 else 0.0
             eta = (args.views - fb.view_index - 1) / rate if rate > 0 else float("nan")
             travel = f", joint travel {fb.joint_travel:.3f} rad" if fb.joint_goal.name else ""
@@ -187,10 +228,13 @@ def main(argv: list[str] | None = None) -> int:
         started = time.monotonic()
         result = client.explore(goal, args.timeout, progress)
         written = write_outputs(client, result, Path(args.out), args.title)
+        graph = Path(args.out) / "graph.json"
+        graph.write_text(json.dumps(client.graph_report(), indent=1, sort_keys=True))
+        written.append(graph)
         print(
             f"[explore] done: {result.views} views in {time.monotonic() - started:.1f} s, final unknown fraction "
-            f"{result.final_unknown_fraction:.4f}, {client.status}: {result.reason_stopped}; wrote "
-            + ", ".join(str(p) for p in written),
+            f"{result.final_unknown_fraction:.4f}, {result.failed_executions} failed moves, {client.status}: "
+            f"{result.reason_stopped}; wrote " + ", ".join(str(p) for p in written),
             flush=True,
         )
         return 0 if client.status == "succeeded" and result.views > 0 else 1

@@ -260,13 +260,21 @@ class NbvPlanner(Node):
         self._sensor = CameraInfoSensor(self, self.config, self.dataset, callback_group=group)
         self._nbv_pub = self.create_publisher(PoseStamped, names.NEXT_BEST_VIEW, 10)
         self._marker_pub = self.create_publisher(MarkerArray, names.MARKERS, 10)
-        self._goal_pub = self.create_publisher(PoseStamped, names.GOAL_POSE, 10)
         self._complete_client = self.create_client(CompleteGrid, names.COMPLETE, callback_group=group)
         self._rank_client = self.create_client(RankViews, names.RANK_VIEWS, callback_group=group)
-        self._move_client = self.create_client(MoveCamera, names.MOVE_TO, callback_group=group)
-        self._joints_client = self.create_client(MoveToJoints, names.MOVE_TO_JOINTS, callback_group=group)
-        self._trajectory_client = ActionClient(
-            self, FollowJointTrajectory, self.trajectory_action, callback_group=group
+        # only the move interface of move_mode joins the graph (with a real robot, nothing of ours but it)
+        mode = self.move_mode
+        self._goal_pub = self.create_publisher(PoseStamped, names.GOAL_POSE, 10) if mode == "topic" else None
+        self._move_client = (
+            self.create_client(MoveCamera, names.MOVE_TO, callback_group=group) if mode == "service" else None
+        )
+        self._joints_client = (
+            self.create_client(MoveToJoints, names.MOVE_TO_JOINTS, callback_group=group) if mode == "arm" else None
+        )
+        self._trajectory_client = (
+            ActionClient(self, FollowJointTrajectory, self.trajectory_action, callback_group=group)
+            if mode == "trajectory"
+            else None
         )
         self.create_service(PlanNextBestView, names.PLAN, self._plan_service, callback_group=group)
         self._action = ActionServer(
