@@ -24,8 +24,10 @@ The environment variables of :data:`FORWARDED_ENV` are passed to the workers.
 
 from __future__ import annotations
 
+import json
 import math
 import os
+import tempfile
 from pathlib import Path
 from typing import Any
 
@@ -33,6 +35,9 @@ from nbv_prob_cnn.completion.train import TrainResult, side_paths
 
 #: Environment variables the workers get from the driver.
 FORWARDED_ENV = ("NBV_CACHE_DIR", "NBV_WEIGHTS_DIR", "NBV_OPENCL_DEVICE", "OCL_ICD_VENDORS", "PYTHONPATH")
+
+#: The result file in the checkpoint rank 0 reports.
+RESULT_FILE = "train_result.json"
 
 _RESULT_FLOATS = (
     "validation_mse", "test_mse", "validation_zero_mse", "test_zero_mse", "validation_mean_mse",
@@ -52,7 +57,13 @@ def _worker_loop(config: dict[str, Any]) -> None:
     metrics: dict[str, Any] = {k: float(getattr(result, k)) for k in _RESULT_FLOATS}
     metrics["ece"] = float("nan") if result.ece is None else float(result.ece)
     metrics["epochs_done"] = int(result.epochs_done)
-    ray.train.report(metrics)
+    # Ray Train keeps the metrics of reports that carry a checkpoint: rank 0 attaches its result
+    with tempfile.TemporaryDirectory() as folder:
+        checkpoint = None
+        if ray.train.get_context().get_world_rank() == 0:
+            (Path(folder) / RESULT_FILE).write_text(json.dumps(metrics))
+            checkpoint = ray.train.Checkpoint.from_directory(folder)
+        ray.train.report(metrics, checkpoint=checkpoint)
 
 
 def train_with_ray(
@@ -99,7 +110,11 @@ def train_with_ray(
             scaling_config=ScalingConfig(num_workers=workers, use_gpu=use_gpu, resources_per_worker={"CPU": 1}),
             run_config=RunConfig(name=f"nbv_train_{dataset}_{method}", storage_path=str(storage or out.parent / "ray")),
         )
-        metrics = trainer.fit().metrics or {}
+        fitted = trainer.fit()
+        metrics = dict(fitted.metrics or {})
+        if not metrics and fitted.checkpoint is not None:
+            with fitted.checkpoint.as_directory() as folder:
+                metrics = json.loads((Path(folder) / RESULT_FILE).read_text())
     finally:
         if started_here:
             ray.shutdown()
