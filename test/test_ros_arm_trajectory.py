@@ -231,3 +231,48 @@ def test_a_rejected_trajectory_makes_the_exploration_take_the_next_ranked_view(r
     goal_q = np.array(controller.goals[1].trajectory.points[-1].positions)
     assert_pose_close(robot.camera_pose(np.r_[goal_q, robot.reference_q[7:]]), *pose_to_arrays(fbs[1].pose.pose))
     assert (bench.state == -1).sum() < (scene() == -1).sum()
+
+
+def test_base_and_camera_mount_come_from_tf_when_the_description_lacks_them(ros, tmp_path):
+    """A plain URDF file (no world link, no camera link) and TF with world → panda_link0 and
+    panda_hand → camera_optical (as a robot's static transform publishers): the planner's joint
+    goal puts the camera mounted as TF says at the planned view."""
+    from geometry_msgs.msg import TransformStamped
+
+    from nbv_prob_cnn.arm.robot import RobotConfig, panda_urdf, translation
+    from nbv_prob_cnn.ros.tf_listener import TF_STATIC_QOS
+
+    node, graph = ros
+    bench = GraphBench(node)
+    mount = translation([0.07, 0.0, 0.08])  # 3 cm further along the approach axis than the default
+    robot = RobotModel(RobotConfig(parent_from_camera=mount))
+    static = node.create_publisher(TFMessage, "/tf_static", TF_STATIC_QOS)
+
+    def transform(parent: str, child: str, xyz) -> TransformStamped:
+        msg = TransformStamped()
+        msg.header.frame_id, msg.child_frame_id = parent, child
+        msg.transform.translation.x, msg.transform.translation.y, msg.transform.translation.z = xyz
+        msg.transform.rotation.w = 1.0
+        return msg
+
+    static.publish(TFMessage(transforms=[transform("world", "panda_link0", DEFAULT_BASE_XYZ),
+                                         transform("panda_hand", "camera_optical", [0.07, 0.0, 0.08])]))  # fmt: skip
+    bench.joints = (robot.joint_names, robot.reference_q)
+    planner = {
+        **ARM_PLANNER,
+        "urdf_path": str(panda_urdf()[0]),
+        "camera_parent": "panda_hand",
+        "base_xyz": [5.0, 5.0, 5.0],
+        "camera_xyz": [0.0, 0.0, 0.0],
+    }  # fmt: skip  (both wrong: TF must win)
+    graph.start_node("nbv_planner", "nbv_planner", planner)
+    bench.publish_grid()
+    from nbv_prob_cnn_msgs.srv import PlanNextBestView
+    from test_ros_arm_planning import call_when_ready
+
+    _, reply = call_when_ready(node, PlanNextBestView, "/nbv/plan", PlanNextBestView.Request(top_k=5),
+                               "no grid received yet", 240.0)  # fmt: skip
+    assert reply.success and reply.reachable, reply.message
+    assert_pose_close(robot.camera_pose(np.array(reply.joint_goal.position)), *pose_to_arrays(reply.best_pose.pose))
+    log = (tmp_path / "logs" / "nbv_planner.log").read_text()
+    assert "placed in world by TF" in log and "on 'panda_hand' by TF" in log

@@ -10,10 +10,11 @@ ROS graph carries it (:meth:`RobotParams.robot_config`):
    ``robot_description`` topic (``std_msgs/String``, transient local, as ``robot_state_publisher``
    serves it), waited for ``description_timeout_s``; ``package://`` resolved through
    ``package_dirs``, ``AMENT_PREFIX_PATH`` and ``ROS_PACKAGE_PATH``;
-2. where it stands: a link ``world_frame`` in the description places it (its root), else
-   ``base_xyz`` / ``base_rpy``;
+2. where it stands: a link ``world_frame`` in the description places it (its root), else TF
+   (``world_frame`` → the root link, waited for ``tf_timeout_s``), else ``base_xyz`` / ``base_rpy``;
 3. the camera: a link ``camera_frame`` (the images' optical frame) in the description is the
-   camera, else ``camera_xyz`` / ``camera_rpy`` on ``camera_parent``.
+   camera, else TF (``camera_parent`` → ``camera_frame``), else ``camera_xyz`` / ``camera_rpy`` on
+   ``camera_parent``.
 
 So a graph with ``arm_sim`` (or a real driver) publishing the description with the camera in it
 needs none of the pose parameters.
@@ -24,6 +25,7 @@ from __future__ import annotations
 import dataclasses
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -66,6 +68,10 @@ class RobotParams:
     xacro_args: list = param([""], "xacro arguments name:=value (['']: none)")
     package_dirs: list = param([""], "folders searched first for package://<pkg>/ (the package's folder or its parent)")
     description_timeout_s: float = param(60.0, "wait for the robot_description topic", min_value=0.1, max_value=3600.0)
+    tf_timeout_s: float = param(
+        5.0, "wait for TF of the base / camera mount the description lacks (then the parameters)", min_value=0.0,
+        max_value=600.0,
+    )  # fmt: skip
     world_frame: str = param(
         "world", "fixed frame the robot stands in: a link of this name in the description places it"
     )
@@ -96,16 +102,24 @@ class RobotParams:
         if not self.robot_description and self.urdf_path == BUILTIN_PANDA:
             return robot_config("", self.base_xyz, self.base_rpy, self.camera_parent, self.camera_xyz,
                                 self.camera_rpy, dirs)  # fmt: skip
-        text = self.robot_description
-        if not text and not self.urdf_path:
-            if node is None:
+        if node is None:
+            text = self.robot_description
+            if not text and not self.urdf_path:
                 raise ValueError("robot description: no robot_description or urdf_path, and no node to read the topic")
-            text = wait_for_robot_description(node, self.description_timeout_s)
-        urdf = read_description(text, self.urdf_path, dirs, xacro_arguments(self.xacro_args))
-        return description_config(
-            urdf, dirs, self.world_frame, self.base_xyz, self.base_rpy, self.camera_frame, self.camera_parent,
-            self.camera_xyz, self.camera_rpy,
-        )  # fmt: skip
+            urdf = read_description(text, self.urdf_path, dirs, xacro_arguments(self.xacro_args))
+            return description_config(urdf, dirs, self.world_frame, self.base_xyz, self.base_rpy, self.camera_frame,
+                                      self.camera_parent, self.camera_xyz, self.camera_rpy)  # fmt: skip
+        with GraphReader(node) as reader:
+            text = self.robot_description
+            if not text and not self.urdf_path:
+                text = reader.robot_description(self.description_timeout_s)
+            urdf = read_description(text, self.urdf_path, dirs, xacro_arguments(self.xacro_args))
+            return description_config(
+                urdf, dirs, self.world_frame, self.base_xyz, self.base_rpy, self.camera_frame, self.camera_parent,
+                self.camera_xyz, self.camera_rpy, lambda target, source: reader.transform(target, source,
+                                                                                         self.tf_timeout_s),
+                node.get_logger().info,
+            )  # fmt: skip
 
 
 def xacro_arguments(values: list) -> dict[str, str]:
@@ -135,25 +149,39 @@ def description_config(
     camera_parent: str,
     camera_xyz,
     camera_rpy,
+    lookup: Callable[[str, str], np.ndarray | None] | None = None,
+    log: Callable[[str], object] | None = None,
 ) -> RobotConfig:
     """The :class:`RobotConfig` of a resolved URDF text: placed by its ``world_frame`` root link
-    when it has one (else the base parameters), the camera at its ``camera_frame`` link when it
-    has one (else the mount parameters on ``camera_parent``).
+    when it has one, else by ``lookup(world_frame, root)`` (TF), else by the base parameters; the
+    camera at its ``camera_frame`` link when it has one, else at ``lookup(camera_parent,
+    camera_frame)``, else at the mount parameters on ``camera_parent``.
 
     Raises:
         ValueError: ``world_frame`` is a link but not the root; no camera (see above).
     """
     links = urdf_links(urdf)
+    say = log or (lambda _: None)
+    root = urdf_root_link(urdf)
     if world_frame and world_frame in links:
-        if urdf_root_link(urdf) != world_frame:
+        if root != world_frame:
             raise ValueError(f"robot description: link {world_frame!r} (world_frame) is not the root")
         world_from_base = np.eye(4)
+        say(f"robot description: stands in {world_frame} (its root link)")
     else:
-        world_from_base = pose_from_xyz_rpy(base_xyz, base_rpy)
+        found = lookup(world_frame, root) if lookup is not None else None
+        world_from_base = found if found is not None else pose_from_xyz_rpy(base_xyz, base_rpy)
+        say(f"robot description: root {root!r} placed in {world_frame} by " + ("TF" if found is not None else
+            f"base_xyz {list(base_xyz)} / base_rpy {list(base_rpy)}"))  # fmt: skip
     if camera_frame and camera_frame in links:
         parent, mount = camera_frame, np.eye(4)
+        say(f"robot description: camera at its link {camera_frame!r}")
     elif camera_parent:
-        parent, mount = camera_parent, pose_from_xyz_rpy(camera_xyz, camera_rpy)
+        found = lookup(camera_parent, camera_frame) if lookup is not None else None
+        parent = camera_parent
+        mount = found if found is not None else pose_from_xyz_rpy(camera_xyz, camera_rpy)
+        say(f"robot description: camera {camera_frame!r} on {camera_parent!r} by " + ("TF" if found is not None else
+            f"camera_xyz {list(camera_xyz)} / camera_rpy {list(camera_rpy)}"))  # fmt: skip
     else:
         raise ValueError(
             f"robot description: no link {camera_frame!r} (camera_frame) and no camera_parent; "
@@ -165,37 +193,81 @@ def description_config(
     )  # fmt: skip
 
 
+class GraphReader:
+    """A helper node beside ``node`` (same namespace and remappings; ``node`` is not spun yet
+    while it builds itself) that reads the latest ``robot_description`` (``std_msgs/String``,
+    transient local) and TF lookups; a context manager that destroys it afterwards."""
+
+    def __init__(self, node: Node) -> None:
+        import rclpy
+        from rclpy.executors import SingleThreadedExecutor
+
+        self.node = node
+        self.helper = rclpy.create_node(f"{node.get_name()}_robot_reader", namespace=node.get_namespace(),
+                                        context=node.context)  # fmt: skip
+        self.executor = SingleThreadedExecutor(context=node.context)
+        self.executor.add_node(self.helper)
+        self._descriptions: list[str] = []
+        self._tf = None
+
+    def __enter__(self) -> GraphReader:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.executor.shutdown()
+        self.helper.destroy_node()
+
+    def _spin_until(self, done: Callable[[], bool], timeout_s: float) -> bool:
+        deadline = time.monotonic() + timeout_s
+        while not done() and time.monotonic() < deadline:
+            self.executor.spin_once(timeout_sec=0.05)
+        return done()
+
+    def robot_description(self, timeout_s: float) -> str:
+        """The latest description on the ``robot_description`` topic.
+
+        Raises:
+            ValueError: nothing within ``timeout_s``.
+        """
+        topic = self.helper.resolve_topic_name(ROBOT_DESCRIPTION)
+        self.helper.create_subscription(String, ROBOT_DESCRIPTION, lambda m: self._descriptions.append(m.data),
+                                        DESCRIPTION_QOS)  # fmt: skip
+        if not self._spin_until(lambda: bool(self._descriptions), timeout_s):
+            raise ValueError(
+                f"robot description: nothing on {topic} within {timeout_s:g} s (start the robot's "
+                "robot_state_publisher, or set robot_description / urdf_path)"
+            )
+        self.node.get_logger().info(f"robot description: {len(self._descriptions[-1])} characters from {topic}")
+        return self._descriptions[-1]
+
+    def transform(self, target: str, source: str, timeout_s: float) -> np.ndarray | None:
+        """``target_from_source`` (4×4) by TF, latest; None when TF has none within ``timeout_s``."""
+        from nbv_prob_cnn.perception.tf_buffer import TransformError
+        from nbv_prob_cnn.ros.tf_listener import TfListener
+
+        if self._tf is None:
+            self._tf = TfListener(self.helper)
+        found: list[np.ndarray] = []
+
+        def ready() -> bool:
+            if not found:
+                try:
+                    found.append(self._tf.lookup(target, source)[0])
+                except TransformError:
+                    return False
+            return True
+
+        return found[0] if self._spin_until(ready, timeout_s) else None
+
+
 def wait_for_robot_description(node: Node, timeout_s: float) -> str:
-    """The latest ``robot_description`` (``std_msgs/String``, transient local) seen by a helper
-    node beside ``node`` (same namespace and remappings; ``node`` itself is not spun yet).
+    """The latest ``robot_description`` seen beside ``node`` (see :class:`GraphReader`).
 
     Raises:
         ValueError: nothing within ``timeout_s``.
     """
-    import rclpy
-    from rclpy.executors import SingleThreadedExecutor
-
-    helper = rclpy.create_node(f"{node.get_name()}_description", namespace=node.get_namespace(),
-                               context=node.context)  # fmt: skip
-    received: list[str] = []
-    topic = helper.resolve_topic_name(ROBOT_DESCRIPTION)
-    helper.create_subscription(String, ROBOT_DESCRIPTION, lambda msg: received.append(msg.data), DESCRIPTION_QOS)
-    executor = SingleThreadedExecutor(context=node.context)
-    executor.add_node(helper)
-    deadline = time.monotonic() + timeout_s
-    try:
-        while not received and time.monotonic() < deadline:
-            executor.spin_once(timeout_sec=0.1)
-    finally:
-        executor.shutdown()
-        helper.destroy_node()
-    if not received:
-        raise ValueError(
-            f"robot description: nothing on {topic} within {timeout_s:g} s (start the robot's "
-            "robot_state_publisher, or set robot_description / urdf_path)"
-        )
-    node.get_logger().info(f"robot description: {len(received[-1])} characters from {topic}")
-    return received[-1]
+    with GraphReader(node) as reader:
+        return reader.robot_description(timeout_s)
 
 
 @dataclass
