@@ -241,3 +241,26 @@ def test_sim_camera_on_the_arm_publishes_only_image_and_camera_info(ros_domain, 
         assert {("world", "free_optical", stamp) for stamp in recent} <= pairs  # a /tf sample per frame
         assert all(graph.alive().values())
         assert_clean_stop(graph)
+
+
+def test_the_arm_graph_needs_only_tf(ros_domain, tmp_path: Path) -> None:
+    """arm_sim (the robot driver: /tf, /tf_static, joint_states) and sim_camera on the arm (the
+    camera driver: Image + CameraInfo in the optical frame) give the integrator posed frames: no
+    pose topic between them, and no frame dropped for want of TF."""
+    env = ros_domain(perception_domain(9))
+    with NodeGraph(env, log_dir=tmp_path) as graph, RosClient(int(env["ROS_DOMAIN_ID"])) as client:
+        graph.start_node("arm_sim", "arm_sim", {"rate_hz": 50.0})
+        graph.start_node("sim_camera", "sim_camera", {"follow_arm": True, "rate_hz": 5.0, "width": 64, "height": 48})
+        graph.start_node("integrator", "integrator", GRID_PARAMS)
+        grid, _ = msg_to_grid(client.wait_grid(1, timeout_s=START_TIMEOUT_S + 60.0))
+        assert counts(grid)["occupied"] > 0, counts(grid)
+        # no pose topic between the robot side and our nodes: nobody publishes /camera/pose, nobody
+        # but this test could read arm_sim's own arm/camera_pose
+        assert client.node.count_publishers("/camera/pose") == 0
+        assert client.node.count_subscribers("/arm/camera_pose") == 0
+        report = json.loads(client.call(client.node.create_client(Trigger, "/integrator/diagnostics"),
+                                        Trigger.Request()).message)  # fmt: skip
+        assert report["integrated"] >= 1 and not any(v for k, v in report["dropped"].items() if k.startswith("tf_"))
+        assert "poses by TF" in log_text(tmp_path, "integrator")
+        assert all(graph.alive().values())
+        assert_clean_stop(graph)
