@@ -13,7 +13,7 @@ setup(
     version="0.1.0",
     packages=find_packages(exclude=["test", "test.*"]),
     package_data={
-        PACKAGE: ["sensing/*.cl", "gain/*.cl", "bench/*.cl", "ros/*.xml"]
+        PACKAGE: ["sensing/*.cl", "gain/*.cl", "bench/*.cl", "ros/*.xml", "ros/config/*.yaml", "ros/config/*.rviz"]
         + [f"weights/*.{ext}" for ext in ("pt", "md", "csv", "png")]
     },
     data_files=[
