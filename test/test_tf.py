@@ -161,3 +161,25 @@ def test_every_error_is_a_transform_error():
     assert {FrameNotFoundError.reason, NotConnectedError.reason, ExtrapolationError.reason} == {
         "unknown_frame", "not_connected", "extrapolation",
     }  # fmt: skip
+
+
+def test_poses_looked_up_per_image_pair_only_with_their_own_image():
+    """The integrator's pairing with TF poses (pose tolerance 0): an image takes the pose of its own
+    stamp, never a neighbour's 5 ms away (which a 10 ms tolerance would give it)."""
+    from nbv_prob_cnn.perception.messages import StampSync
+
+    ms = 1_000_000
+    sync = StampSync(10 * ms, pose_tolerance_ns=0)
+    for stamp in (100 * ms, 105 * ms):
+        sync.add_info(stamp, f"info {stamp}")
+    assert sync.add_image(100 * ms, "image 100", 0.0)[0] == []
+    assert sync.add_image(105 * ms, "image 105", 0.0)[0] == []
+    done = sync.add_pose(100 * ms, "pose 100")
+    assert [(f.stamp_ns, f.pose) for f in done] == [(100 * ms, "pose 100")]  # image 105 still waits
+    assert list(sync.images) == [105 * ms]
+    dropped = sync.expire(10.0, 1.0)
+    assert [(stamp, reason.value) for stamp, reason, _ in dropped] == [(105 * ms, "no_pose")]
+    loose = StampSync(10 * ms)  # the /camera/pose pairing: the nearest pose within 10 ms
+    loose.add_info(105 * ms, "info")
+    loose.add_image(105 * ms, "image 105", 0.0)
+    assert [f.pose for f in loose.add_pose(100 * ms, "pose 100")] == ["pose 100"]

@@ -288,8 +288,11 @@ class StampSync:
     one could still come (joint states stream at a high rate; the arm moves between them).
     """
 
-    def __init__(self, tolerance_ns: int, require_joints: bool = False) -> None:
+    def __init__(self, tolerance_ns: int, require_joints: bool = False, pose_tolerance_ns: int | None = None) -> None:
         self.tolerance_ns = int(tolerance_ns)
+        #: poses may differ from their image's stamp by this much (default ``tolerance_ns``; 0 when
+        #: poses are looked up at each image's own stamp, as by TF)
+        self.pose_tolerance_ns = self.tolerance_ns if pose_tolerance_ns is None else int(pose_tolerance_ns)
         self.require_joints = bool(require_joints)
         self.images: dict[int, tuple[Any, float]] = {}  # stamp -> (message, arrival time.monotonic())
         self.infos: list[tuple[int, Any]] = []  # sorted by stamp
@@ -311,14 +314,18 @@ class StampSync:
             history.insert(i, (stamp, msg))
         del history[:-HISTORY]
 
-    def nearest(self, history: list[tuple[int, Any]], stamp: int) -> tuple[int, Any] | None:
-        """The entry of ``history`` nearest to ``stamp`` within the tolerance (ties: the older)."""
+    def nearest(
+        self, history: list[tuple[int, Any]], stamp: int, tolerance_ns: int | None = None
+    ) -> tuple[int, Any] | None:
+        """The entry of ``history`` nearest to ``stamp`` within the tolerance (default
+        ``tolerance_ns``; ties: the older)."""
+        tolerance = self.tolerance_ns if tolerance_ns is None else tolerance_ns
         i = bisect.bisect_left(history, stamp, key=lambda item: item[0])
         best = None
         for j in (i - 1, i):
             if (
                 0 <= j < len(history)
-                and abs(history[j][0] - stamp) <= self.tolerance_ns
+                and abs(history[j][0] - stamp) <= tolerance
                 and (best is None or abs(history[j][0] - stamp) < abs(best[0] - stamp))
             ):
                 best = history[j]
@@ -356,7 +363,7 @@ class StampSync:
         done = []
         for stamp in sorted(self.images):
             info = self.nearest(self.infos, stamp)
-            pose = self.nearest(self.poses, stamp)
+            pose = self.nearest(self.poses, stamp, self.pose_tolerance_ns)
             joints = self.settled_nearest(self.joints, stamp) if self.require_joints else (0, None)
             if info is not None and pose is not None and joints is not None:
                 image, _ = self.images.pop(stamp)
@@ -367,11 +374,11 @@ class StampSync:
         """The partners an image still lacks: ``(name, drop reason, history)``."""
         missing = [
             (name, reason, history)
-            for name, reason, history in (
-                ("pose", DropReason.NO_POSE, self.poses),
-                ("camera_info", DropReason.NO_CAMERA_INFO, self.infos),
+            for name, reason, history, tolerance in (
+                ("pose", DropReason.NO_POSE, self.poses, self.pose_tolerance_ns),
+                ("camera_info", DropReason.NO_CAMERA_INFO, self.infos, self.tolerance_ns),
             )
-            if self.nearest(history, stamp) is None
+            if self.nearest(history, stamp, tolerance) is None
         ]
         if self.require_joints and self.settled_nearest(self.joints, stamp) is None:
             missing.append(("joint_states", DropReason.NO_JOINT_STATES, self.joints))

@@ -246,7 +246,9 @@ class Integrator(Node):
         # _tsdf_lock the integrator and the grid state (never taken while holding _cv)
         self._cv = threading.Condition()
         self._tsdf_lock = threading.Lock()
-        self._sync = StampSync(round(tolerance * 1e9), require_joints=cfg.self_filter)
+        # by TF every image gets the pose of its own stamp (0 tolerance: never a neighbour's)
+        self._sync = StampSync(round(tolerance * 1e9), require_joints=cfg.self_filter,
+                               pose_tolerance_ns=0 if cfg.pose_source == "tf" else None)  # fmt: skip
         self._self_filter = None
         self._joint_merger: JointStateMerger | None = None
         if cfg.self_filter:
