@@ -23,6 +23,7 @@ from pathlib import Path
 
 import numpy as np
 from matplotlib.figure import Figure
+from matplotlib.ticker import MaxNLocator
 from tqdm import tqdm
 
 from nbv_prob_cnn.basics.datasets import EVALUATION_SEEDS, dataset_spec
@@ -200,6 +201,7 @@ def save_curves(rows: list[dict], views: int, out: Path, name: str, title: str) 
             if row["room"] == room or row["sensor"] == "ideal":
                 ax.plot(x, 100 * row["curve"], styles.get(row["method"], ":"), color=colours.get(row["sensor"]),
                         label=f"{row['method']}, {row['sensor']}")  # fmt: skip
+        ax.xaxis.set_major_locator(MaxNLocator(integer=True))
         ax.set_xlabel("views")
         ax.set_ylabel("unknown empty cells (%)")
         ax.set_yscale("log")
