@@ -276,3 +276,51 @@ def test_base_and_camera_mount_come_from_tf_when_the_description_lacks_them(ros,
     assert_pose_close(robot.camera_pose(np.array(reply.joint_goal.position)), *pose_to_arrays(reply.best_pose.pose))
     log = (tmp_path / "logs" / "nbv_planner.log").read_text()
     assert "placed in world by TF" in log and "on 'panda_hand' by TF" in log
+
+
+def test_a_second_robot_from_parameters_alone_the_xarm6(ros):
+    """The xArm6 of pybullet_data (package://xarm_description meshes) in arm_sim, and our planner
+    reading it from /robot_description with only package_dirs set: Explore drives it through
+    FollowJointTrajectory, each view's joint goal puts the xArm's camera at that view."""
+    pybullet_data = pytest.importorskip("pybullet_data")
+    from pathlib import Path
+
+    from nbv_prob_cnn.arm.description import mount_camera
+    from nbv_prob_cnn.arm.robot import RobotConfig, pose_from_xyz_rpy, translation
+
+    node, graph = ros
+    folder = Path(pybullet_data.getDataPath()) / "xarm"
+    urdf = folder / "xarm6_robot.urdf"
+    base, mount = [-0.1, 0.742, 0.0], [0.0, 0.0, 0.06]
+    graph.start_node("arm_sim", "arm_sim", {
+        "urdf_path": str(urdf), "package_dirs": [str(folder)], "camera_parent": "link6", "camera_xyz": mount,
+        "base_xyz": base, "velocity_scale": 1.0,  # gripper_joints: the Panda's default names, absent here
+    })  # fmt: skip
+    bench = GraphBench(node)
+    SeeingIntegrator(node, bench)
+    planner = {k: v for k, v in ARM_PLANNER.items() if k != "urdf_path"}  # the description from the topic
+    planner.update(move_mode="trajectory", package_dirs=[str(folder)], trajectory_velocity_scale=1.0,
+                   max_joint_acceleration=3.0, max_joint_jerk=30.0)  # fmt: skip
+    graph.start_node("nbv_planner", "nbv_planner", planner)
+    bench.publish_grid()
+    client = ActionClient(node, Explore, "/nbv/explore")
+    assert client.wait_for_server(timeout_sec=120.0), "the Explore server did not come up"
+    feedback: list = []
+    handle = wait(client.send_goal_async(Explore.Goal(max_views=2), feedback_callback=feedback.append))
+    assert handle.accepted
+    done = wait(handle.get_result_async(), 400.0)
+    assert done.status == GoalStatus.STATUS_SUCCEEDED, done.result.reason_stopped
+    assert done.result.views == 2, done.result.reason_stopped
+    # our own model of the xArm as the parameters place it (independent of the description arm_sim built)
+    text = mount_camera(read_description(path=str(urdf), package_dirs=[str(folder)]), "link6", translation(mount),
+                        "camera_optical", "world", pose_from_xyz_rpy(base, [0, 0, 0]))  # fmt: skip
+    xarm = RobotModel(RobotConfig(description=text, world_from_base=np.eye(4), camera_parent="camera_optical",
+                                  parent_from_camera=np.eye(4)))  # fmt: skip
+    assert xarm.joint_names == [f"joint{i}" for i in range(1, 7)]
+    for message in feedback:
+        fb = message.feedback
+        assert fb.executed and list(fb.joint_goal.name) == xarm.joint_names
+        assert_pose_close(xarm.camera_pose(np.array(fb.joint_goal.position)), *pose_to_arrays(fb.pose.pose))
+    assert (bench.state == -1).sum() < (scene() == -1).sum()
+    log = (graph.log_dir / "nbv_planner.log").read_text()
+    assert "characters from /robot_description" in log
