@@ -200,8 +200,7 @@ def urdf_root_link(text: str) -> str:
     Raises:
         ValueError: none or several such links (not a tree).
     """
-    root = ET.fromstring(text)
-    children = {joint.find("child").get("link") for joint in root.findall("joint") if joint.find("child") is not None}
+    children = {joint.child for joint in urdf_joints(text)}
     roots = [name for name in urdf_links(text) if name not in children]
     if len(roots) != 1:
         raise ValueError(f"robot description: expected one root link, found {roots}")
@@ -235,7 +234,7 @@ def add_fixed_link(text: str, parent: str, child: str, parent_from_child: np.nda
     element = ET.SubElement(root, "joint", name=joint or f"{parent}_to_{child}", type="fixed")
     ET.SubElement(element, "parent", link=parent)
     ET.SubElement(element, "child", link=child)
-    ET.SubElement(element, "origin", **_origin(np.asarray(parent_from_child, dtype=np.float64)))
+    ET.SubElement(element, "origin", _origin(np.asarray(parent_from_child, dtype=np.float64)))
     return ET.tostring(root, encoding="unicode")
 
 
