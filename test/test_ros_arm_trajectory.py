@@ -324,3 +324,55 @@ def test_a_second_robot_from_parameters_alone_the_xarm6(ros):
     assert (bench.state == -1).sum() < (scene() == -1).sum()
     log = (graph.log_dir / "nbv_planner.log").read_text()
     assert "characters from /robot_description" in log
+
+
+def test_the_camera_workspace_holds_in_explore_goals_and_parameters(ros):
+    """The Explore goal's box and the planner's height parameter keep every view inside both
+    (arm, move_mode trajectory), and the box parameters hold for /nbv/plan without the arm."""
+    from nbv_prob_cnn_msgs.srv import PlanNextBestView
+    from test_ros_arm_planning import call_when_ready
+
+    from nbv_prob_cnn.ros.graph import NodeGraph
+
+    node, graph = ros
+    robot = RobotModel()
+    bench = GraphBench(node)
+    bench.joints = (robot.joint_names, robot.reference_q)
+    FakeController(node, bench, robot, reject=0)
+    planner = {**ARM_PLANNER, "move_mode": "trajectory", "min_camera_height_m": 0.3,
+               "trajectory_action": "/fake_controller/follow_joint_trajectory"}  # fmt: skip
+    graph.start_node("nbv_planner", "nbv_planner", planner)
+    SeeingIntegrator(node, bench)
+    bench.publish_grid()
+    client = ActionClient(node, Explore, "/nbv/explore")
+    assert client.wait_for_server(timeout_sec=120.0)
+    goal = Explore.Goal(max_views=3, use_workspace=True, max_camera_height=0.6)
+    goal.workspace_min.x, goal.workspace_min.y, goal.workspace_min.z = 0.3, 0.2, 0.0
+    goal.workspace_max.x, goal.workspace_max.y, goal.workspace_max.z = 0.8, 1.3, 1.0
+    feedback: list = []
+    handle = wait(client.send_goal_async(goal, feedback_callback=feedback.append))
+    done = wait(handle.get_result_async(), 300.0)
+    assert done.status == GoalStatus.STATUS_SUCCEEDED and done.result.views >= 1, done.result.reason_stopped
+    half = GEOMETRY_HALF_CELL
+    for message in feedback:
+        x, y, z = pose_to_arrays(message.feedback.pose.pose)[0]
+        # poses are cell centres: inside the box and between the heights (the parameter's 0.3, the goal's 0.6)
+        assert 0.3 - half <= x <= 0.8 + half and 0.2 - half <= y <= 1.3 + half and 0.3 - half <= z <= 0.6 + half
+    graph.stop()
+
+    free = NodeGraph(graph.env, log_dir=graph.log_dir / "free")
+    box = {"workspace_min": [0.2, 0.3, 0.4], "workspace_max": [0.7, 0.9, 0.8]}
+    free.start_node("nbv_planner", "nbv_planner", {"dataset": "3dt", "method": "prob_ig", "in_process": True, **box})
+    try:
+        request = PlanNextBestView.Request(top_k=50)
+        _, reply = call_when_ready(node, PlanNextBestView, "/nbv/plan", request, "no grid received yet", 240.0)
+        assert reply.success, reply.message
+        for view in reply.ranked:
+            x, y, z = pose_to_arrays(view.pose.pose)[0]
+            assert 0.2 - half <= x <= 0.7 + half and 0.3 - half <= y <= 0.9 + half and 0.4 - half <= z <= 0.8 + half
+        assert len(reply.ranked) > 5
+    finally:
+        free.stop()
+
+
+GEOMETRY_HALF_CELL = 0.02 + 1e-9  # half of test_ros_arm_planning's 4 cm cells
