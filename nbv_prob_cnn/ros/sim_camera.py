@@ -243,7 +243,7 @@ class SimCamera(Node):
             self._arm_merger = JointStateMerger(self._arm.robot.joint_names)  # arm and gripper may come apart
             # without follow_arm only the newest joint state matters (a backlog would render the arm
             # where it was); with it every one is kept by stamp, to pair with the arm pose of that stamp
-            depth = ARM_STATES_KEPT if cfg.follow_arm else 1
+            depth = ARM_STATES_KEPT if cfg.follow_arm else 10  # room for the arm's and the gripper's messages
             self.create_subscription(JointState, names.JOINT_STATES, self._on_joint_states, depth)
 
         qos = QoSProfile(
