@@ -45,6 +45,7 @@ from typing import Any
 import numpy as np
 
 from nbv_prob_cnn.basics.grid import probability_with_constant, unknown_fraction
+from nbv_prob_cnn.gain import origin_view_gains
 from nbv_prob_cnn.gain.directions import distance_weights, sample_offsets
 from nbv_prob_cnn.planners import PlanningContext, make_planner
 from nbv_prob_cnn.planners.base import search_best_view, search_views
@@ -57,6 +58,8 @@ BASELINE_RAYS_PER_CALL = 8_000_000
 VARIANTS = ("iteration", "pruned", "all_views", "fused", "two_step", "naive", "pruned_original", "authors", "numpy")
 #: Origins the ``authors`` baseline is timed on (then extrapolated; its cost is linear in origins).
 AUTHORS_ORIGINS = 20_000
+#: Relative gain difference under which the authors' baseline's view counts as the same choice.
+AUTHORS_TIE_MARGIN = 1e-5
 
 
 @dataclass(frozen=True)
@@ -105,7 +108,9 @@ class BenchResult:
     cnn_s: float = 0.0  # CNN inference alone (cnn_prob cases; included in the iteration)
     authors_origins: int = 0  # origins the authors' baseline was timed on
     authors_samples: int = 0  # origins × rays × samples of the original range (all origins)
-    same_authors_view: bool = True  # on its subset, the authors' baseline chose our original-variant view
+    # on its subset, the authors' baseline chose our original-variant view, or one whose gain (ours)
+    # is within a float32 rounding margin of our best (near ties: 2D prob_ig has thousands within 1e-6)
+    same_authors_view: bool = True
 
     def samples_per_s(self, variant: str) -> float:
         nominal = self.authors_samples if variant in ("authors", "pruned_original") else self.nominal_samples
@@ -377,8 +382,14 @@ def _time_original_variant(result, state, prob, origins, context, repeats, autho
     ours = search(subset, False)
     n_views = original.membership.shape[1]
     index = found["best"][1]
+    cell, view = subset[index // n_views : index // n_views + 1], index % n_views
+    ours_there = origin_view_gains(
+        state, prob, original.directions, original.active_sensor.r_max, original.membership, cell, "opencl",
+        variant="original", free_hits=free_hits,
+    )  # fmt: skip
     result.same_authors_view = bool(ours) and (
-        np.array_equal(subset[index // n_views], ours[0].cell) and index % n_views == ours[0].view_index
+        (np.array_equal(cell[0], ours[0].cell) and view == ours[0].view_index)
+        or abs(float(ours_there[0, view]) - ours[0].gain) <= AUTHORS_TIE_MARGIN * ours[0].gain
     )
 
 
@@ -398,7 +409,7 @@ def format_table(results: list[BenchResult]) -> str:
             "fused vs two-step | fused vs naive | pruned samples/s | fused samples/s | naive samples/s | "
             "peak MB iteration / fused / two-step / naive | same best view | "
             "pruned original (s) | authors (s, extrap.) | authors vs pruned original | authors vs pruned | "
-            "authors vs fused | authors vs naive | authors samples/s | authors: same view (subset) |"
+            "authors vs fused | authors vs naive | authors samples/s | authors: same view or tie (subset) |"
         ),
         "|" + "---|" * 30,
     ]
