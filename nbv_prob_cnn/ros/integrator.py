@@ -18,8 +18,9 @@ so the subscription callbacks only decode headers and never wait for an integrat
 
 Publishes ``/nbv/grid`` (``nbv_prob_cnn_msgs/VoxelGrid``, reliable + transient local, depth 1:
 late joiners with transient local durability get the latest grid at once; and while the grid has
-not changed for ``republish_period_s`` and anything subscribes, the latest grid is published again,
-so a subscriber with the default QoS (volatile) also gets the current grid within that period),
+not changed for ``republish_period_s`` and a volatile subscriber listens, the latest grid is
+published again (same header: a new grid is one with a new stamp), so a subscriber with the
+default QoS (volatile) also gets the current grid within that period),
 at most ``publish_rate_hz`` times a second, whenever a frame
 was integrated since the last grid. ``header.stamp`` is the stamp of the newest integrated frame,
 so a client that moved the camera and got frame stamp ``T`` waits for a grid stamped ``>= T``
@@ -84,6 +85,7 @@ from nbv_prob_cnn_msgs.msg import VoxelGrid
 from nbv_prob_cnn_msgs.srv import SaveGrid
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
 from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy
 from sensor_msgs.msg import CameraInfo, Image, JointState
 from std_srvs.srv import Trigger
 
@@ -193,8 +195,8 @@ class IntegratorConfig(RobotParams):
         attribute="publish_rate",
     )  # fmt: skip
     republish_period_s: float = param(
-        1.0, "publish the latest grid again when unchanged this long while anything subscribes (a volatile "
-        "subscriber gets the current grid within it; same header stamp); 0 = never", min_value=0.0,
+        1.0, "publish the latest grid again when unchanged this long while a volatile subscriber listens (it "
+        "gets the current grid within this period; same header stamp); 0 = never", min_value=0.0,
         max_value=3600.0,
     )  # fmt: skip
     drop_when_behind: bool = param(
@@ -607,11 +609,15 @@ class Integrator(Node):
         self.counts["grids"] += 1
 
     def _on_republish_timer(self) -> None:
-        """The latest grid again, when unchanged for ``republish_period_s`` and anything subscribes."""
+        """The latest grid again, when unchanged for ``republish_period_s`` and a volatile
+        subscriber listens (transient-local ones got it when they matched)."""
         msg = self._last_grid
-        if msg is None or not self.context.ok() or self._grid_pub.get_subscription_count() == 0:
+        if msg is None or not self.context.ok():
             return
         if time.monotonic() - self._last_grid_at < self.config.republish_period_s:
+            return
+        subscribers = self.get_subscriptions_info_by_topic(self._grid_pub.topic_name)
+        if not any(s.qos_profile.durability == DurabilityPolicy.VOLATILE for s in subscribers):
             return
         self._grid_pub.publish(msg)
         self._last_grid_at = time.monotonic()

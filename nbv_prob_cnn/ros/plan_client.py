@@ -33,7 +33,14 @@ def main(argv: list[str] | None = None) -> int:
     rclpy.init()
     node = rclpy.create_node("plan_client")
     grids: list[tuple[float, VoxelGrid]] = []
-    node.create_subscription(VoxelGrid, names.GRID, lambda m: grids.append((time.monotonic(), m)), GRID_QOS)
+
+    def on_grid(msg: VoxelGrid) -> None:
+        # a republished grid (same stamp, integrator's republish_period_s) is not a new one
+        if grids and grids[-1][1].header.stamp == msg.header.stamp:
+            return
+        grids.append((time.monotonic(), msg))
+
+    node.create_subscription(VoxelGrid, names.GRID, on_grid, GRID_QOS)
     client = node.create_client(PlanNextBestView, names.PLAN)
     try:
         deadline = time.monotonic() + args.timeout
