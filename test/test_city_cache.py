@@ -254,3 +254,9 @@ def test_cli_city_options_and_paper_epochs():
     assert cmd.paper_epochs("3du", "cnn_prob") == dataset_spec("3du").training.epochs
     with pytest.raises(SystemExit, match="--address needs --ray"):
         cmd.run(parser.parse_args(["--dataset", "3du", "--address", "h:1"]))
+
+
+def test_a_2d_cache_needs_a_crop():
+    with pytest.raises(ValueError, match="needs a training crop"):
+        CacheLayout.for_training("2d", None, 400)
+    assert CacheLayout.for_training("3du", None, None).name == "whole_evalwhole"

@@ -5,7 +5,8 @@
 For each network, in :data:`ORDER` (cheapest step first), :func:`~nbv_prob_cnn.completion.train.train`
 runs with the paper's epoch counts (:func:`~nbv_prob_cnn.commands.train.paper_epochs`), early
 stopping after :data:`~nbv_prob_cnn.commands.train.CITY_PATIENCE` epochs without a lower
-validation MSE, all 100 training environments, the cached training sets (generated on the
+validation MSE, all 100 training environments, the data set's crops and batch size (as
+``nbv train``), the cached training sets (generated on the
 first call of each data set) and one torch thread (without a GPU, 3DU D-City-CNN,
 :data:`GPU_ONLY`, is left out unless ``--only`` names it). Weights, checkpoints, loss curves and cards
 go to :func:`runs_dir` (``<cache>/city_training``), never to the shipped weights: a network is
@@ -86,6 +87,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--threads", type=int, default=1, help="torch threads (default 1)")
     args = parser.parse_args(argv)
 
+    from nbv_prob_cnn.basics.datasets import dataset_spec
     from nbv_prob_cnn.commands.train import CITY_PATIENCE, paper_epochs
     from nbv_prob_cnn.completion.train import train
 
@@ -103,6 +105,7 @@ def main(argv: list[str] | None = None) -> int:
                 dataset,
                 paper_epochs(dataset, method),
                 weights_path(dataset, method),
+                crop=dataset_spec(dataset).training.crop,  # as `nbv train` (and the card's command)
                 method=method,
                 threads=args.threads,
                 patience=CITY_PATIENCE,
