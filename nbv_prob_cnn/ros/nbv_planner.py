@@ -263,17 +263,18 @@ class NbvPlanner(Node):
         self._complete_client = self.create_client(CompleteGrid, names.COMPLETE, callback_group=group)
         self._rank_client = self.create_client(RankViews, names.RANK_VIEWS, callback_group=group)
         # only the move interface of move_mode joins the graph (with a real robot, nothing of ours but it)
-        mode = self.move_mode
-        self._goal_pub = self.create_publisher(PoseStamped, names.GOAL_POSE, 10) if mode == "topic" else None
+        self._goal_pub = self.create_publisher(PoseStamped, names.GOAL_POSE, 10) if self.move_mode == "topic" else None
         self._move_client = (
-            self.create_client(MoveCamera, names.MOVE_TO, callback_group=group) if mode == "service" else None
+            self.create_client(MoveCamera, names.MOVE_TO, callback_group=group) if self.move_mode == "service" else None
         )
         self._joints_client = (
-            self.create_client(MoveToJoints, names.MOVE_TO_JOINTS, callback_group=group) if mode == "arm" else None
+            self.create_client(MoveToJoints, names.MOVE_TO_JOINTS, callback_group=group)
+            if self.move_mode == "arm"
+            else None
         )
         self._trajectory_client = (
             ActionClient(self, FollowJointTrajectory, self.trajectory_action, callback_group=group)
-            if mode == "trajectory"
+            if self.move_mode == "trajectory"
             else None
         )
         self.create_service(PlanNextBestView, names.PLAN, self._plan_service, callback_group=group)
