@@ -83,13 +83,13 @@ class CacheLayout:
         """The layout of a run with training crop ``crop``: 3D grids are stored whole (crops are
         cut at read time), 2D maps as :data:`CROPS_PER_ROTATION` crops of edge ``crop``."""
         spec = dataset_spec(dataset)
-        if spec.dims == 2 and crop is None:
+        if spec.dims == 3:
+            return cls(dataset, None, 1, eval_crop)
+        if crop is None:
             raise ValueError(
                 "crop: cached 2D City-CNN training needs a training crop (a whole 1250² map holds "
                 "~0.5 M origins × 72 rays per rotation, ~600 MB a chunk): pass --crop"
             )
-        if spec.dims == 3:
-            return cls(dataset, None, 1, eval_crop)
         return cls(dataset, int(crop), CROPS_PER_ROTATION, eval_crop)
 
     @property
