@@ -260,3 +260,29 @@ def test_a_2d_cache_needs_a_crop():
     with pytest.raises(ValueError, match="needs a training crop"):
         CacheLayout.for_training("2d", None, 400)
     assert CacheLayout.for_training("3du", None, None).name == "whole_evalwhole"
+
+
+def test_cli_ray_path_calls_ray_train(monkeypatch, tmp_path):
+    """`nbv train --ray --address A --workers N` hands the same arguments to Ray Train."""
+    import argparse
+
+    from nbv_prob_cnn.commands import train as cmd
+    from nbv_prob_cnn.completion import ray_train
+    from nbv_prob_cnn.completion.train import TrainResult
+
+    calls = []
+
+    def fake(dataset, epochs, out, **kwargs):
+        calls.append((dataset, epochs, out, kwargs))
+        return TrainResult(tmp_path / "w.pt", tmp_path / "l", tmp_path / "c", tmp_path / "p", tmp_path / "m", 0.1, 0.2,
+                           None, epochs)  # fmt: skip
+
+    monkeypatch.setattr(ray_train, "train_with_ray", fake)
+    parser = argparse.ArgumentParser()
+    cmd.add_arguments(parser)
+    argv = ["--dataset", "3dt", "--method", "flat_city_cnn", "--ray", "--address", "h:6379", "--workers", "3"]
+    assert cmd.run(parser.parse_args(argv)) == 0
+    ((dataset, epochs, out, kwargs),) = calls
+    assert (dataset, epochs, out) == ("3dt", 120, None)
+    assert (kwargs["address"], kwargs["workers"], kwargs["patience"], kwargs["crop"]) == ("h:6379", 3, 10, 64)
+    assert kwargs["cache"] is True and kwargs["device"] is None

@@ -58,7 +58,8 @@ def test_ray_train_matches_the_single_process_run(ray_cluster, tmp_path, monkeyp
             time.sleep(0.5)
     finally:
         ray.shutdown()
-    result = train_with_ray("2d", 1, tmp_path / "ray" / "w.pt", workers=2, address=ray_cluster, **kwargs)
+    ray_out = tmp_path / "ray" / "w.pt"
+    result = train_with_ray("2d", 1, ray_out, workers=2, address=ray_cluster, device=None, **kwargs)  # as the CLI
 
     a = torch.load(tmp_path / "local" / "w.last.ckpt", weights_only=True)
     b = torch.load(tmp_path / "ray" / "w.last.ckpt", weights_only=True)

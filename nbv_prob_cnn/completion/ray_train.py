@@ -77,8 +77,8 @@ def train_with_ray(
     storage: str | Path | None = None,
     **kwargs: Any,
 ) -> TrainResult:
-    """Train like :func:`~nbv_prob_cnn.completion.train.train` (same keyword arguments), on
-    ``workers`` Ray Train workers.
+    """Train like :func:`~nbv_prob_cnn.completion.train.train` (same keyword arguments; ``device``
+    is Ray Train's per worker), on ``workers`` Ray Train workers.
 
     Args:
         address: Ray cluster ``HOST:PORT`` (None: a local Ray instance started here).
@@ -95,6 +95,8 @@ def train_with_ray(
         raise ValueError(f"workers: expected >= 1, got {workers}")
     method = kwargs.get("method", "cnn_prob")
     out = Path(out).expanduser().resolve() if out is not None else default_weights_path(dataset, method)
+    if kwargs.pop("device", None) not in (None, "cpu", "cuda"):
+        raise ValueError("device: with Ray each worker uses the device Ray Train gives it (its GPU, or the CPU)")
     kwargs = {**kwargs, "workers": 1}  # inside a worker: no extra data-generation processes
     env = {k: os.environ[k] for k in FORWARDED_ENV if k in os.environ}
     started_here = not ray.is_initialized()
