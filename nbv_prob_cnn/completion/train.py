@@ -36,7 +36,7 @@ import time
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import torch
@@ -45,11 +45,13 @@ from tqdm import tqdm
 from nbv_prob_cnn.basics.datasets import DATASET_SPECS, LR_SCHEDULES, SPEC_LEARNING_RATE, dataset_spec
 from nbv_prob_cnn.completion.calibration import Reliability, reliability, save_reliability_plot
 from nbv_prob_cnn.completion.city_cache import CITY_CACHE_VERSION, CachedCityExamples, CacheLayout, ensure_chunks
-from nbv_prob_cnn.completion.city_scores import CityScores, mean_target_per_channel, score_city
 from nbv_prob_cnn.completion.data import DATA_VERSION, TrainingSample, crop_box, load_samples, rotations
 from nbv_prob_cnn.completion.inference import clear_model_cache, default_weights_path, resolve_device, save_weights
 from nbv_prob_cnn.completion.model import CompletionNet, count_parameters
 from nbv_prob_cnn.completion.tasks import Example, TrainingTask
+
+if TYPE_CHECKING:
+    from nbv_prob_cnn.completion.city_scores import CityScores
 
 #: Default mini-batch size per data set (from :mod:`nbv_prob_cnn.basics.datasets`).
 DEFAULT_BATCH = {name: spec.training.batch_size for name, spec in DATASET_SPECS.items()}
@@ -406,6 +408,9 @@ def train(
             (checkpoint written; no test scoring; ``finished`` is False): to share a CPU between
             several runs that each resume later.
     """
+    # imported here: `python -m nbv_prob_cnn.completion.city_scores` runs that module as a script
+    from nbv_prob_cnn.completion.city_scores import mean_target_per_channel, score_city
+
     spec = dataset_spec(dataset)
     task = TrainingTask(method, spec, backend)
     if epochs < 1:
