@@ -143,3 +143,24 @@ def test_thresholds_and_bad_input():
     for bad in (0, -3, 2.5, True):
         with pytest.raises(ValueError, match="min_changed_cells"):
             ViewGuard(bad)
+
+
+def test_a_first_view_that_sees_nothing_is_followed_by_a_random_one():
+    """A noisy first view facing a wall inside the sensor's minimum range returns nothing: no cell
+    is known empty, so the next view is random (gain NaN) instead of the run stopping."""
+    from nbv_prob_cnn.sensing.sensor_noise import SensorNoise
+
+    truth = np.zeros(SMALL_2D.shape, dtype=np.uint8)
+    truth[27:, :] = 1  # a wall 2 cells (2 m) in front of the first view
+    world = World("2d", 0, 0, truth, 1.0, np.zeros(2))
+    near_blind = SensorNoise("near_blind", min_range_m=5.0)
+    context = PlanningContext(SMALL_2D, rng=np.random.default_rng(4), ground_truth=truth, backend="numpy")
+    first = ViewChoice(np.array([25, 24]), 0, float("nan"))  # looking along +x at the wall
+    result = explore(world, make_planner("prob_ig"), context, 6, progress=False, noise=near_blind, first=first,
+                     guard=ViewGuard(1))  # fmt: skip
+    records = result.records
+    assert records[0].changed_cells == 0 and records[0].unknown_fraction_all == 1.0
+    unknown_before = [1.0] + [r.unknown_fraction_all for r in records]
+    for i, r in enumerate(records[1:], start=1):
+        assert math.isnan(r.gain) == (unknown_before[i] == 1.0)  # random exactly while nothing is known
+    assert len(records) == 6 and records[-1].unknown_fraction_all < 1.0

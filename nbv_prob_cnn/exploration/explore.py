@@ -98,6 +98,8 @@ def explore(
 
     The first view is ``first`` if given, else random (SPEC §9); the run stops early when the
     planner finds no view (no positive gain, or, for a constrained planner, none it can take).
+    While no cell is known empty (a noisy first view without returns) the next view is random
+    too; with the exact sensor this never happens (a view always sees its own cell).
     ``noise``: a depth-sensor model for the simulated views (exact if None); ``room_margin_m``:
     with ``noise``, walls this far outside the grid (see :func:`observe`). ``guard``: rules out
     each pose whose view changed fewer than its threshold of cells, plans around the ruled-out
@@ -114,7 +116,11 @@ def explore(
     choice: ViewChoice = first if first is not None else first_view(world, context)
     elapsed = 0.0
     for iteration in range(views):
-        if iteration > 0:
+        if iteration > 0 and not np.any(state == 0):
+            # nothing is known to be free, so nothing to plan from (a noisy sensor's view can return
+            # nothing, e.g. inside its minimum range): another random view, as the first one
+            choice, elapsed = first_view(world, context), 0.0
+        elif iteration > 0:
             start = time.perf_counter()
             planned = planner.plan(state, context) if guard is None else guard.plan(planner, state, context)
             elapsed = time.perf_counter() - start
