@@ -3,6 +3,7 @@ Ctrl-C stops everything cleanly."""
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import json
 import os
@@ -45,6 +46,30 @@ def _descendants(pid: int) -> set[int]:
     return found
 
 
+def run_launch_script(cmd: list[str], timeout: float, env: dict | None = None) -> subprocess.CompletedProcess:
+    """``subprocess.run`` for a launch script that never leaves its nodes behind: past ``timeout``
+    the script gets Ctrl-C (it stops its graph), and whatever still lives 30 s later is killed,
+    descendants included (a plain ``run`` kills only the script and orphans its nodes)."""
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
+    try:
+        out, err = proc.communicate(timeout=timeout)
+    except subprocess.TimeoutExpired:
+        children = _descendants(proc.pid)
+        proc.send_signal(signal.SIGINT)
+        try:
+            out, err = proc.communicate(timeout=30)
+        except subprocess.TimeoutExpired:
+            for pid in {proc.pid} | children | _descendants(proc.pid):
+                with contextlib.suppress(ProcessLookupError):
+                    os.kill(pid, signal.SIGKILL)
+            out, err = proc.communicate()
+        for pid in children:
+            with contextlib.suppress(ProcessLookupError):
+                os.kill(pid, signal.SIGKILL)
+        raise AssertionError(f"{cmd[1]} did not finish within {timeout} s\n{out[-3000:]}\n{err[-3000:]}") from None
+    return subprocess.CompletedProcess(cmd, proc.returncode, out, err)
+
+
 def _domain(offset: int) -> str:  # 200..219, away from the other tests' domains
     return str(200 + (os.getpid() + offset) % 20)
 
@@ -53,7 +78,7 @@ def test_simulated_graph_explores_a_small_scene(tmp_path):
     out = tmp_path / "run"
     cmd = [sys.executable, str(SCRIPT), "--dataset", "3du", "--seed", "1001", "--views", "5", "--no-arm",
            "--method", "cnn_prob", "--out", str(out), "--domain-id", _domain(0)]  # fmt: skip
-    run = subprocess.run(cmd, capture_output=True, text=True, timeout=600)
+    run = run_launch_script(cmd, timeout=600)
     assert run.returncode == 0, run.stdout[-3000:] + run.stderr[-3000:]
     assert "view 5/5" in run.stdout and "done: 5 views" in run.stdout and "succeeded: reached 5 views" in run.stdout
     with open(out / "views.csv") as handle:
@@ -114,7 +139,7 @@ def test_simulated_graph_with_the_arm_explores_the_table(tmp_path):
     domain = str(140 + (os.getpid() + 7) % 10)  # the arm tests' range (test_ros_arm_planning)
     cmd = [sys.executable, str(SCRIPT), "--dataset", "3dt", "--seed", "1000", "--views", "2", "--method", "prob_ig",
            "--out", str(out), "--domain-id", domain]  # fmt: skip
-    run = subprocess.run(cmd, capture_output=True, text=True, timeout=600)
+    run = run_launch_script(cmd, timeout=600)
     assert run.returncode == 0, run.stdout[-3000:] + run.stderr[-3000:]
     assert "done: 2 views" in run.stdout and "stopped 6 processes" in run.stdout
     with open(out / "views.csv") as handle:
@@ -171,7 +196,7 @@ def test_graph_from_the_sample_bag_plans_views(tmp_path):
     out = tmp_path / "plan"
     cmd = [sys.executable, str(REPO / "launch_scripts" / "plan_from_bag.py"), "--method", "prob_ig",
            "--out", str(out), "--domain-id", _domain(2)]  # fmt: skip
-    run = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
+    run = run_launch_script(cmd, timeout=300)
     assert run.returncode == 0, run.stdout[-3000:] + run.stderr[-3000:]
     with open(out / "ranked_views.csv") as handle:
         rows = list(csv.DictReader(handle))

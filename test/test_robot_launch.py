@@ -7,7 +7,6 @@ from __future__ import annotations
 import csv
 import dataclasses
 import os
-import subprocess
 import sys
 from pathlib import Path
 
@@ -17,6 +16,8 @@ import yaml
 rclpy = pytest.importorskip("rclpy")
 pytest.importorskip("nbv_prob_cnn_msgs")
 pytest.importorskip("control_msgs")
+
+from test_launch import run_launch_script  # noqa: E402
 
 from nbv_prob_cnn.ros.graph import NodeGraph, ros_environment  # noqa: E402
 
@@ -59,7 +60,7 @@ def test_our_nodes_explore_beside_a_robot_graph(tmp_path):
         out = tmp_path / "run"
         cmd = [sys.executable, str(REPO / "launch_scripts" / "robot.py"), "--views", "2", "--method", "prob_ig",
                "--params-file", str(CONFIG / "panda_d435.yaml"), "--out", str(out)]  # fmt: skip
-        run = subprocess.run(cmd, capture_output=True, text=True, timeout=900, env=env)
+        run = run_launch_script(cmd, timeout=900, env=env)
         assert run.returncode == 0, run.stdout[-3000:] + run.stderr[-3000:]
     assert "done: 2 views" in run.stdout
     with open(out / "views.csv") as handle:
