@@ -3,7 +3,7 @@
 
 Renders frames of the 3DT world of a seed with the simulated depth camera (open3d ray casting)
 from poses on a ring around the table and writes them with :class:`BagWriter` as a rosbag2
-directory (mcap storage) with the three camera topics of SPEC §10.
+directory (mcap storage) with the three camera topics of docs/method.md#node-graph.
 
 Usage (from the repository root)::
 

@@ -1,4 +1,4 @@
-"""Candidate orientations and frustum membership (SPEC §5)."""
+"""Candidate orientations and frustum membership (docs/method.md#candidate-views-and-view-gain)."""
 
 import math
 

@@ -1,4 +1,4 @@
-"""Exploration protocol (SPEC §9) and the planners' ordering on small worlds."""
+"""Exploration protocol (docs/method.md#exploration-protocol-and-metrics) and the planners' ordering on small worlds."""
 
 import csv
 

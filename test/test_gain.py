@@ -1,4 +1,4 @@
-"""Ray gain (SPEC §4) on hand-worked grids, backend agreement, and validation."""
+"""Ray gain (docs/method.md#probabilistic-ray-casting-gain) on hand-worked grids, backend agreement, and validation."""
 
 import numpy as np
 import pytest

@@ -1,4 +1,4 @@
-"""Simulated observation (SPEC §2)."""
+"""Simulated observation (docs/method.md#sensor-and-simulated-observation)."""
 
 import math
 from dataclasses import replace

@@ -1,4 +1,4 @@
-"""Multi-process tests of the perception nodes: sim_camera, integrator, bag_replay (SPEC §10).
+"""Multi-process tests of the perception nodes: sim_camera, integrator, bag_replay (docs/method.md#node-graph).
 
 Every test starts its nodes as separate processes (:class:`NodeGraph`) on its own
 ``ROS_DOMAIN_ID`` with localhost discovery and the Fast DDS shared-memory profile, and talks to

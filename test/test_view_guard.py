@@ -19,7 +19,8 @@ SMALL_2D = DatasetDefaults("2d", 2, (48, 48), 1.0, Sensor(60.0, None, 28), 16, 6
 
 def _pocket_world() -> World:
     """A thin (8-connected) anti-diagonal wall closes off the corner at (0, 0): the exact sensor
-    never sees behind it, SPEC §4's rounded ray samples slip between its cells."""
+    never sees behind it, the rounded ray samples (docs/method.md#probabilistic-ray-casting-gain)
+    slip between its cells."""
     truth = np.zeros(SMALL_2D.shape, dtype=np.uint8)
     x = np.arange(41)
     truth[x, 40 - x] = 1

@@ -1,4 +1,4 @@
-"""World generators (SPEC §8): determinism, shapes, occupancy, table and objects, file round trip."""
+"""World generators (docs/method.md#data-sets): determinism, shapes, occupancy, table and objects, file round trip."""
 
 from __future__ import annotations
 

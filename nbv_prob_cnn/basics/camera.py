@@ -1,5 +1,5 @@
 """Camera model: sensor parameters per data set, candidate orientations and frustum tests
-(SPEC §2, §5, §7).
+(docs/method.md: sensor, candidate views, parameters).
 
 Conventions:
     * 3D: the camera optical frame follows REP-103 (x right, y down, z forward); an
@@ -125,7 +125,7 @@ def view_directions_3d() -> np.ndarray:
 
 
 def orientations(dims: int) -> np.ndarray:
-    """Candidate orientations of SPEC §5.
+    """Candidate orientations of docs/method.md#candidate-views-and-view-gain.
 
     Returns:
         2D: ``(60,)`` yaw angles in radians, every 6° from 0.

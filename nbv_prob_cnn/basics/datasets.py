@@ -1,5 +1,6 @@
 """One :class:`DatasetSpec` per data set: every fact about ``2d``, ``3du`` and ``3dt`` in one place
-(SPEC §3, §5, §7, §8): grid shape and resolution, sensor, ray/view parameters, environment
+(docs/method.md: completion CNN, candidate views, parameters, data sets): grid shape and resolution, sensor,
+ray/view parameters, environment
 splits and training defaults.
 
 :data:`nbv_prob_cnn.basics.camera.DATASETS` and :data:`nbv_prob_cnn.worlds.DATASETS` are derived from
@@ -7,9 +8,10 @@ splits and training defaults.
 
 Environment split (by environment, never by sample; 180 environments per data set):
 
-* train ``0…99`` and validation ``100…119`` (together the 2/3 of SPEC §3; the epoch kept is the
+* train ``0…99`` and validation ``100…119`` (together the 2/3 of docs/method.md#completion-cnn; the epoch kept is the
   one with the lowest validation loss),
-* test ``120…179`` (1/3): test MSE, calibration, and the evaluation environments of SPEC §9
+* test ``120…179`` (1/3): test MSE, calibration, and the evaluation environments of
+docs/method.md#exploration-protocol-and-metrics
   (the first 40 by default). Seeds ``>= 1000`` are reserved for users' own runs.
 """
 
@@ -19,16 +21,17 @@ from dataclasses import dataclass, field
 
 from nbv_prob_cnn.basics.sensor import Sensor
 
-#: Number of environments per data set (SPEC §8).
+#: Number of environments per data set (docs/method.md#data-sets).
 N_ENVIRONMENTS = 180
 TRAIN_SEEDS: tuple[int, ...] = tuple(range(100))
 VALIDATION_SEEDS: tuple[int, ...] = tuple(range(100, 120))
 TEST_SEEDS: tuple[int, ...] = tuple(range(120, 180))
 #: Seeds from here on are reserved for users' evaluations.
 USER_SEED_START = 1000
-#: Environments of the full evaluation protocol (SPEC §9): the first 40 test environments.
+#: Environments of the full evaluation protocol (docs/method.md#exploration-protocol-and-metrics): the first
+#: 40 test environments.
 EVALUATION_SEEDS: tuple[int, ...] = TEST_SEEDS[:40]
-#: Adam's learning rate of SPEC §3 (``nbv train``'s default on every data set but 3DT).
+#: Adam's learning rate of docs/method.md#completion-cnn (``nbv train``'s default on every data set but 3DT).
 SPEC_LEARNING_RATE = 1e-3
 #: Learning-rate schedules over the epochs of a run (``completion.train.learning_rate``).
 LR_SCHEDULES = ("constant", "cosine")
@@ -59,8 +62,8 @@ class DatasetSpec:
         shape: evaluation grid shape (2D: crops of the ``map_shape`` city maps).
         resolution_m: cell edge in metres.
         sensor: the reference depth sensor (ranges in cells).
-        n_rays: ray sub-cells per side (SPEC §4).
-        n_conv: conv blocks of the encoder-decoders (SPEC §3).
+        n_rays: ray sub-cells per side (docs/method.md#probabilistic-ray-casting-gain).
+        n_conv: conv blocks of the encoder-decoders (docs/method.md#completion-cnn).
         p0: constant occupancy probability of Prob. IG.
         origin_stride: candidate origins every ``origin_stride`` cells per axis (3DT: 2).
         city_n_rays: ray sub-cells per side of D-City-CNN's composite cells (paper: 4).
@@ -109,7 +112,7 @@ DATASET_SPECS: dict[str, DatasetSpec] = {
     "3dt": DatasetSpec(
         "3dt", 3, (128, 128, 96), 0.0116, Sensor(60.0, 46.0, 128, width_px=128, height_px=96, focal_px=112.0), 4, 4,
         origin_stride=2, city_output_stride=8, view_range=(30, 40),
-        # 3DT: at the SPEC's constant 1e-3 a 20-epoch run became unstable after epoch 5 (README)
+        # 3DT: at the paper's constant 1e-3 a 20-epoch run became unstable after epoch 5 (docs/cnn_prob_training.md)
         training=TrainingDefaults(epochs=20, crop=64, batch_size=4, test_crop=None, lr=3e-4, lr_schedule="cosine"),
     ),
 }  # fmt: skip

@@ -1,4 +1,4 @@
-"""Ternary occupancy grids (SPEC §1): values, derived channels and input validation.
+"""Ternary occupancy grids (docs/method.md#grids): values, derived channels and input validation.
 
 A grid is an ``int8`` array indexed ``[x, y]`` or ``[x, y, z]`` with
 ``UNKNOWN = -1``, ``EMPTY = 0``, ``OCCUPIED = 1``. A probabilistic map is a ``float32``
@@ -86,7 +86,8 @@ def frontier_mask(state: np.ndarray) -> np.ndarray:
 
 
 def unknown_fraction(state: np.ndarray, ground_truth: np.ndarray) -> float:
-    """Ground-truth-empty cells not yet observed / ground-truth-empty cells (SPEC §9)."""
+    """Ground-truth-empty cells not yet observed / ground-truth-empty cells
+    (docs/method.md#exploration-protocol-and-metrics)."""
     free = ground_truth == 0
     n_free = int(free.sum())
     if n_free == 0:

@@ -1,4 +1,4 @@
-"""Depth sensor parameters (SPEC §2, §7). Re-exported by :mod:`nbv_prob_cnn.basics.camera`."""
+"""Depth sensor parameters (docs/method.md: sensor, parameters). Re-exported by :mod:`nbv_prob_cnn.basics.camera`."""
 
 from __future__ import annotations
 

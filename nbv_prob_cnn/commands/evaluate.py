@@ -1,4 +1,5 @@
-"""``nbv evaluate``: compare methods on held-out environments (SPEC §9), runs as Ray tasks."""
+"""``nbv evaluate``: compare methods on held-out environments
+(docs/method.md#exploration-protocol-and-metrics), runs as Ray tasks."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""``nbv explore``: one simulated exploration run (SPEC §9)."""
+"""``nbv explore``: one simulated exploration run (docs/method.md#exploration-protocol-and-metrics)."""
 
 from __future__ import annotations
 
@@ -17,7 +17,8 @@ HELP = "Run a simulated next-best-view exploration and log it per view."
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--dataset", choices=sorted(DATASETS), required=True)
-    parser.add_argument("--method", default="prob_ig", choices=list(METHODS), help="next-best-view method (SPEC §6)")
+    parser.add_argument("--method", default="prob_ig", choices=list(METHODS),
+                        help="next-best-view method (docs/method.md#methods)")  # fmt: skip
     parser.add_argument("--views", type=int, default=20, help="number of views, the random first one included")
     parser.add_argument("--seed", type=int, default=1000, help="world seed (without --scene) and first view")
     parser.add_argument("--scene", help="world .npz from `nbv world` (ground truth; default: generate from --seed)")
@@ -31,7 +32,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )  # fmt: skip
     parser.add_argument(
         "--view-set", choices=("spec", "original"), default="spec",
-        help="rays and orientations: the SPEC's, or the authors' code's (docs/original_code.md; not with --n-rays)",
+        help="rays and orientations: the paper's, or the authors' code's (docs/original_code.md; not with --n-rays)",
     )  # fmt: skip
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
     parser.add_argument("--noise", default="ideal", help="depth-sensor noise preset: ideal, kinect_v1, astra")

@@ -1,5 +1,5 @@
-"""``nbv train``: train a network of a data set: the completion CNN (SPEC §3) or a City-CNN
-baseline (SPEC §6)."""
+"""``nbv train``: train a network of a data set: the completion CNN (docs/method.md#completion-cnn) or a City-CNN
+baseline (docs/method.md#methods)."""
 
 from __future__ import annotations
 
@@ -84,7 +84,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--lr",
         type=_positive_float,
         default=None,
-        help=f"Adam's learning rate (default: {_defaults('lr')}; SPEC {SPEC_LEARNING_RATE:g})",
+        help=f"Adam's learning rate (default: {_defaults('lr')}; the paper's {SPEC_LEARNING_RATE:g})",
     )
     parser.add_argument(
         "--lr-schedule",

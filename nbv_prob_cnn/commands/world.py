@@ -1,4 +1,4 @@
-"""``nbv world``: generate one environment (SPEC §8) and write it with a preview picture."""
+"""``nbv world``: generate one environment (docs/method.md#data-sets) and write it with a preview picture."""
 
 from __future__ import annotations
 

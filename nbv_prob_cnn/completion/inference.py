@@ -197,7 +197,7 @@ def complete(
     batch: bool = False,
     chunk: int = 8,
 ) -> np.ndarray:
-    """Probabilistic map ``P`` of a ternary grid (SPEC §3): 0 on known empty, 1 on known
+    """Probabilistic map ``P`` of a ternary grid (docs/method.md#completion-cnn): 0 on known empty, 1 on known
     occupied, the CNN's occupancy probability on unknown cells.
 
     Args:

@@ -1,4 +1,4 @@
-"""The completion encoder-decoder of SPEC §3 (paper §III-A), for 2D and 3D grids.
+"""The completion encoder-decoder of docs/method.md#completion-cnn (paper §III-A), for 2D and 3D grids.
 
 Architecture of ``CompletionNet(dims, n_conv, first_channels)`` with ``c_i = first_channels * 2**i``:
 
@@ -19,7 +19,7 @@ Grids whose sizes are not multiples of ``2**n_conv`` are padded with *unknown* c
 high end of each axis and the output is cropped back (:func:`pad_to_multiple` for numpy
 grids; :meth:`CompletionNet.forward` does the same on tensors).
 
-The same encoder-decoder serves the City-CNN baselines (SPEC §6, paper §III-D/§IV) through
+The same encoder-decoder serves the City-CNN baselines (docs/method.md#methods, paper §III-D/§IV) through
 three options, with the completion network as the default:
 
 * ``out_channels`` and ``head``: ``"completion"`` (1 channel, ``P = U·P' + O``), ``"sigmoid"``
@@ -49,7 +49,7 @@ PRIOR_LOGIT = float(np.log(0.15 / 0.85))
 #: about the mean gain target on empty cells (measured on 2D crops: 0.10–0.16 by variant).
 GAIN_PRIOR_LOGIT = float(np.log(0.1 / 0.9))
 
-#: Default width of the first conv block per dimensionality (SPEC §3).
+#: Default width of the first conv block per dimensionality (docs/method.md#completion-cnn).
 DEFAULT_FIRST_CHANNELS = {2: 8, 3: 16}
 
 #: Output heads of :class:`CompletionNet`.
@@ -90,7 +90,8 @@ class CompletionNet(nn.Module):
 
     Args:
         dims: 2 (``Conv2d``) or 3 (``Conv3d``).
-        n_conv: number of conv blocks (= number of deconv blocks); SPEC §7 per data set.
+        n_conv: number of conv blocks (= number of deconv blocks); per data set
+            (docs/method.md#parameters-per-data-set).
         first_channels: width of the first conv block (8 in 2D, 16 in 3D by default).
     """
 

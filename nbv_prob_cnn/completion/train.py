@@ -1,6 +1,6 @@
-"""The one training loop of the project's networks (SPEC §3, §6): the completion CNN
+"""The one training loop of the project's networks (docs/method.md: completion CNN, methods): the completion CNN
 (``cnn_prob``) and the City-CNN baselines (``flat_city_cnn``, ``b_city_cnn``, ``d_city_cnn``),
-Adam (lr 1e-3 by default, SPEC), MSE loss (:mod:`~nbv_prob_cnn.completion.tasks` says what each one
+Adam (lr 1e-3 by default, the paper's), MSE loss (:mod:`~nbv_prob_cnn.completion.tasks` says what each one
 learns). The learning rate is constant by default; ``lr_schedule="cosine"`` decays it per epoch
 (:func:`learning_rate`), for runs that become unstable at a constant rate.
 
@@ -397,7 +397,7 @@ def train(
         backend: ray-casting backend of the City-CNN targets.
         note: a sentence for the model card (e.g. why a run was short).
         lr: Adam's (initial) learning rate (default: the data set's, :mod:`nbv_prob_cnn.basics.datasets`;
-            the SPEC's 1e-3 except on 3DT).
+            the paper's 1e-3 except on 3DT).
         lr_schedule: ``constant`` or ``cosine`` (:func:`learning_rate`; default: the data set's).
         cache: City-CNNs read their examples from the cached training set
             (:mod:`~nbv_prob_cnn.completion.city_cache`, generated first where missing) instead of

@@ -1,4 +1,5 @@
-"""The method comparison of SPEC §9: every method on the same held-out environments, one CSV
+"""The method comparison of docs/method.md#exploration-protocol-and-metrics: every method on the same held-out
+environments, one CSV
 per run, then mean/spread curves (paper Fig. 5), time against explored fraction (Fig. 6) and
 a table of the unknown fraction after given numbers of views.
 
@@ -130,7 +131,8 @@ def run_one(
     gain_variant: str = "paper",
     guard_min_cells: int | None = None,
 ) -> tuple[str, dict]:
-    """One run of SPEC §9 (the body of a Ray task): the CSV text and its metadata.
+    """One run of docs/method.md#exploration-protocol-and-metrics (the body of a Ray task): the CSV text and
+    its metadata.
     ``guard_min_cells``: run with the view guard of this threshold (None: the plain loop)."""
     from nbv_prob_cnn.worlds import load_or_generate
 

@@ -1,4 +1,5 @@
-"""The exploration protocol of SPEC §9: start all-unknown, a random first view, then the
+"""The exploration protocol of docs/method.md#exploration-protocol-and-metrics: start all-unknown, a random
+first view, then the
 planner's views, each simulated and merged, logged per iteration."""
 
 from __future__ import annotations
@@ -96,7 +97,8 @@ def explore(
 ) -> ExplorationResult:
     """Run one exploration of ``world`` with ``planner`` for at most ``views`` views.
 
-    The first view is ``first`` if given, else random (SPEC §9); the run stops early when the
+    The first view is ``first`` if given, else random (docs/method.md#exploration-protocol-and-metrics); the
+    run stops early when the
     planner finds no view (no positive gain, or, for a constrained planner, none it can take).
     While no cell is known empty (a noisy first view without returns) the next view is random
     too; with the exact sensor this never happens (a view always sees its own cell).

@@ -1,6 +1,7 @@
 """Noisy depth sensors against the ideal one on held-out environments (issue 19, docs/sensing.md).
 
-Every combination of sensor (``ideal`` = SPEC §2's exact observation within ``R_max``, or a
+Every combination of sensor (``ideal`` = the exact observation of docs/method.md#sensor-and-simulated-observation
+within ``R_max``, or a
 :mod:`~nbv_prob_cnn.sensing.sensor_noise` preset), method and room (walls ``margin`` metres
 outside the grid, or none) explores each environment for ``views`` views with
 :func:`~nbv_prob_cnn.exploration.explore.explore`, with the view guard unless ``--no-guard``.

@@ -1,8 +1,9 @@
 """Never repeat a view for nothing: poses whose view changed (almost) no cell are ruled out.
 
 A gain model can keep crediting a view that the sensor cannot improve: the grid does not change,
-so neither does the view's gain, and a plain loop takes the same pose again and again (SPEC §4's
-rounded ray samples slip between diagonal occupied cells; a noisy sensor cannot measure cells
+so neither does the view's gain, and a plain loop takes the same pose again and again
+(the rounded ray samples of docs/method.md#probabilistic-ray-casting-gain slip between diagonal
+occupied cells; a noisy sensor cannot measure cells
 inside its minimum range, at grazing incidence or without a return). The guard keeps a tabu
 list of the (cell, orientation) pairs whose view changed fewer than ``min_changed_cells`` cells,
 and the planner's ranking leaves them out: through the planner's ``view_mask`` where it takes
@@ -11,7 +12,8 @@ pairs at zero gain), else by ranking ``len(ruled_out)`` more views and dropping 
 ones (City-CNNs, ``random``, a remote ranker). The exploration stops, with a reason, when no
 view with positive gain is left outside the list.
 
-The paper's protocol (SPEC §9) is the plain loop: ``nbv evaluate`` runs it unless ``--guard``.
+The paper's protocol (docs/method.md#exploration-protocol-and-metrics) is the plain loop: ``nbv evaluate``
+runs it unless ``--guard``.
 """
 
 from __future__ import annotations

@@ -1,4 +1,5 @@
-"""Probabilistic ray-casting gain (SPEC §4) and view evaluation (SPEC §5).
+"""Probabilistic ray-casting gain (docs/method.md#probabilistic-ray-casting-gain) and view evaluation
+(docs/method.md#candidate-views-and-view-gain).
 
 Public API:
     * :func:`ray_directions` — the ``H_r`` unit vectors.
@@ -76,7 +77,7 @@ def ray_gains(
     variant: str = "paper",
     free_hits: bool = False,
 ) -> np.ndarray:
-    """Normalised ray gain ``G_r(v, h) = H / (H + M)`` of SPEC §4.
+    """Normalised ray gain ``G_r(v, h) = H / (H + M)`` of docs/method.md#probabilistic-ray-casting-gain.
 
     Args:
         state: ternary ``int8`` grid ``C`` (2D or 3D).
@@ -95,7 +96,8 @@ def ray_gains(
             ``G_r`` is under-estimated by less than ``eps`` (the remaining terms sum to at
             most ``Pr * sum_t t^nu``).
         min_range: ``mode="ig"`` only, minimum sensor range in cells.
-        variant: ``"paper"`` (SPEC §4) or ``"original"`` (the authors' host choices: range,
+        variant: ``"paper"`` (docs/method.md#probabilistic-ray-casting-gain) or ``"original"`` (the authors'
+        host choices: range,
             weights, normalisation, ``ig``; :mod:`nbv_prob_cnn.gain.variant`).
         free_hits: ``variant="original"``, ``mode="prob"`` only: an unknown sample counts
             ``(1 - p_t) Pr(r_t)`` (the original's CNN and oracle maps).

@@ -1,4 +1,5 @@
-"""Ray directions and sample offsets of the omnidirectional ray casting (SPEC §4)."""
+"""Ray directions and sample offsets of the omnidirectional ray casting
+(docs/method.md#probabilistic-ray-casting-gain)."""
 
 from __future__ import annotations
 

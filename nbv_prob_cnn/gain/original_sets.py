@@ -1,8 +1,8 @@
 """The ray and orientation sets of the authors' host code (issue 23 items 5–6; docs/original_code.md),
-for ``PlanningContext(view_set="original")``; the SPEC's sets are :func:`~nbv_prob_cnn.gain.ray_directions`
+for ``PlanningContext(view_set="original")``; the paper's sets are :func:`~nbv_prob_cnn.gain.ray_directions`
 and :func:`~nbv_prob_cnn.basics.camera.orientations`.
 
-* Rays: the cells of a ``16``-cube (3D: its 16³ − 14³ = 1352 boundary cells, the SPEC's
+* Rays: the cells of a ``16``-cube (3D: its 16³ − 14³ = 1352 boundary cells, the paper's
   ``N_rays = 16`` bearings) or of the whole ``16 × 16`` square (2D: all 256 cells, the interior
   ones too, so interior directions are cast again), each as the unit vector from the centre.
   Every ray is binned to the boundary cell its bearing points at (2D: 60 bins); a ray belongs to

@@ -1,4 +1,4 @@
-// Probabilistic ray-casting gain (SPEC §4) and view gain (SPEC §5, equation (7)).
+// Probabilistic ray-casting gain (docs/method.md#probabilistic-ray-casting-gain) and view gain (docs/method.md#candidate-views-and-view-gain, equation (7)).
 //
 // The grid is one float per cell ("code", see opencl.py: march_grid), C order [x][y][z] (2D
 // grids have nz = 1), padded with one known-occupied cell on every side (2D: on x and y only):
@@ -25,7 +25,7 @@
 // with their own frusta), view_gain sums it into the candidate views per origin.
 //
 // GAIN_ORIGINAL (a build option, default 0) selects the gain variant of gain/variant.py: 0 is the
-// paper's (SPEC §4-§5); 1 the host choices of the authors' code (docs/original_code.md), with
+// paper's (docs/method.md: gain, candidate views); 1 the host choices of the authors' code (docs/original_code.md), with
 // the same marching: weights min((t / ORIGINAL_FOCAL)^nu, 1) (the host gives the shorter range
 // as n_samples), MODE_PROBABILISTIC_FREE (an unknown sample counts (1 - p) Pr), per ray
 // hits and hits + miss (`totals`; total_weight = the sum of all weights for the probabilistic

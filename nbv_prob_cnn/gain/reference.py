@@ -1,4 +1,5 @@
-"""Plain numpy reference of the ray gain (SPEC §4): the literal equations, no early stop; and
+"""Plain numpy reference of the ray gain (docs/method.md#probabilistic-ray-casting-gain): the literal
+equations, no early stop; and
 of the original variant (:func:`original_ray_terms`, the authors' host choices).
 
 It is the readable implementation the OpenCL kernel is tested against (vectorized over

@@ -1,4 +1,4 @@
-"""Gain variants: the paper's equations (``"paper"``, SPEC §4–§5, the default) and the host
+"""Gain variants: the paper's equations (``"paper"``, docs/method.md: gain, candidate views, the default) and the host
 choices of the authors' published code (``"original"``), for the same kernel.
 
 ``"original"`` reproduces items 1–4 and 7 of issue 23 (docs/original_code.md explains each,
@@ -18,7 +18,7 @@ with the paper's equation beside the code's choice):
    a ray that leaves the grid or ends unblocked has ``hits + miss = Σ_t w_t``.
 
 Items 5–6 (the authors' ray and orientation sets) are not part of the variant; in 3D their
-ray set is the SPEC's ``N_rays = 16`` cube (``--n-rays 16``).
+ray set is the paper's ``N_rays = 16`` cube (``--n-rays 16``).
 """
 
 from __future__ import annotations

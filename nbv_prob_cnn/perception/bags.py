@@ -1,6 +1,6 @@
 """Depth-camera rosbag2 files (mcap storage) written and read with ``rosbags`` — no ROS needed.
 
-Topics (SPEC §10 defaults):
+Topics (the defaults of docs/method.md#node-graph):
     * ``/camera/depth/image``        ``sensor_msgs/msg/Image``, ``32FC1`` metres or ``16UC1`` millimetres
     * ``/camera/depth/camera_info``  ``sensor_msgs/msg/CameraInfo`` (pinhole ``K``; rectified images assumed)
     * ``/camera/pose``               ``geometry_msgs/msg/TransformStamped``, ``world`` -> ``camera_optical``

@@ -1,6 +1,6 @@
 """Simulated pinhole depth camera: ray casting of triangle meshes with open3d.
 
-Conventions (SPEC §2, §10):
+Conventions (docs/method.md: sensor, node graph):
     * Poses are ``world_from_optical`` 4×4 matrices; the optical frame is REP-103
       (x right, y down, z forward).
     * Pixel ``(u, v)`` (column, row) has its centre at image coordinates ``(u, v)``

@@ -12,7 +12,7 @@ Per pixel, open3d's projective TSDF: ``sdf = depth(pixel of the cell centre) - z
 cells with ``sdf < -trunc`` are left untouched, others get ``clamp(sdf, ., trunc)/trunc``
 averaged with weight 1 per frame.
 
-Ternary extraction (SPEC §1 values):
+Ternary extraction (the values of docs/method.md#grids):
     * weight 0 (never observed)                         -> UNKNOWN (-1)
     * ``tsdf * trunc > empty_margin`` (in front of the surface by more than the margin) -> EMPTY (0)
     * otherwise (near the surface, or behind it within the truncation) -> OCCUPIED (1)

@@ -1,4 +1,4 @@
-"""Next-best-view methods behind one interface, selectable by name (SPEC §6); the registry is
+"""Next-best-view methods behind one interface, selectable by name (docs/method.md#methods); the registry is
 :mod:`nbv_prob_cnn.planners.registry`."""
 
 from __future__ import annotations

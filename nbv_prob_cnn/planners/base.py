@@ -16,13 +16,13 @@ from nbv_prob_cnn.gain import best_origin_view, empty_origins, origin_view_gains
 from nbv_prob_cnn.gain.original_sets import original_view_set
 from nbv_prob_cnn.gain.variant import check_variant, ig_min_range, uses_free_hits
 
-#: Ray and orientation sets of :class:`PlanningContext`: the SPEC's, or the authors' code's.
+#: Ray and orientation sets of :class:`PlanningContext`: the paper's, or the authors' code's.
 VIEW_SETS = ("spec", "original")
 #: Upper bound on origins × views per gain call (bounds the (origins, views) gains in memory).
 MAX_VIEWS_PER_CALL = 64_000_000
 
 
-#: ``completion(state, context) -> P``: a probabilistic map of ``state`` (SPEC §3).
+#: ``completion(state, context) -> P``: a probabilistic map of ``state`` (docs/method.md#completion-cnn).
 CompletionHook = Callable[[np.ndarray, "PlanningContext"], np.ndarray]
 #: ``ranker(method, state, prob, top_k) -> views``: the ``top_k`` best views of a method, best first.
 RankHook = Callable[[str, np.ndarray, "np.ndarray | None", int], "list[ViewChoice]"]
@@ -37,7 +37,7 @@ class PlanningContext:
     """Everything a planner may read besides the grid.
 
     Attributes:
-        defaults: the data set's SPEC §7 parameters (sensor, N_rays, P0, stride…).
+        defaults: the data set's parameters (docs/method.md#parameters-per-data-set: sensor, N_rays, P0, stride…).
         rng: random generator (random planner, downsampled origins).
         ground_truth: the oracle's grid ``D`` (only the omniscient planner reads it).
         backend: ray-casting backend (``"auto"``, ``"opencl"``, ``"numpy"``).
@@ -50,9 +50,10 @@ class PlanningContext:
             local view search (e.g. a call to ``/nbv/rank_views``); ``prob`` is the completed map
             for CNN-probability methods, else None. None: search in this process.
         origin_stride: overrides the data set's origin stride (1 = every empty cell).
-        gain_variant: ``"paper"`` (SPEC §4–§5) or ``"original"`` (the authors' host choices,
+        gain_variant: ``"paper"`` (docs/method.md: gain, candidate views) or ``"original"`` (the authors' host choices,
             :mod:`nbv_prob_cnn.gain.variant`, docs/original_code.md).
-        view_set: ``"spec"`` (SPEC §4–§5 rays and orientations) or ``"original"`` (the authors'
+        view_set: ``"spec"`` (the rays and orientations of docs/method.md: gain, candidate views) or ``"original"``
+        (the authors'
             ray and orientation sets, :mod:`nbv_prob_cnn.gain.original_sets`; not with ``n_rays``).
     """
 
@@ -168,7 +169,8 @@ def search_views(
     view_mask: ViewMask | None = None,
     probability: str | None = None,
 ) -> list[ViewChoice]:
-    """The ``top_k`` (origin, orientation) pairs with the largest ``G_W``, best first (SPEC §5).
+    """The ``top_k`` (origin, orientation) pairs with the largest ``G_W``, best first
+    (docs/method.md#candidate-views-and-view-gain).
 
     View gains are computed in blocks of origins (bounded memory) by
     :func:`~nbv_prob_cnn.gain.origin_view_gains`. Ties go to the first origin, then the first view.

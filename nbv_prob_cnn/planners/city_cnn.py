@@ -18,7 +18,8 @@ overrides do not apply to them.
   composite cells whose boundary sub-cells hold the gain of the matching ray (same order as
   :func:`~nbv_prob_cnn.gain.ray_directions`), the central sub-cells masked to 0.
 
-Targets are the gains of the omniscient method (SPEC §4 with ``P = D`` in unknown cells): for a
+Targets are the gains of the omniscient method (docs/method.md#probabilistic-ray-casting-gain with ``P = D``
+in unknown cells): for a
 ray, the unknown cells it would observe against the ground truth (up to and including the first
 occupied one), each weighted ``t^ν`` and normalised by ``Σ t^ν``; for a view, the sum over its
 rays. View gains are divided by the largest number of rays in a view so that every target lies

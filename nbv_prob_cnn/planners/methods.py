@@ -1,4 +1,4 @@
-"""The gain-based methods of SPEC §6 as data, and the one planner that runs them all.
+"""The gain-based methods of docs/method.md#methods as data, and the one planner that runs them all.
 
 Every gain-based method is the same kernel with a different probability map (and origin set):
 
@@ -34,7 +34,7 @@ from nbv_prob_cnn.planners.base import (
     search_views,
 )
 
-#: Origins evaluated by the downsampled method, per dimensionality (SPEC §5).
+#: Origins evaluated by the downsampled method, per dimensionality (docs/method.md#candidate-views-and-view-gain).
 DOWNSAMPLED_ORIGINS = {2: 2000, 3: 500}
 
 

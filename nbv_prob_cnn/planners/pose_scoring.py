@@ -1,5 +1,5 @@
 """Score arbitrary camera poses (e.g. the poses a manipulator can reach) with the gain of
-SPEC §4–§5: the ray gains of the cell that contains the camera, summed over the rays inside
+docs/method.md: gain, candidate views: the ray gains of the cell that contains the camera, summed over the rays inside
 that pose's frustum."""
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""The one method registry (SPEC §6): every next-best-view method by name, read by ``nbv explore``,
+"""The one method registry (docs/method.md#methods): every next-best-view method by name, read by ``nbv explore``,
 ``nbv evaluate``, the gain server and the planner node.
 
 Adding a method = one module with a planner class (see :class:`~nbv_prob_cnn.planners.base.RankingPlanner`)

@@ -1,6 +1,6 @@
 """``bag_replay``: publish the messages of a rosbag2 on their original topics, paced by bag time.
 
-There is no ``ros2 bag play`` here; this node stands in for it (SPEC §10: ``bag_replay`` feeds the
+There is no ``ros2 bag play`` here; this node stands in for it (docs/method.md#node-graph: ``bag_replay`` feeds the
 integrator the camera topics of a recorded bag). Messages are published as the serialized CDR
 bytes stored in the bag (no decoding), with the publish times following the bag's log times
 divided by ``rate``.

@@ -5,7 +5,8 @@ range from parameters. Not a node: ``gain_server`` and ``nbv_planner`` each own 
 Precedence, per quantity: a request's own field (``EvaluateViews`` ``hfov_deg``, ...), then the
 node parameter (``hfov_deg``, ``vfov_deg``, ``min_range_m``, ``max_range_m``; 0 = not set), then
 the latest ``CameraInfo`` on ``camera_info_topic`` (fields of view only, with
-``sensor_from_camera_info``), then the data set's sensor (SPEC §2). What is used is logged at
+``sensor_from_camera_info``), then the data set's sensor (docs/method.md#sensor-and-simulated-observation).
+What is used is logged at
 start-up and again when the first (or a changed) ``CameraInfo`` arrives.
 """
 

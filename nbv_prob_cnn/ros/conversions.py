@@ -1,6 +1,6 @@
 """Conversions between our messages and numpy (no node needed; testable without a graph).
 
-Grids travel flattened x fastest, then y, then z (SPEC §1). Large arrays are assigned as
+Grids travel flattened x fastest, then y, then z (docs/method.md#grids). Large arrays are assigned as
 ``array.array`` and read with ``np.frombuffer`` (assigning numpy arrays to message fields is
 slow in rclpy).
 """

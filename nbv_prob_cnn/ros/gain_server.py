@@ -75,7 +75,7 @@ class GainServerConfig(SensorParams, ArmViewParams):
     backend: Backend = param("auto", "ray-casting backend", choices=BACKEND_NAMES)
     n_rays: int = param(0, "ray sub-cells per side (0 = data set default)", min_value=0, max_value=64)
     gain_variant: str = param(
-        "paper", "gain: 'paper' (SPEC) or 'original' (the authors' host choices, docs/original_code.md)",
+        "paper", "gain: 'paper' (docs/method.md) or 'original' (the authors' host choices, docs/original_code.md)",
         choices=GAIN_VARIANTS,
     )  # fmt: skip
     completion: str = param(

@@ -1,4 +1,5 @@
-"""``integrator``: TSDF fusion of posed depth frames into the ternary grid ``/nbv/grid`` (SPEC §1, §10).
+"""``integrator``: TSDF fusion of posed depth frames into the ternary grid ``/nbv/grid`` (docs/method.md:
+grids, node graph).
 
 Subscribes ``/camera/depth/image`` (``32FC1`` metres or ``16UC1`` millimetres; 0/NaN = no return)
 and ``/camera/depth/camera_info`` and pairs them by header stamp (± ``sync_tolerance_s``). Each

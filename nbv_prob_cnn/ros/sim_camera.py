@@ -1,4 +1,4 @@
-"""``sim_camera``: a simulated depth camera looking at a generated world or a mesh (SPEC §2, §10).
+"""``sim_camera``: a simulated depth camera looking at a generated world or a mesh (docs/method.md: sensor, node graph).
 
 Publishes, all with the same header stamp per frame:
 

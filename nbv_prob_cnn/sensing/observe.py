@@ -1,4 +1,4 @@
-"""Simulated depth observation against a ground-truth grid (SPEC §2).
+"""Simulated depth observation against a ground-truth grid (docs/method.md#sensor-and-simulated-observation).
 
 Rays leave the centre of the camera cell through a pinhole pixel grid dense enough that
 neighbouring rays are at most half a cell apart at ``R_max``. Each ray is traversed exactly,

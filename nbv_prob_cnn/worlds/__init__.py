@@ -1,4 +1,4 @@
-"""Environment generators (SPEC §8) and the on-disk cache of generated worlds.
+"""Environment generators (docs/method.md#data-sets) and the on-disk cache of generated worlds.
 
 * ``"2d"``: a random 400×400 crop (1.2 m cells) of the procedural 1250×1250 city map of the
   seed (:mod:`~nbv_prob_cnn.worlds.city2d`; the crop corner from ``default_rng([seed, 1])``).

