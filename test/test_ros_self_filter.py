@@ -106,7 +106,7 @@ def test_arm_rendered_and_filtered_out_of_the_grid(ros_domain, tmp_path: Path) -
                 reply = client.call(move, request)
                 if reply.success:
                     break
-                assert "no joint_states received yet" in reply.message, reply.message
+                assert "render_arm: no joint_states" in reply.message and "received yet" in reply.message, reply.message
                 client.spin_until(lambda: False, 0.2)
             assert reply is not None and reply.success, reply and reply.message
             # a frame stamped before the integrator's joint_states reader matched arm_sim's writer

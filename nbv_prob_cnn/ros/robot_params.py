@@ -388,7 +388,7 @@ class JointStateTracker:
             if not self._condition.wait_for(lambda: self._q is not None or bool(self._error), timeout_s):
                 missing = self._merger.missing()
                 raise TimeoutError(
-                    f"no complete joint state on joint_states within {timeout_s:.0f} s (never received: {missing})"
+                    f"no complete joint state on joint_states within {timeout_s:g} s (never received: {missing})"
                 )
 
     def wait_until(self, goal: np.ndarray, tolerance: float, min_stamp_ns: int, timeout_s: float) -> int:

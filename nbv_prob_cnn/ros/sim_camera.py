@@ -301,7 +301,8 @@ class SimCamera(Node):
                 if at_ns is not None:
                     q = self._arm_qs.get(at_ns)
                 if q is None:
-                    raise ValueError(f"render_arm: no {names.JOINT_STATES} of that stamp received yet, no frame")
+                    which = "" if at_ns is None else f" stamped {at_ns} ns (the arm pose's)"
+                    raise ValueError(f"render_arm: no {names.JOINT_STATES}{which} received yet, no frame")
                 occluders.append(self._arm.scene(q))  # rebuilt only when the joints moved
                 # the frame shows the arm as it was at that joint state: it carries its stamp (unless
                 # the joint states stopped: then the frame is stamped now and shows the last known arm)
