@@ -21,6 +21,21 @@ from collections.abc import Sequence
 import numpy as np
 
 
+def checked_joint_names(names: Sequence[str], positions: Sequence[float]) -> list[str]:
+    """The names of a joint_states message as strings, checked against its positions.
+
+    Raises:
+        ValueError: as many names as positions is not the case, or a name appears twice.
+    """
+    names = [str(name) for name in names]
+    if len(names) != len(positions):
+        raise ValueError(f"joint_states: {len(names)} joint names but {len(positions)} positions")
+    duplicates = sorted({name for name in names if names.count(name) > 1})
+    if duplicates:
+        raise ValueError(f"joint_states: duplicate joint names {duplicates}")
+    return names
+
+
 class JointStateMerger:
     """The latest position of each of ``joint_names``, merged over partial joint states.
 
@@ -42,12 +57,7 @@ class JointStateMerger:
             ValueError: names and positions of different lengths, a duplicate name, or a
                 non-finite position of one of the model's joints (nothing is merged then).
         """
-        names = [str(name) for name in names]
-        if len(names) != len(positions):
-            raise ValueError(f"joint_states: {len(names)} joint names but {len(positions)} positions")
-        duplicates = sorted({name for name in names if names.count(name) > 1})
-        if duplicates:
-            raise ValueError(f"joint_states: duplicate joint names {duplicates}")
+        names = checked_joint_names(names, positions)
         known = [(self._index[name], float(value), name) for name, value in zip(names, positions, strict=True)
                  if name in self._index]  # fmt: skip
         bad = [name for _, value, name in known if not math.isfinite(value)]

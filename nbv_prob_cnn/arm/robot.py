@@ -25,6 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
+from nbv_prob_cnn.arm.joint_states import checked_joint_names
 from nbv_prob_cnn.perception.depth_camera import check_pose
 from nbv_prob_cnn.worlds import dataset_cache_dir
 
@@ -297,12 +298,7 @@ class RobotModel:
             ValueError: names and positions of different lengths, duplicate, unknown or missing
                 joint names (the message names them), or non-finite positions.
         """
-        names = [str(name) for name in names]
-        if len(names) != len(positions):
-            raise ValueError(f"joint_states: {len(names)} joint names but {len(positions)} positions")
-        duplicates = sorted({name for name in names if names.count(name) > 1})
-        if duplicates:
-            raise ValueError(f"joint_states: duplicate joint names {duplicates}")
+        names = checked_joint_names(names, positions)
         missing = [name for name in self.joint_names if name not in names]
         unknown = sorted(set(names) - set(self.joint_names))
         if missing or unknown:
