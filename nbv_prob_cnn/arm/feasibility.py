@@ -10,6 +10,8 @@ list. A view is feasible when its pose has an IK solution within the limits, tha
 is free of self- and grid collision, and the straight joint path to it is free at samples at most
 ``path_step`` rad apart. The cells the arm fills at the current configuration count as free
 (it is there, so nothing else is; the map may hold them as unknown or, unfiltered, occupied).
+With a ``path_planner`` (:mod:`nbv_prob_cnn.arm.path_planning`), a goal whose straight path is
+blocked gets a planned path instead, and ``L`` is that path's joint-space length.
 """
 
 from __future__ import annotations
@@ -24,6 +26,7 @@ from nbv_prob_cnn.arm.capability import CapabilityMap
 from nbv_prob_cnn.arm.collision import CollisionChecker, GridObstacles
 from nbv_prob_cnn.arm.ik import DEFAULT_IK, IkSettings, alternative_solutions, solve_camera_pose
 from nbv_prob_cnn.arm.kinematics import CameraChain
+from nbv_prob_cnn.arm.path_planning import JointPathPlanner, PathPlanningError, path_length
 from nbv_prob_cnn.arm.robot import RobotModel
 from nbv_prob_cnn.basics.camera import matrix_from_quaternion
 from nbv_prob_cnn.basics.geometry import GridGeometry
@@ -33,12 +36,14 @@ from nbv_prob_cnn.planners.requests import view_pose
 
 @dataclass
 class ArmView:
-    """A feasible view: the planner's choice, the joint goal, path length and utility."""
+    """A feasible view: the planner's choice, the joint goal, path length and utility;
+    ``waypoints`` (``(k, nq)``, start to goal) when the path is a planned one, None when straight."""
 
     choice: ViewChoice
     q: np.ndarray
     path_length: float
     utility: float
+    waypoints: np.ndarray | None = None
 
 
 @dataclass
@@ -57,6 +62,8 @@ class FeasibilityReport:
     path_blocked: int = 0
     budget_exhausted: bool = False
     fallback: bool = False  # set by callers that ranked again with a narrower origin filter
+    paths_planned: int = 0  # straight path blocked, a planned path found (``path_planner``)
+    paths_not_found: int = 0  # straight path blocked, path planning failed too
     times: dict[str, float] = field(default_factory=lambda: {"capability": 0.0, "ik_collision": 0.0})
 
 
@@ -80,6 +87,9 @@ class ArmFeasibility:
             checked before the view is rejected; 0 = the first solution only.
         strict_capability: views pass the capability map only when every lattice node around
             their cell reaches the orientation (:meth:`CapabilityMap.views_at` ``strict``).
+        path_planner: when the straight path to a collision-free goal is blocked, plan one
+            (:class:`JointPathPlanner`, at most ``settings.max_attempts`` per :meth:`select`);
+            the motion cost is then the planned path's length. None: straight paths only.
     """
 
     def __init__(
@@ -96,6 +106,7 @@ class ArmFeasibility:
         rng: np.random.Generator | None = None,
         ik_alternatives: int = 0,
         strict_capability: bool = False,
+        path_planner: JointPathPlanner | None = None,
     ) -> None:
         if not (np.isfinite(motion_weight) and motion_weight >= 0):
             raise ValueError(f"motion_weight: expected a finite value >= 0, got {motion_weight}")
@@ -117,6 +128,7 @@ class ArmFeasibility:
             raise ValueError(f"ik_alternatives: expected >= 0, got {ik_alternatives}")
         self.ik_alternatives = int(ik_alternatives)
         self.strict_capability = bool(strict_capability)
+        self.path_planner = path_planner
         self.rng = rng if rng is not None else np.random.default_rng()
 
     def origin_filter(self) -> Callable[[np.ndarray], np.ndarray] | None:
@@ -149,19 +161,42 @@ class ArmFeasibility:
             yield from distinct[: self.ik_alternatives]
 
     def _free_goal(
-        self, first: np.ndarray, target: np.ndarray, current_q: np.ndarray, obstacles: GridObstacles
-    ) -> tuple[np.ndarray | None, str]:
+        self,
+        first: np.ndarray,
+        target: np.ndarray,
+        current_q: np.ndarray,
+        obstacles: GridObstacles,
+        report: FeasibilityReport | None = None,
+    ) -> tuple[np.ndarray | None, str, np.ndarray | None]:
         """The first of :meth:`_goals` that is collision-free with a free straight path from
-        ``current_q``; else None and why the last one failed (``"collision"`` or ``"path"``)."""
+        ``current_q``; else, with a ``path_planner``, the first collision-free goal with a planned
+        path (its waypoints third); else None and why the last one failed (``"collision"`` or
+        ``"path"``)."""
         failure = ""
+        blocked: np.ndarray | None = None  # the first collision-free goal whose straight path is blocked
         for goal in self._goals(first, target, current_q):
             if not self.checker.is_free(goal, obstacles):
                 failure = "collision"
             elif not self.checker.path_is_free(current_q, goal, obstacles, self.path_step):
                 failure = "path"
+                blocked = goal if blocked is None else blocked
             else:
-                return goal, ""
-        return None, failure
+                return goal, "", None
+        planner = self.path_planner
+        if blocked is not None and planner is not None and report is not None:
+            if report.paths_planned + report.paths_not_found < planner.settings.max_attempts:
+                begin = time.perf_counter()
+                try:
+                    path = planner.plan(current_q, blocked, obstacles)
+                except PathPlanningError:
+                    report.paths_not_found += 1
+                else:
+                    report.paths_planned += 1
+                    return blocked, "", path.waypoints
+                finally:
+                    report.times["path_planning"] = report.times.get("path_planning", 0.0) + time.perf_counter() - begin
+            failure = "path"
+        return None, failure, None
 
     def select(
         self,
@@ -205,7 +240,7 @@ class ArmFeasibility:
             if solution.q is None:
                 report.unreachable += 1
                 continue
-            goal, failure = self._free_goal(solution.q, target, current_q, obstacles)
+            goal, failure, waypoints = self._free_goal(solution.q, target, current_q, obstacles, report)
             if goal is None:
                 if failure == "collision":
                     report.in_collision += 1
@@ -213,9 +248,11 @@ class ArmFeasibility:
                     report.path_blocked += 1
                 continue
             length = float(np.linalg.norm((goal - current_q)[self.chain.q_index]))
+            if waypoints is not None:  # a planned path: its own length is the motion cost
+                length = path_length(waypoints, self.chain.q_index)
             utility = choice.gain - self.motion_weight * length
             if best is None or utility > best.utility:
-                best = ArmView(choice, goal, length, utility)
+                best = ArmView(choice, goal, length, utility, waypoints)
         report.view = best
         report.times["ik_collision"] = time.perf_counter() - start
         return report

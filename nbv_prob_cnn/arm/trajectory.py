@@ -107,6 +107,40 @@ def time_parameterise(
     return TimedPath(times, positions, samples[:, 1:2] * delta, samples[:, 2:3] * delta)
 
 
+def time_parameterise_path(
+    waypoints: np.ndarray,
+    max_velocity: np.ndarray,
+    max_acceleration: np.ndarray,
+    max_jerk: np.ndarray,
+    dt: float = 0.05,
+) -> TimedPath:
+    """The polyline through ``waypoints (k, n)`` (first the start, last the goal), each segment
+    timed by :func:`time_parameterise` (rest to rest, within the velocity, acceleration and jerk
+    limits) and the segments run one after another; every waypoint is a sample.
+
+    Raises:
+        ValueError: fewer than one waypoint, wrong shapes, non-finite values, bad limits or ``dt``.
+    """
+    points = np.asarray(waypoints, dtype=np.float64)
+    if points.ndim != 2 or points.shape[0] < 1:
+        raise ValueError(f"time parameterisation: expected waypoints of shape (k >= 1, n), got {points.shape}")
+    if points.shape[0] == 1:
+        return time_parameterise(points[0], points[0], max_velocity, max_acceleration, max_jerk, dt)
+    times, positions, velocities, accelerations = [np.zeros(1)], [points[:1]], [], []
+    for a, b in zip(points[:-1], points[1:], strict=True):
+        segment = time_parameterise(a, b, max_velocity, max_acceleration, max_jerk, dt)
+        if not velocities:
+            velocities.append(segment.velocities[:1])
+            accelerations.append(segment.accelerations[:1])
+        if segment.times.size == 1:  # a repeated waypoint
+            continue
+        times.append(times[-1][-1] + segment.times[1:])
+        positions.append(segment.positions[1:])
+        velocities.append(segment.velocities[1:])
+        accelerations.append(segment.accelerations[1:])
+    return TimedPath(np.concatenate(times), np.vstack(positions), np.vstack(velocities), np.vstack(accelerations))
+
+
 def check_trajectory(
     joint_names: Sequence[str],
     controller_joints: Sequence[str],
@@ -196,5 +230,6 @@ __all__ = [
     "TrajectoryError",
     "check_trajectory",
     "time_parameterise",
+    "time_parameterise_path",
     "tolerance_violation",
 ]
