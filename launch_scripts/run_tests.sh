@@ -4,4 +4,5 @@ set -euo pipefail
 repo="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 bash "$repo/launch_scripts/setup.sh"
 cd "$repo"
-exec "$repo/.venv/bin/python" -m pytest -q "$@" test
+# --durations: the slowest tests are printed with every run, so the suite time stays visible
+exec "$repo/.venv/bin/python" -m pytest -q --durations=15 "$@" test
