@@ -38,21 +38,15 @@ def main(argv=None) -> int:
 
     def start_nodes(graph: NodeGraph) -> None:
         box = {"origin": [0.0, 0.0, 0.0], "shape": list(defaults.shape), "voxel_size": defaults.resolution_m}
-        graph.start_node(
-            "integrator",
-            "integrator",
-            {**box, "pose_source": "topic", "drop_when_behind": False, "queue_size": 200, "qos_reliability": "reliable"},
-        )
+        # the bag carries its poses on /camera/pose; the defaults lose no frame (bag_replay waits
+        # for the integrator's subscriptions and paces each frame by its diagnostics)
+        graph.start_node("integrator", "integrator", {**box, "pose_source": "topic"})
         graph.start_node("completion_server", "completion_server", common)
         graph.start_node("gain_server", "gain_server", common)
         graph.start_node("nbv_planner", "nbv_planner", {**common, "method": args.method})
-        replay = {
-            "bag": str(Path(args.bag).resolve()),
-            "rate": args.rate,
-            "wait_for_subscribers": 1,
-            "wait_timeout_s": 60.0,
-        }
-        graph.start_node("bag_replay", "bag_replay", {**replay, "queue_size": 200})
+        # a longer wait than the default 30 s: four nodes load at once
+        replay = {"bag": str(Path(args.bag).resolve()), "rate": args.rate, "wait_timeout_s": 60.0}
+        graph.start_node("bag_replay", "bag_replay", replay)
 
     client = [sys.executable, "-m", "nbv_prob_cnn.ros.plan_client", "--method", args.method,
               "--top-k", str(args.top_k), "--out", args.out]  # fmt: skip

@@ -85,6 +85,7 @@ from geometry_msgs.msg import TransformStamped
 from nbv_prob_cnn_msgs.msg import VoxelGrid
 from nbv_prob_cnn_msgs.srv import SaveGrid
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
+from rclpy.event_handler import SubscriptionEventCallbacks
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy
 from sensor_msgs.msg import CameraInfo, Image, JointState
@@ -145,6 +146,8 @@ TF_DROP_REASONS = {
 }
 #: Depth of the ``joint_states`` subscription with ``self_filter`` (2 s of a 50 Hz stream).
 JOINT_STATES_QUEUE = 100
+#: The image rate reported in the diagnostics is measured over the images of this last span [s].
+IMAGE_RATE_WINDOW_S = 5.0
 #: Re-exported for callers that took them from here.
 __all__ = ["ENCODINGS", "Integrator", "PairedFrame", "StampSync", "main"]
 
@@ -262,6 +265,9 @@ class Integrator(Node):
             self._self_filter = RobotSelfFilter(robot, cfg.self_filter_bodies, cfg.self_filter_tolerance_m)
             self._joint_merger = JointStateMerger(robot.joint_names)  # arm and gripper may come separately
         self._queue: deque[PairedFrame] = deque()
+        self._integrating = 0  # frames the worker took from the queue and has not finished (0 or 1)
+        self._image_times: deque[float] = deque()  # arrival times (monotonic) of the last images
+        self.lost_in_transport: dict[str, int] = {}  # topic -> messages DDS reported lost before delivery
         self._generation = 0
         self._stop = False
         self._dirty = False
@@ -279,10 +285,14 @@ class Integrator(Node):
         self._grid_pub = self.create_publisher(VoxelGrid, TOPIC_GRID, GRID_QOS)
         inputs = MutuallyExclusiveCallbackGroup()
         services = MutuallyExclusiveCallbackGroup()
-        self.create_subscription(Image, names.DEPTH_IMAGE, self._on_image, camera_qos, callback_group=inputs, raw=True)
         self.create_subscription(
-            CameraInfo, names.CAMERA_INFO, self._on_info, camera_qos, callback_group=inputs, raw=True
-        )
+            Image, names.DEPTH_IMAGE, self._on_image, camera_qos, callback_group=inputs, raw=True,
+            event_callbacks=self._lost_counter(names.DEPTH_IMAGE),
+        )  # fmt: skip
+        self.create_subscription(
+            CameraInfo, names.CAMERA_INFO, self._on_info, camera_qos, callback_group=inputs, raw=True,
+            event_callbacks=self._lost_counter(names.CAMERA_INFO),
+        )  # fmt: skip
         self._tf: TfListener | None = None
         self._tf_errors: dict[int, TransformError] = {}  # image stamp -> why its last TF lookup failed
         if cfg.pose_source == "tf":
@@ -292,8 +302,9 @@ class Integrator(Node):
             self.create_timer(TF_RETRY_PERIOD_S, self._on_tf_retry_timer, callback_group=inputs)
         else:
             self.create_subscription(
-                TransformStamped, names.CAMERA_POSE, self._on_pose, camera_qos, callback_group=inputs, raw=True
-            )
+                TransformStamped, names.CAMERA_POSE, self._on_pose, camera_qos, callback_group=inputs, raw=True,
+                event_callbacks=self._lost_counter(names.CAMERA_POSE),
+            )  # fmt: skip
         if cfg.self_filter:
             # the filter needs the joint state of each frame's stamp: keep a few seconds of them (they are small)
             joints_qos = subscription_qos(max(cfg.queue_size, JOINT_STATES_QUEUE), cfg.qos_reliability)
@@ -321,6 +332,20 @@ class Integrator(Node):
         )
 
     # -------------------------------------------------------------- callbacks
+    def _lost_counter(self, topic: str) -> SubscriptionEventCallbacks:
+        """Event callbacks that count the messages of ``topic`` DDS reports lost on the way (a
+        gap in a best-effort writer's sequence numbers): frames that never reached the node."""
+        self.lost_in_transport[topic] = 0
+
+        def on_lost(status) -> None:
+            self.lost_in_transport[topic] = int(status.total_count)
+            self.get_logger().warning(
+                f"{topic}: {status.total_count_change} message(s) lost in transport (DDS); "
+                f"{status.total_count} so far", throttle_duration_sec=5.0,
+            )  # fmt: skip
+
+        return SubscriptionEventCallbacks(message_lost=on_lost)
+
     def _drop(self, reason: DropReason, text: str, n: int = 1, error: bool = False) -> None:
         """Count ``n`` dropped frames under ``reason`` and log why (at most every 5 s per reason)."""
         self.drops.add(reason, n)
@@ -347,7 +372,12 @@ class Integrator(Node):
         if msg is None:
             return
         stamp = stamp_of(msg)
-        self.counts["images"] += 1
+        with self._cv:  # counted under the pairing's lock: never seen received but not yet pending
+            self.counts["images"] += 1
+            now = time.monotonic()
+            self._image_times.append(now)
+            while self._image_times and self._image_times[0] < now - IMAGE_RATE_WINDOW_S:
+                self._image_times.popleft()
         if msg.encoding not in ENCODINGS:
             self._drop(
                 DropReason.BAD_ENCODING,
@@ -434,9 +464,20 @@ class Integrator(Node):
 
     def diagnostics(self) -> dict[str, Any]:
         """Frame counts, drops per reason and the last drop's text per reason (what ``/diagnostics``
-        and the service report)."""
+        and the service report); ``pending``: images received and neither integrated nor dropped
+        yet (waiting for their pose / camera_info, queued or being integrated);
+        ``image_rate_hz``: images received per second over the last few seconds (compare it with
+        the camera's rate: best-effort messages lost on the way are invisible otherwise);
+        ``lost_in_transport``: messages per topic that DDS reported lost."""
+        with self._cv:
+            pending = len(self._sync.images) + len(self._queue) + self._integrating
+            times = list(self._image_times)
+        span = times[-1] - times[0] if len(times) > 1 else 0.0
         return {
             **self.counts,
+            "pending": pending,
+            "image_rate_hz": round((len(times) - 1) / span, 3) if span > 0 else 0.0,
+            "lost_in_transport": dict(self.lost_in_transport),
             "dropped": self.drops.as_dict(),
             "dropped_total": self.drops.total(),
             "last_drop": dict(self._last_drop_text),
@@ -454,7 +495,8 @@ class Integrator(Node):
             message=f"{new_drops} frame(s) dropped in the last period" if new_drops else "integrating",
             hardware_id=self.fixed_frame,
         )
-        values = {k: v for k, v in report.items() if k not in ("dropped", "last_drop")}
+        values = {k: v for k, v in report.items() if k not in ("dropped", "last_drop", "lost_in_transport")}
+        values.update({f"lost_in_transport_{k}": v for k, v in report["lost_in_transport"].items()})
         values.update({f"dropped_{k}": v for k, v in report["dropped"].items()})
         values.update({f"last_drop_{k}": v for k, v in report["last_drop"].items()})
         status.values = [KeyValue(key=k, value=str(v)) for k, v in values.items()]
@@ -494,7 +536,7 @@ class Integrator(Node):
         with self._tsdf_lock:
             self._tsdf.reset()
             with self._cv:
-                discarded = len(self._queue)
+                discarded = len(self._queue) + len(self._sync.images)  # queued, or waiting for their pose
                 self._queue.clear()
                 self._sync.images.clear()
                 self._generation += 1
@@ -551,9 +593,16 @@ class Integrator(Node):
                 if self._stop:
                     return
                 frame = self._queue.popleft() if self._queue else None
+                self._integrating = int(frame is not None)
             try:
                 if frame is not None:
                     self._integrate(frame)
+            except Exception as exc:  # keep serving: report and go on with the next frame
+                self._drop(DropReason.INTEGRATION_ERROR, f"worker: {type(exc).__name__}: {exc}", error=True)
+            finally:
+                with self._cv:
+                    self._integrating = 0
+            try:
                 if self._dirty and time.monotonic() >= self._next_publish:
                     self._publish_grid()
             except Exception as exc:  # keep serving: report and go on with the next frame
