@@ -27,32 +27,40 @@ FREE_FLYING = "free_flying"
 #: Per planned arm view: views ranked by gain, left by the capability map, rejected because a
 #: camera-rigid body (link 7, hand, fingers) would enter a blocked cell, exactly checked, and rejected by
 #: IK / collision at the goal / collision on the path, and whether the near-camera fallback found
-#: the view (FeasibilityReport fields; counts of the pass that found it).
+#: the view (FeasibilityReport fields; counts of the pass that found it); with path planning, the
+#: goals whose straight path was blocked and that got a planned path / whose planning failed too.
 STAGE_COUNTS = (
     "ranked", "candidates", "camera_blocked", "checked", "unreachable", "in_collision", "path_blocked", "fallback",
+    "paths_planned", "paths_not_found",
 )  # fmt: skip
 
 
 RUN_COLUMNS = [
     "iteration", "unknown_fraction", "unknown_fraction_all", "gain", "time_total_s", "time_gain_s",
-    "time_capability_s", "time_ik_collision_s", "joint_travel", "cell_i", "cell_j", "cell_k", "view_index",
+    "time_capability_s", "time_ik_collision_s", "time_path_planning_s", "joint_travel", "path_waypoints",
+    "cell_i", "cell_j", "cell_k", "view_index",
     "x", "y", "z", "qx", "qy", "qz", "qw", *STAGE_COUNTS,
 ]  # fmt: skip
 
 
-def config_name(motion_weight: float | None) -> str:
-    """``free_flying`` (None) or ``arm_lambda_<λ>``."""
-    return FREE_FLYING if motion_weight is None else f"arm_lambda_{motion_weight:g}"
+def config_name(motion_weight: float | None, planned_paths: bool = False) -> str:
+    """``free_flying`` (None), ``arm_lambda_<λ>`` (straight joint paths only) or
+    ``arm_lambda_<λ>_planned`` (planned paths where the straight one is blocked)."""
+    if motion_weight is None:
+        return FREE_FLYING
+    return f"arm_lambda_{motion_weight:g}" + ("_planned" if planned_paths else "")
 
 
 @dataclass
 class ArmMove:
-    """One move of the arm: the joint goal, the joint-space length of the path to it, stage times."""
+    """One move of the arm: the joint goal, the joint-space length of the path to it, stage times;
+    ``waypoints`` of a planned path (None: straight)."""
 
     q: np.ndarray
     joint_travel: float
     times: dict[str, float] = field(default_factory=dict)
     counts: dict[str, int] = field(default_factory=dict)  # candidates per stage, see STAGE_COUNTS
+    waypoints: np.ndarray | None = None
 
 
 class ArmPlanner:
@@ -119,7 +127,8 @@ class ArmPlanner:
             return None
         q_start = self.q
         counts = {name: int(getattr(report, name)) for name in STAGE_COUNTS}
-        self.moves.append(ArmMove(report.view.q.copy(), report.view.path_length, dict(report.times), counts))
+        view = report.view
+        self.moves.append(ArmMove(view.q.copy(), view.path_length, dict(report.times), counts, view.waypoints))
         self.selector.moved(q_start, report.view)
         return report.view.choice
 
@@ -169,7 +178,7 @@ def run_rows(result: ExplorationResult, context: PlanningContext, moves: list[Ar
         row.update(zip(("qx", "qy", "qz", "qw"), (f"{v:.6f}" for v in record.quaternion), strict=True))
         if moves is None:
             row.update(time_gain_s=f"{record.time_total_s:.6f}", time_capability_s="", time_ik_collision_s="")
-            row["joint_travel"] = ""
+            row.update(joint_travel="", time_path_planning_s="", path_waypoints="")
             row.update(dict.fromkeys(STAGE_COUNTS, ""))
         else:
             move = moves[index]
@@ -178,7 +187,9 @@ def run_rows(result: ExplorationResult, context: PlanningContext, moves: list[Ar
                 time_gain_s=f"{times.get('gain', 0.0):.6f}",
                 time_capability_s=f"{times.get('capability', 0.0):.6f}",
                 time_ik_collision_s=f"{times.get('ik_collision', 0.0):.6f}",
+                time_path_planning_s=f"{times.get('path_planning', 0.0):.6f}",
                 joint_travel=f"{move.joint_travel:.6f}",
+                path_waypoints=2 if move.waypoints is None else len(move.waypoints),
             )
             row.update({name: move.counts.get(name, "") for name in STAGE_COUNTS})
             row.update({f"q{j}": f"{v:.8f}" for j, v in enumerate(move.q)})
@@ -331,6 +342,167 @@ def save_comparison_png(summaries: list[ConfigSummary], path: Path, title: str) 
     bars.bar([s.config for s in arm], [s.joint_travel_mean for s in arm], color=["C1", "C2", "C3"][: len(arm)])
     bars.set_ylabel("total joint travel per run (rad, mean)")
     bars.tick_params(axis="x", labelrotation=15)
+    fig.suptitle(title)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+#: Views after which ``nbv arm-compare --paths`` reports the unknown fraction.
+CHECKPOINTS = (10, 20, 30)
+
+
+@dataclass
+class PathsSummary:
+    """Straight-only against planned paths, one configuration (means over runs; per-view values
+    over the planned views, iteration ≥ 1).
+
+    Attributes:
+        feasible_fraction: planned iterations that found a feasible view, over all the runs'
+            planned iterations (``views − 1`` each; a run ends at its first iteration without one).
+        unknown_at: mean unknown fraction after each of :data:`CHECKPOINTS` views (a run that
+            ended keeps its last value).
+        joint_travel_mean: total joint-space path length per run (rad).
+        times: mean seconds per planned view of the stages ``gain``, ``capability``,
+            ``ik_collision`` (path planning included) and ``path_planning``.
+        path_blocked_mean, paths_planned_mean, paths_not_found_mean: per planned view, exact
+            checks rejected for their path, goals reached by a planned path, plans that failed.
+        planned_moves_mean: moves per run along a planned (not straight) path.
+    """
+
+    config: str
+    runs: int
+    views_mean: float
+    feasible_fraction: float
+    unknown_at: dict[int, float]
+    joint_travel_mean: float
+    times: dict[str, float]
+    path_blocked_mean: float
+    paths_planned_mean: float
+    paths_not_found_mean: float
+    planned_moves_mean: float
+    curve: np.ndarray
+
+
+def summarize_paths(runs: dict[str, list[list[dict]]], views: int) -> list[PathsSummary]:
+    """:class:`PathsSummary` per configuration of arm run logs (:func:`run_rows`)."""
+    out = []
+    for config, logs in runs.items():
+        curves = np.empty((len(logs), views))
+        travel, planned_moves = [], []
+        per_view: dict[str, list[float]] = {k: [] for k in ("gain", "capability", "ik_collision", "path_planning")}
+        counts: dict[str, list[float]] = {k: [] for k in ("path_blocked", "paths_planned", "paths_not_found")}
+        for r, rows in enumerate(logs):
+            fractions = [float(row["unknown_fraction"]) for row in rows]
+            curves[r] = (fractions + [fractions[-1]] * views)[:views]
+            travel.append(sum(_float(row["joint_travel"]) for row in rows))
+            planned = rows[1:]
+            planned_moves.append(sum(_float(row.get("path_waypoints", "")) > 2 for row in planned))
+            for stage in per_view:
+                per_view[stage] += [_float(row.get(f"time_{stage}_s", "")) for row in planned]
+            for name in counts:
+                counts[name] += [_float(row.get(name, "")) for row in planned]
+        taken = sum(len(rows) - 1 for rows in logs)
+
+        def mean(values: list[float]) -> float:
+            finite = [v for v in values if not math.isnan(v)]
+            return float(np.mean(finite)) if finite else math.nan
+
+        out.append(
+            PathsSummary(
+                config,
+                len(logs),
+                float(np.mean([len(rows) for rows in logs])),
+                taken / max(1, len(logs) * (views - 1)),
+                {n: float(curves[:, min(n, views) - 1].mean()) for n in CHECKPOINTS if n <= views},
+                mean(travel),
+                {stage: mean(values) for stage, values in per_view.items()},
+                mean(counts["path_blocked"]),
+                mean(counts["paths_planned"]),
+                mean(counts["paths_not_found"]),
+                mean(planned_moves),
+                curves.mean(axis=0),
+            )
+        )
+    return out
+
+
+def write_paths_summary(summaries: list[PathsSummary], csv_path: Path, md_path: Path, header: str) -> None:
+    """Summary CSV and markdown table of straight-only against planned paths."""
+    checkpoints = sorted({n for s in summaries for n in s.unknown_at})
+    stages = ("gain", "capability", "ik_collision", "path_planning")
+    columns = ["config", "runs", "views_mean", "feasible_iteration_fraction"]
+    columns += [f"unknown_fraction_after_{n}" for n in checkpoints] + ["joint_travel_total_rad_mean"]
+    columns += [f"time_{stage}_s_per_view" for stage in stages]
+    columns += ["path_blocked_per_view", "paths_planned_per_view", "paths_not_found_per_view", "planned_moves_per_run"]
+    with open(csv_path, "w", newline="") as handle:
+        writer = csv.writer(handle)
+        writer.writerow(columns)
+        for s in summaries:
+            writer.writerow(
+                [s.config, s.runs, f"{s.views_mean:.2f}", f"{s.feasible_fraction:.4f}"]
+                + [_cell(s.unknown_at.get(n, math.nan), 6) for n in checkpoints]
+                + [_cell(s.joint_travel_mean, 4)]
+                + [_cell(s.times[stage], 6) for stage in stages]
+                + [_cell(v, 3) for v in (s.path_blocked_mean, s.paths_planned_mean, s.paths_not_found_mean)]
+                + [_cell(s.planned_moves_mean, 2)]
+            )
+    lines = [
+        header,
+        "",
+        "| configuration | runs | views (mean) | iterations with a feasible view | "
+        + " | ".join(f"unknown after {n}" for n in checkpoints)
+        + " | total joint travel (rad) | gain s/view | capability s/view | IK+collision s/view (planning included) "
+        "| path planning s/view | straight path blocked/view | paths planned/view | planning failed/view "
+        "| planned moves/run |",
+        "|---" * (13 + len(checkpoints)) + "|",
+    ]
+    for s in summaries:
+        lines.append(
+            f"| {s.config} | {s.runs} | {s.views_mean:.1f} | {100 * s.feasible_fraction:.1f} % | "
+            + " | ".join(f"{s.unknown_at[n]:.4f}" if n in s.unknown_at else "—" for n in checkpoints)
+            + f" | {s.joint_travel_mean:.2f} | "
+            + " | ".join(_cell(s.times[stage], 3) or "—" for stage in stages)
+            + f" | {_cell(s.path_blocked_mean, 2) or '—'} | {_cell(s.paths_planned_mean, 2) or '—'} "
+            f"| {_cell(s.paths_not_found_mean, 2) or '—'} | {_cell(s.planned_moves_mean, 1) or '—'} |"
+        )
+    md_path.write_text("\n".join(lines) + "\n")
+
+
+def save_paths_png(summaries: list[PathsSummary], path: Path, title: str) -> None:
+    """Unknown fraction per view, total joint travel per run, and seconds per view by stage."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, (curves, travel, stages) = plt.subplots(1, 3, figsize=(15, 4.4), gridspec_kw={"width_ratios": [2, 1, 1.3]})
+    for s in summaries:
+        curves.plot(np.arange(1, s.curve.size + 1), s.curve, marker=".", label=s.config)
+    curves.set_xlabel("views")
+    curves.set_ylabel("unknown fraction (mean over scenes)")
+    curves.grid(alpha=0.3)
+    curves.legend()
+    names = [s.config for s in summaries]
+    travel.bar(names, [s.joint_travel_mean for s in summaries], color=[f"C{i}" for i in range(len(summaries))])
+    travel.set_ylabel("total joint travel per run (rad, mean)")
+    travel.tick_params(axis="x", labelrotation=15)
+    bottom = np.zeros(len(summaries))
+    ik_only = [s.times["ik_collision"] - (0.0 if math.isnan(s.times["path_planning"]) else s.times["path_planning"])
+               for s in summaries]  # fmt: skip
+    parts = [
+        ("gain", [s.times["gain"] for s in summaries]),
+        ("capability", [s.times["capability"] for s in summaries]),
+        ("IK + collision", ik_only),
+        ("path planning (OMPL)", [s.times["path_planning"] for s in summaries]),
+    ]
+    for label, values in parts:
+        height = np.nan_to_num(np.asarray(values, dtype=np.float64))
+        stages.bar(names, height, bottom=bottom, label=label)
+        bottom += height
+    stages.set_ylabel("planning time per view (s, mean)")
+    stages.tick_params(axis="x", labelrotation=15)
+    stages.legend(fontsize=8)
     fig.suptitle(title)
     fig.tight_layout()
     fig.savefig(path, dpi=110)

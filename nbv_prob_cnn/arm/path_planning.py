@@ -49,7 +49,8 @@ class PathPlannerSettings:
         resolution_rad: motion validation: the largest joint-space distance (Euclidean over the
             chain joints) between two checked samples of a motion.
         range_rad: RRTConnect's longest extension step (0: OMPL's default, a fifth of the space's extent).
-        seed: OMPL's random seed (None: OMPL's own; set it for repeatable paths).
+        seed: OMPL's random seed (None: OMPL's own). OMPL has one seed per process, taken before
+            its first random number: only the first planner's seed in a process counts.
         max_attempts: paths planned per view selection at most
             (:class:`~nbv_prob_cnn.arm.feasibility.ArmFeasibility`; each may take ``timeout_s``).
     """
@@ -115,6 +116,18 @@ def path_is_free(checker: CollisionChecker, waypoints: np.ndarray, obstacles: Gr
     return True
 
 
+_OMPL_SEEDED = False
+
+
+def _seed_once(ou, seed: int | None) -> None:
+    """Seed OMPL's random numbers; OMPL's seed is one per process and only takes before the
+    first random number, so only the first seed given in a process counts."""
+    global _OMPL_SEEDED
+    if seed is not None and not _OMPL_SEEDED:
+        ou.RNG.setSeed(int(seed))
+        _OMPL_SEEDED = True
+
+
 class JointPathPlanner:
     """Plans collision-free joint paths for one robot (OMPL RRTConnect + path simplifier).
 
@@ -178,8 +191,7 @@ class JointPathPlanner:
                 raise PathPlanningError(reason, f"path planning: the {name} configuration is {problem}")
         settings = self.settings
         ou.setLogLevel(ou.LOG_WARN)
-        if settings.seed is not None:
-            ou.RNG.setSeed(int(settings.seed))
+        _seed_once(ou, settings.seed)
         n = self.chain.size
         space = ob.RealVectorStateSpace(n)
         bounds = ob.RealVectorBounds(n)

@@ -61,9 +61,12 @@ class ArmViewSelector:
         self.taken.add((tuple(int(c) for c in choice.cell), int(choice.view_index)))
 
     def moved(self, q_start: np.ndarray, view: ArmView) -> None:
-        """The arm moved from ``q_start`` to ``view``: its straight joint path is swept, the view taken."""
+        """The arm moved from ``q_start`` to ``view``: its joint path (straight, or the planned
+        waypoints' segments) is swept, the view taken."""
         if self.swept is not None:
-            self.swept.add_path(q_start, view.q)
+            points = [q_start, view.q] if view.waypoints is None else list(view.waypoints)
+            for a, b in zip(points[:-1], points[1:], strict=True):
+                self.swept.add_path(a, b)
         self.take(view.choice)
 
     def not_taken(self, origins: np.ndarray) -> np.ndarray:

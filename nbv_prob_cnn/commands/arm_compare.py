@@ -1,10 +1,12 @@
 """``nbv arm-compare``: simulated 3DT explorations with a free-flying camera and with the arm
-constraint (λ = 0 and λ > 0); per-run CSVs (a re-run skips finished runs), a summary CSV, a
-markdown table and a PNG."""
+constraint (λ = 0 and λ > 0), or (``--paths``) the arm with straight joint paths only against
+the arm with planned paths where the straight one is blocked (:mod:`nbv_prob_cnn.arm.path_planning`);
+per-run CSVs (a re-run skips finished runs), a summary CSV, a markdown table and a PNG."""
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 from pathlib import Path
 
 import numpy as np
@@ -45,6 +47,17 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         action="store_true",
         help="do not treat the space the arm has swept as free (the arm then sees only the camera's map)",
     )
+    parser.add_argument(
+        "--paths",
+        action="store_true",
+        help="compare straight joint paths only against planned paths (OMPL) where the straight one is blocked, "
+        "both λ = 0, instead of free-flying / λ = 0 / λ > 0",
+    )
+    parser.add_argument("--path-timeout", type=float, default=1.0, help="--paths: planning time limit per goal (s)")
+    parser.add_argument(
+        "--path-resolution", type=float, default=0.05, help="--paths: motion-validation resolution (rad, joint space)"
+    )
+    parser.add_argument("--path-attempts", type=int, default=3, help="--paths: paths planned per iteration at most")
     parser.add_argument("--quiet", action="store_true", help="no progress bars")
 
 
@@ -65,6 +78,7 @@ def run(args: argparse.Namespace) -> int:
         write_summary,
     )
     from nbv_prob_cnn.arm.feasibility import ArmFeasibility
+    from nbv_prob_cnn.arm.path_planning import JointPathPlanner, PathPlannerSettings
     from nbv_prob_cnn.arm.robot import RobotModel
     from nbv_prob_cnn.arm.swept import SweptVolume
     from nbv_prob_cnn.basics.camera import dataset_defaults
@@ -80,17 +94,24 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError("--scenes and --views: expected at least 1")
     if not (np.isfinite(args.motion_weight) and args.motion_weight > 0):
         raise ValueError(f"--motion-weight: expected a finite λ > 0, got {args.motion_weight}")
+    settings = PathPlannerSettings(
+        timeout_s=args.path_timeout, resolution_rad=args.path_resolution, max_attempts=args.path_attempts
+    )  # raises ValueError on bad values
     out = Path(args.out)
     (out / "runs").mkdir(parents=True, exist_ok=True)
     seeds = list(range(args.first_seed, args.first_seed + args.scenes))
-    weights = [None, 0.0, args.motion_weight]
-    configs = [config_name(w) for w in weights]
+    # (λ or None for free-flying, planned paths); --paths: the planned configuration first in each scene
+    variants: list[tuple[float | None, bool]] = (
+        [(0.0, True), (0.0, False)] if args.paths else [(None, False), (0.0, False), (args.motion_weight, False)]
+    )
+    configs = [config_name(w, p) for w, p in variants]
     runs: dict[str, list] = {c: [] for c in configs}
 
     robot = RobotModel()
     checker = CollisionChecker(robot, spacing=0.75 * dataset_defaults("3dt").resolution_m)
 
-    def feasibility(weight: float, seed: int, capability) -> ArmFeasibility:
+    def feasibility(weight: float, seed: int, capability, planned: bool = False) -> ArmFeasibility:
+        path_planner = JointPathPlanner(checker, dataclasses.replace(settings, seed=seed)) if planned else None
         return ArmFeasibility(
             robot,
             checker,
@@ -101,6 +122,7 @@ def run(args: argparse.Namespace) -> int:
             rng=np.random.default_rng(seed),
             ik_alternatives=args.ik_alternatives,
             strict_capability=not args.loose_capability,
+            path_planner=path_planner,
         )
 
     def context(world) -> PlanningContext:
@@ -112,8 +134,8 @@ def run(args: argparse.Namespace) -> int:
     bar = tqdm(total=len(seeds) * len(configs), desc="arm-compare", unit="run", disable=args.quiet)
     for seed in seeds:
         paths = {c: out / "runs" / f"seed{seed}_{c}.csv" for c in configs}
-        todo = [w for w in weights if not paths[config_name(w)].is_file()]
-        bar.update(len(weights) - len(todo))
+        todo = [(w, p) for w, p in variants if not paths[config_name(w, p)].is_file()]
+        bar.update(len(variants) - len(todo))
         if todo:
             world = load_or_generate("3dt", seed)
             geometry = world.geometry
@@ -121,13 +143,13 @@ def run(args: argparse.Namespace) -> int:
                 capability = load_or_build_capability_map(robot, geometry, args.stride, progress=not args.quiet)
             arm = feasibility(0.0, seed, capability)
             first, start = reachable_first_view(world, context(world), arm, np.random.default_rng(seed))
-        for weight in todo:
-            name = config_name(weight)
+        for weight, planned in todo:
+            name = config_name(weight, planned)
             gain_planner = GainPlanner(GAIN_METHODS[args.method])
             planner: Planner = gain_planner
             moves = None
             if weight is not None:
-                constrained = feasibility(weight, seed, capability)
+                constrained = feasibility(weight, seed, capability, planned)
                 swept = None if args.no_swept else SweptVolume(checker, geometry)
                 arm_planner = ArmPlanner(
                     gain_planner, constrained, geometry, start, args.top_k, swept, args.fallback_radius, first
@@ -142,6 +164,8 @@ def run(args: argparse.Namespace) -> int:
             runs[c].append(read_run_csv(paths[c]))
     bar.close()
 
+    if args.paths:
+        return _report_paths(args, runs, seeds, settings)
     summaries = summarize(runs, args.views)
     header = (
         f"3DT seeds {seeds[0]}..{seeds[-1]} ({len(seeds)} scenes) x {args.views} views, method {args.method}, "
@@ -159,6 +183,33 @@ def run(args: argparse.Namespace) -> int:
             f"± {s.unknown_final_std:.4f}, joint travel {s.joint_travel_mean:.2f} rad, per view gain "
             f"{s.time_gain_mean:.3f} s, capability {s.time_capability_mean:.3f} s, "
             f"IK+collision {s.time_ik_collision_mean:.3f} s"
+        )
+    print(f"wrote {out / 'summary.csv'}, {out / 'summary.md'}, {out / 'comparison.png'}")
+    return 0
+
+
+def _report_paths(args: argparse.Namespace, runs: dict[str, list], seeds: list[int], settings) -> int:
+    """Summary, table and PNG of ``--paths``."""
+    from nbv_prob_cnn.arm.comparison import save_paths_png, summarize_paths, write_paths_summary
+
+    out = Path(args.out)
+    summaries = summarize_paths(runs, args.views)
+    header = (
+        f"3DT seeds {seeds[0]}..{seeds[-1]} ({len(seeds)} scenes) x {args.views} views, method {args.method}, λ = 0, "
+        f"straight joint paths only against planned paths (OMPL RRTConnect + simplifier, time limit "
+        f"{settings.timeout_s:g} s per goal, at most {settings.max_attempts} per iteration, motion validation every "
+        f"{settings.resolution_rad:g} rad) where the straight one is blocked; capability stride {args.stride}, "
+        f"top_k {args.top_k}, max_checks {args.max_checks}, unknown free above {args.free_above} m, "
+        f"swept space free: {'no' if args.no_swept else 'yes'}, IK alternatives {args.ik_alternatives}, "
+        f"near-camera fallback radius {args.fallback_radius:g} m"
+    )
+    write_paths_summary(summaries, out / "summary.csv", out / "summary.md", header)
+    save_paths_png(summaries, out / "comparison.png", f"3DT, {len(seeds)} scenes, {args.method}: straight vs planned")
+    for s in summaries:
+        after = ", ".join(f"{n}: {v:.4f}" for n, v in s.unknown_at.items())
+        print(
+            f"{s.config}: {s.runs} runs, feasible iterations {100 * s.feasible_fraction:.1f} %, unknown after {after}, "
+            f"joint travel {s.joint_travel_mean:.2f} rad, path planning {s.times['path_planning']:.3f} s/view"
         )
     print(f"wrote {out / 'summary.csv'}, {out / 'summary.md'}, {out / 'comparison.png'}")
     return 0

@@ -1,0 +1,195 @@
+"""Joint paths that are not straight (OMPL RRTConnect + simplifier) and their timing, on hand-built
+scenes: a pillar of occupied cells across the straight path of a base rotation, a goal inside the
+pillar, and a goal enclosed in a shell of occupied cells.
+
+Paths are checked by an independent dense sampler: every segment interpolated at most
+``DENSE_STEP`` rad apart per joint (ten times finer than the planner's 0.05 rad motion-validation
+resolution), each sample checked for joint limits, self-collision (coal, through pinocchio) and
+grid collision by looking the bodies' sample points up in the ternary grid directly (not through
+``GridObstacles.hits``, nor OMPL's validator)."""
+
+from __future__ import annotations
+
+import math
+import time
+
+import numpy as np
+import pytest
+
+pytest.importorskip("pinocchio")
+pytest.importorskip("ompl")
+
+from scipy import ndimage  # noqa: E402
+
+from nbv_prob_cnn.arm.collision import CollisionChecker, GridObstacles  # noqa: E402
+from nbv_prob_cnn.arm.feasibility import ArmFeasibility, FeasibilityReport  # noqa: E402
+from nbv_prob_cnn.arm.path_planning import JointPathPlanner, PathPlannerSettings, PathPlanningError  # noqa: E402
+from nbv_prob_cnn.arm.robot import RobotModel  # noqa: E402
+from nbv_prob_cnn.arm.trajectory import time_parameterise_path  # noqa: E402
+from nbv_prob_cnn.basics.geometry import GridGeometry  # noqa: E402
+from nbv_prob_cnn.basics.grid import EMPTY, OCCUPIED  # noqa: E402
+
+RESOLUTION = 0.04  # cell edge (m) of the hand-built grids
+RESOLUTION_RAD = 0.05  # the planner's motion-validation resolution
+DENSE_STEP = 0.005  # the independent sampler's step (rad, per joint)
+TIMEOUT = 2.0
+
+
+@pytest.fixture(scope="module")
+def scene():
+    robot = RobotModel()
+    checker = CollisionChecker(robot, spacing=0.75 * RESOLUTION)
+    geometry = GridGeometry((-1.1, -0.35, -0.05), RESOLUTION, (56, 56, 36))
+    q_start = robot.reference_q.copy()
+    q_goal = q_start.copy()
+    q_goal[0] = 1.8  # the base joint turns 1.8 rad
+    halfway = q_start.copy()
+    halfway[0] = 0.9
+    camera = robot.camera_pose(halfway)[:3, 3]
+    lo = np.floor((camera - 0.1 - geometry.origin) / RESOLUTION).astype(int)
+    hi = np.floor((camera + 0.1 - geometry.origin) / RESOLUTION).astype(int)
+    state = np.full(geometry.shape, EMPTY, dtype=np.int8)
+    state[lo[0] : hi[0] + 1, lo[1] : hi[1] + 1, : hi[2] + 1] = OCCUPIED  # a pillar from the floor to above the camera
+    return robot, checker, geometry, state, q_start, q_goal, halfway
+
+
+def dense_free(robot, checker, geometry, state, waypoints) -> bool:
+    """The independent dense check of a polyline of configurations."""
+    origin = np.asarray(geometry.origin)
+    for a, b in zip(waypoints[:-1], waypoints[1:], strict=True):
+        count = max(1, math.ceil(np.abs(b - a).max() / DENSE_STEP))
+        for t in np.linspace(0.0, 1.0, count + 1):
+            q = a + t * (b - a)
+            if np.any(q < robot.lower - 1e-9) or np.any(q > robot.upper + 1e-9) or checker.self_collision(q):
+                return False
+            cells = np.floor((checker.body_points(q) - origin) / geometry.resolution).astype(int)
+            inside = np.all((cells >= 0) & (cells < np.array(geometry.shape)), axis=1)
+            c = cells[inside]
+            if np.any(state[c[:, 0], c[:, 1], c[:, 2]] != EMPTY):
+                return False
+    return True
+
+
+@pytest.fixture(scope="module")
+def planned(scene):
+    robot, checker, geometry, state, q_start, q_goal, _ = scene
+    planner = JointPathPlanner(checker, PathPlannerSettings(timeout_s=TIMEOUT, resolution_rad=RESOLUTION_RAD, seed=7))
+    return planner.connect(q_start, q_goal, GridObstacles.from_state(state, geometry))
+
+
+def test_straight_path_collides_and_the_planned_one_is_free(scene, planned):
+    robot, checker, geometry, state, q_start, q_goal, _ = scene
+    assert dense_free(robot, checker, geometry, state, np.stack([q_start, q_start]))
+    assert dense_free(robot, checker, geometry, state, np.stack([q_goal, q_goal]))
+    assert not dense_free(robot, checker, geometry, state, np.stack([q_start, q_goal]))  # the pillar is in the way
+    assert planned.planned
+    np.testing.assert_array_equal(planned.waypoints[0], q_start)
+    np.testing.assert_array_equal(planned.waypoints[-1], q_goal)
+    assert planned.waypoints.shape[0] >= 3  # not straight
+    assert dense_free(robot, checker, geometry, state, planned.waypoints)
+    # motion cost: the path's joint-space length, longer than the straight distance (1.8 rad)
+    length = sum(math.dist(a[:7], b[:7]) for a, b in zip(planned.waypoints[:-1], planned.waypoints[1:], strict=True))
+    assert planned.length == pytest.approx(length, rel=1e-9)
+    assert length > 1.8 + 1e-3
+
+
+def test_a_free_straight_path_is_kept(scene):
+    robot, checker, geometry, _, q_start, q_goal, _ = scene
+    empty = GridObstacles.from_state(np.full(geometry.shape, EMPTY, dtype=np.int8), geometry)
+    path = JointPathPlanner(checker).connect(q_start, q_goal, empty)
+    assert not path.planned and path.waypoints.shape[0] == 2
+    assert path.length == pytest.approx(1.8)
+
+
+def test_timed_planned_path_respects_the_limits_and_passes_every_waypoint(scene, planned):
+    robot = scene[0]
+    vmax = np.asarray(robot.model.velocityLimit, dtype=np.float64) * 0.5
+    amax, jmax, dt = 1.5, 15.0, 0.002
+    timed = time_parameterise_path(planned.waypoints, vmax, amax, jmax, dt)
+    np.testing.assert_allclose(timed.positions[0], planned.waypoints[0], atol=1e-12)
+    np.testing.assert_allclose(timed.positions[-1], planned.waypoints[-1], atol=1e-12)
+    for waypoint in planned.waypoints:  # each waypoint is a sample, the arm at rest there
+        k = int(np.argmin(np.abs(timed.positions - waypoint).max(axis=1)))
+        assert np.abs(timed.positions[k] - waypoint).max() < 1e-9
+        assert np.abs(timed.velocities[k]).max() < 1e-6
+    steps = np.diff(timed.times)
+    assert np.all(steps > 0) and steps.max() <= dt + 1e-12
+    uniform = np.abs(steps - dt) < 1e-9  # finite differences over evenly spaced samples
+    velocity = np.diff(timed.positions, axis=0) / steps[:, None]
+    assert np.all(np.abs(velocity) <= vmax * (1 + 1e-6) + 1e-9)
+    both = uniform[:-1] & uniform[1:]
+    acceleration = np.diff(velocity, axis=0)[both] / dt
+    assert np.abs(acceleration).max() <= amax + jmax * dt + 1e-6
+    # every sample lies on the checked polyline: between two consecutive waypoints
+    a, b = planned.waypoints[:-1], planned.waypoints[1:]
+    for q in timed.positions[:: max(1, len(timed.positions) // 200)]:
+        t = np.clip(np.einsum("kj,kj->k", q - a, b - a) / np.maximum(np.einsum("kj,kj->k", b - a, b - a), 1e-12), 0, 1)
+        assert np.min(np.linalg.norm(a + t[:, None] * (b - a) - q, axis=1)) < 1e-9
+
+
+def test_two_segment_path_duration_is_hand_worked():
+    # 0 → 1 → 0 with v = a = 1 and a jerk so high the profile is a triangle: each segment
+    # accelerates for 1 s to 1 rad/s and brakes for 1 s (2 s), stopping at the corner: 4 s
+    timed = time_parameterise_path(np.array([[0.0], [1.0], [0.0]]), 1.0, 1.0, 1e5, dt=0.01)
+    assert timed.duration == pytest.approx(4.0, abs=1e-3)
+    assert timed.positions.max() == pytest.approx(1.0, abs=1e-12)
+    assert timed.positions[-1, 0] == 0.0
+
+
+def test_goal_inside_an_occupied_block_is_refused_at_once(scene):
+    robot, checker, geometry, state, q_start, _, halfway = scene
+    planner = JointPathPlanner(checker, PathPlannerSettings(timeout_s=TIMEOUT))
+    begin = time.perf_counter()
+    with pytest.raises(PathPlanningError, match="goal configuration is bodies .*panda_hand.* enter occupied") as info:
+        planner.plan(q_start, halfway, GridObstacles.from_state(state, geometry))
+    assert info.value.reason == "invalid_goal"
+    assert time.perf_counter() - begin < 0.5
+
+
+def test_enclosed_goal_gives_up_after_the_time_limit(scene):
+    robot, checker, geometry, _, q_start, q_goal, _ = scene
+
+    def filled(q):
+        cells = np.zeros(geometry.shape, dtype=bool)
+        c, inside = geometry.containing_cell(checker.body_points(q))
+        cells[tuple(c[inside].T)] = True
+        return cells
+
+    pocket = filled(q_goal)  # the arm at the goal fits in a pocket, walled in by 2 cells on every side
+    shell = ndimage.binary_dilation(pocket, iterations=2) & ~pocket & ~filled(q_start)
+    obstacles = GridObstacles.from_state(np.where(shell, OCCUPIED, EMPTY).astype(np.int8), geometry)
+    assert checker.is_free(q_start, obstacles) and checker.is_free(q_goal, obstacles)
+    timeout = 0.5
+    planner = JointPathPlanner(checker, PathPlannerSettings(timeout_s=timeout))
+    begin = time.perf_counter()
+    with pytest.raises(PathPlanningError, match=r"no collision-free joint path found within 0.5 s") as info:
+        planner.plan(q_start, q_goal, obstacles)
+    assert info.value.reason == "timeout"
+    assert time.perf_counter() - begin < timeout + 1.0
+
+
+def test_feasibility_takes_the_planned_path_where_the_straight_one_is_blocked(scene):
+    robot, checker, geometry, state, q_start, q_goal, _ = scene
+    obstacles = GridObstacles.from_state(state, geometry)
+    target = robot.camera_pose(q_goal)
+    straight_only = ArmFeasibility(robot, checker, path_step=0.02)
+    report = FeasibilityReport(None)
+    goal, failure, waypoints = straight_only._free_goal(q_goal, target, q_start, obstacles, report)
+    assert goal is None and failure == "path" and waypoints is None
+    settings = PathPlannerSettings(timeout_s=TIMEOUT, max_attempts=1)
+    with_paths = ArmFeasibility(robot, checker, path_step=0.02, path_planner=JointPathPlanner(checker, settings))
+    goal, failure, waypoints = with_paths._free_goal(q_goal, target, q_start, obstacles, report)
+    assert failure == "" and np.array_equal(goal, q_goal) and report.paths_planned == 1
+    assert dense_free(robot, checker, geometry, state, waypoints)
+    assert report.times["path_planning"] > 0
+    goal, failure, _ = with_paths._free_goal(q_goal, target, q_start, obstacles, report)  # budget spent
+    assert goal is None and failure == "path" and report.paths_planned == 1
+
+
+def test_bad_settings_are_refused():
+    with pytest.raises(ValueError, match="timeout_s"):
+        PathPlannerSettings(timeout_s=0)
+    with pytest.raises(ValueError, match="resolution_rad"):
+        PathPlannerSettings(resolution_rad=float("nan"))
+    with pytest.raises(ValueError, match="max_attempts"):
+        PathPlannerSettings(max_attempts=0)
