@@ -34,6 +34,7 @@ from pathlib import Path
 
 from nbv_prob_cnn.basics.camera import dataset_defaults
 from nbv_prob_cnn.ros.graph import NodeGraph, ros_environment, run_graph
+from nbv_prob_cnn.sensing.sensor_noise import PRESETS
 
 #: Arm parameters of sim_camera and integrator in the arm graph: the camera rides on the arm and
 #: sees it, the integrator removes it from the depth before integration.
@@ -73,6 +74,10 @@ def parse_args(argv=None) -> argparse.Namespace:
         "--initial-joints", type=float, nargs="+", default=LOOK_OVER_TABLE,
         help="arm start configuration, URDF joint order (default: the camera looking over the table; 0 = ready pose)",
     )  # fmt: skip
+    parser.add_argument(
+        "--noise", default="", choices=["", *PRESETS],
+        help="sim_camera's depth-sensor preset (nbv_prob_cnn.sensing.sensor_noise; default: exact depth)",
+    )  # fmt: skip
     parser.add_argument("--stop-unknown", type=float, default=0.0, help="stop at this unknown fraction")
     parser.add_argument("--out", default="out/explore_sim", help="output directory")
     parser.add_argument("--domain-id", type=int, help="ROS_DOMAIN_ID (default: derived from the pid)")
@@ -94,6 +99,8 @@ def main(argv=None) -> int:
         if arm:
             graph.start_node("arm_sim", "arm_sim", {"initial_positions": [float(v) for v in args.initial_joints]})
         camera = {**common, "seed": args.seed, **(SIM_CAMERA_WITH_ARM if arm else {})}
+        if args.noise:
+            camera["noise_preset"] = args.noise
         graph.start_node("sim_camera", "sim_camera", camera)
         box = {"origin": [0.0, 0.0, 0.0], "shape": list(defaults.shape), "voxel_size": defaults.resolution_m}
         graph.start_node("integrator", "integrator", {**box, **(INTEGRATOR_WITH_ARM if arm else {})})
@@ -109,7 +116,8 @@ def main(argv=None) -> int:
     client = [
         sys.executable, "-m", "nbv_prob_cnn.ros.explore_client", "--views", str(args.views),
         "--method", args.method, "--stop-unknown", str(args.stop_unknown), "--out", str(out),
-        "--title", f"{args.dataset} seed {args.seed}, {args.method}" + (", arm" if arm else ", free-flying camera"),
+        "--title", f"{args.dataset} seed {args.seed}, {args.method}" + (", arm" if arm else ", free-flying camera")
+        + (f", {args.noise}" if args.noise else ""),
         "--timeout", str(args.timeout),
     ]  # fmt: skip
     return run_graph(start_nodes, client, ros_environment(args.domain_id), out / "logs", "explore_sim")

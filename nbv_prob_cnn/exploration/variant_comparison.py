@@ -101,9 +101,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--original", default="docs/evaluation_original", help="out folder of the original runs")
     parser.add_argument("--methods", nargs="+", default=list(METHODS))
     parser.add_argument("--views", type=int, default=100)
+    parser.add_argument("--at", nargs="+", type=int, default=[20, 50, 100], help="table columns: after N views")
     args = parser.parse_args(argv)
+    if any(not 1 <= a <= args.views for a in args.at):
+        raise ValueError(f"--at: every value must lie within 1..{args.views}, got {args.at}")
     dirs = {"paper": Path(args.paper) / args.dataset, "original": Path(args.original) / args.dataset}
-    table, rows, curves, seeds = compare(args.dataset, dirs, tuple(args.methods), args.views)
+    table, rows, curves, seeds = compare(args.dataset, dirs, tuple(args.methods), args.views, tuple(args.at))
     stem = dirs["original"] / f"{args.dataset}_paper_vs_original"
     stem.with_suffix(".md").write_text(table)
     stem.with_suffix(".csv").write_text(rows)

@@ -70,6 +70,7 @@ from nbv_prob_cnn.ros.common import declare_config, param, run_node
 from nbv_prob_cnn.ros.conversions import pose_to_arrays, time_msg, transform_stamped_msg
 from nbv_prob_cnn.ros.robot_params import RobotParams
 from nbv_prob_cnn.ros.tf_listener import POSE_SOURCES, TF_QOS, TOPIC_TF, TfListener
+from nbv_prob_cnn.sensing.sensor_noise import PRESETS, SensorNoise, sensor_noise
 
 NODE_NAME = "sim_camera"
 TOPIC_GOAL_POSE = names.GOAL_POSE
@@ -112,6 +113,26 @@ def pose_matrix(values) -> np.ndarray:
     pose[:3, :3] = matrix_from_quaternion(values[3:])  # raises on a zero quaternion
     pose[:3, 3] = values[:3]
     return pose
+
+
+def camera_noise(preset: str, sigma_per_m: float, dropout: float, seed: int) -> DepthNoise | SensorNoise | None:
+    """The noise model of the parameters: the sensor preset ``preset`` when given (the
+    :mod:`~nbv_prob_cnn.sensing.sensor_noise` model that ``nbv explore --noise`` uses), else the
+    depth-proportional :class:`DepthNoise` when ``sigma_per_m`` or ``dropout`` is positive, else
+    None (exact depth).
+
+    Raises:
+        ValueError: a preset together with ``sigma_per_m`` or ``dropout`` (two noise models), or an
+            unknown preset.
+    """
+    if preset:
+        if sigma_per_m > 0 or dropout > 0:
+            raise ValueError(
+                f"noise_preset {preset!r} and noise_sigma_per_m / noise_dropout ({sigma_per_m}, {dropout}) "
+                "both set: choose one noise model"
+            )
+        return sensor_noise(preset)
+    return DepthNoise(sigma_per_m, dropout, seed) if (sigma_per_m > 0 or dropout > 0) else None
 
 
 def load_meshes(dataset: str, seed: int, mesh_file: str, room_margin_m: float = 0.0) -> tuple[list, str]:
@@ -177,6 +198,11 @@ class SimCameraConfig(RobotParams):
         min_value=0.0, max_value=100.0,
     )  # fmt: skip
     noise_seed: int = param(0, "seed of the noise generator", min_value=0, max_value=2**31 - 1)
+    noise_preset: str = param(
+        "", "depth-sensor model of nbv_prob_cnn.sensing.sensor_noise (ranges, axial and lateral noise, grazing "
+        "angles, edges, dropouts); '' = the noise_sigma_per_m / noise_dropout model",
+        choices=("", *PRESETS),
+    )  # fmt: skip
     render_arm: bool = param(
         False, "render the arm's visual meshes into every frame at the latest joint_states (robot description "
         "parameters); no frame before the first joint state",
@@ -220,12 +246,14 @@ class SimCamera(Node):
         if initial:
             self._pose = pose_matrix(initial)  # checked before the (slow) scene loading
 
+        noise = camera_noise(cfg.noise_preset, sigma, dropout, noise_seed)  # checked before the scene loading
         meshes, source = load_meshes(dataset, seed, mesh_file, room_margin)
         if not initial:
             self._pose = pose_matrix(overview_pose(meshes))
-        noise = DepthNoise(sigma, dropout, noise_seed) if (sigma > 0 or dropout > 0) else None
         self.intrinsics = Intrinsics.from_hfov(width, height, hfov)
-        self._camera = DepthCamera(meshes, self.intrinsics, noise=noise, depth_min=depth_min, depth_max=depth_max)
+        self._camera = DepthCamera(
+            meshes, self.intrinsics, noise=noise, depth_min=depth_min, depth_max=depth_max, noise_seed=noise_seed
+        )
         self._lock = threading.Lock()
         self._last_stamp_ns = 0
         self._arm_pose: tuple[np.ndarray, int] | None = None  # follow_arm: latest pose and its stamp (ns)
