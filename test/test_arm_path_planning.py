@@ -193,3 +193,23 @@ def test_bad_settings_are_refused():
         PathPlannerSettings(resolution_rad=float("nan"))
     with pytest.raises(ValueError, match="max_attempts"):
         PathPlannerSettings(max_attempts=0)
+
+
+def test_the_simulated_arm_follows_the_timed_path_on_the_polyline(scene, planned):
+    """arm_sim runs a FollowJointTrajectory goal through :class:`JointMotion` (linear between the
+    points, at most at its velocity limits): the timed planned path arrives on time and every
+    executed position lies on the checked polyline."""
+    from nbv_prob_cnn.arm.motion import JointMotion
+
+    robot = scene[0]
+    limits = np.asarray(robot.model.velocityLimit, dtype=np.float64)
+    timed = time_parameterise_path(planned.waypoints, 0.5 * limits, 1.5, 15.0, 0.05)
+    motion = JointMotion(planned.waypoints[0], limits, now=0.0)
+    arrival = motion.move_through(list(timed.positions[1:]), 0.0, list(np.diff(timed.times)))
+    assert arrival == pytest.approx(timed.duration, abs=1e-9)
+    a, b = planned.waypoints[:-1], planned.waypoints[1:]
+    for t in np.linspace(0.0, arrival, 400):
+        q = motion.position(t)
+        s = np.clip(np.einsum("kj,kj->k", q - a, b - a) / np.einsum("kj,kj->k", b - a, b - a), 0.0, 1.0)
+        assert np.min(np.linalg.norm(a + s[:, None] * (b - a) - q, axis=1)) < 1e-9
+    np.testing.assert_allclose(motion.position(arrival), planned.waypoints[-1], atol=1e-12)

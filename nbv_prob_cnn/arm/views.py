@@ -13,6 +13,7 @@ from nbv_prob_cnn.arm.capability import load_or_build_capability_map
 from nbv_prob_cnn.arm.collision import CollisionChecker, GridObstacles
 from nbv_prob_cnn.arm.feasibility import ArmFeasibility
 from nbv_prob_cnn.arm.ik import solve_camera_pose
+from nbv_prob_cnn.arm.path_planning import JointPathPlanner, PathPlannerSettings
 from nbv_prob_cnn.arm.robot import RobotConfig, RobotModel
 from nbv_prob_cnn.basics.camera import matrix_from_quaternion
 from nbv_prob_cnn.basics.geometry import GridGeometry
@@ -34,6 +35,8 @@ class ArmPlanningSetup:
         seed: IK restarts' random seed.
         ik_alternatives: other IK solutions of a view tried when the first collides (:class:`ArmFeasibility`).
         strict_capability: the capability lookup ANDs the lattice nodes around a cell (:class:`ArmFeasibility`).
+        path_planning: where the straight joint path to a view collides, plan one with these
+            settings (:class:`JointPathPlanner`); None: straight paths only.
     """
 
     config: RobotConfig
@@ -44,6 +47,7 @@ class ArmPlanningSetup:
     seed: int = 0
     ik_alternatives: int = 0
     strict_capability: bool = False
+    path_planning: PathPlannerSettings | None = None
     robot: RobotModel = field(init=False)
     _cache: dict = field(init=False, default_factory=dict)
 
@@ -67,6 +71,7 @@ class ArmPlanningSetup:
                 self.robot, checker, capability, motion_weight=self.motion_weight, free_above_m=self.free_above_m,
                 max_checks=self.max_checks, rng=np.random.default_rng(self.seed),
                 ik_alternatives=self.ik_alternatives, strict_capability=self.strict_capability,
+                path_planner=None if self.path_planning is None else JointPathPlanner(checker, self.path_planning),
             )  # fmt: skip
         return self._cache[key]
 

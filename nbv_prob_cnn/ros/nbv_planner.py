@@ -7,8 +7,9 @@
   ``/camera/goal_pose`` and wait for the camera to arrive there (``camera_frame`` in the grid frame
   by TF, or ``/camera/pose`` with ``pose_source:=topic``), or with ``move_mode:=arm``
   send the joint goal to ``/arm_sim/move_to_joints`` and wait for ``/joint_states`` to reach it,
-  or with ``move_mode:=trajectory`` send the straight joint path, timed within the velocity,
-  acceleration and jerk limits (:func:`~nbv_prob_cnn.arm.trajectory.time_parameterise`), to a
+  or with ``move_mode:=trajectory`` send the joint path (straight, or planned around obstacles by
+  OMPL when the straight one collides, ``arm_path_timeout_s``), timed within the velocity,
+  acceleration and jerk limits (:func:`~nbv_prob_cnn.arm.trajectory.time_parameterise_path`), to a
   ``joint_trajectory_controller``'s ``control_msgs/FollowJointTrajectory`` action
   (``trajectory_action``, default ``/arm_controller/follow_joint_trajectory``)),
   wait for a grid that includes a frame from the new pose, repeat until a stop condition.
@@ -58,9 +59,10 @@ from trajectory_msgs.msg import JointTrajectoryPoint
 from visualization_msgs.msg import MarkerArray
 
 from nbv_prob_cnn.arm.feasibility import ArmView, FeasibilityReport, takes_view_mask
+from nbv_prob_cnn.arm.path_planning import PathPlannerSettings
 from nbv_prob_cnn.arm.selection import ArmViewSelector
 from nbv_prob_cnn.arm.swept import SweptVolume
-from nbv_prob_cnn.arm.trajectory import TimedPath, time_parameterise
+from nbv_prob_cnn.arm.trajectory import TimedPath, time_parameterise_path
 from nbv_prob_cnn.arm.views import ArmPlanningSetup
 from nbv_prob_cnn.basics.camera import DATASETS
 from nbv_prob_cnn.basics.grid import unknown_fraction_all
@@ -176,6 +178,11 @@ class PlannerConfig(SensorParams, ArmViewParams):
                                   max_value=100000.0)  # fmt: skip
     trajectory_dt_s: float = param(0.05, "move_mode trajectory: time between trajectory points (s)", min_value=0.001,
                                    max_value=10.0)  # fmt: skip
+    arm_path_timeout_s: float = param(
+        1.0, "move_mode trajectory: when the straight joint path to a view collides, plan one (OMPL RRTConnect, "
+        "simplified, checked every 0.05 rad) within this time (s); 0 = straight paths only, as in the other move modes",
+        min_value=0.0, max_value=60.0,
+    )  # fmt: skip
     goal_tolerance: float = param(0.01, "move_mode trajectory: goal position tolerance sent with the goal (rad or m)",
                                   min_value=0.0, max_value=10.0)  # fmt: skip
     guard_min_cells: int = param(
@@ -247,6 +254,8 @@ class NbvPlanner(Node):
             self._arm = ArmPlanningSetup(
                 cfg.robot_config(self), cfg.motion_weight, cfg.free_above(), cfg.arm_max_checks, cfg.capability_stride,
                 ik_alternatives=cfg.arm_ik_alternatives, strict_capability=cfg.arm_strict_capability,
+                path_planning=PathPlannerSettings(timeout_s=cfg.arm_path_timeout_s)
+                if self.move_mode == "trajectory" and cfg.arm_path_timeout_s > 0 else None,
             )  # fmt: skip
             self._joints = JointStateTracker(self._arm.robot)
             self.create_subscription(JointState, names.JOINT_STATES, self._on_joint_state, 10, callback_group=group)
@@ -599,7 +608,7 @@ class NbvPlanner(Node):
             raise ExecutionError("no planned joint path to execute")
         robot = self._arm.robot
         q_start, q_goal = plan[1], robot.joint_state_configuration(goal.name, goal.position)
-        path = self._timed_path(q_start, q_goal)
+        path = self._timed_path(q_start, q_goal, plan[2].waypoints)
         joints = self._controller_joints()
         index = [robot.joint_names.index(n) for n in joints]
         request = FollowJointTrajectory.Goal()
@@ -641,13 +650,14 @@ class NbvPlanner(Node):
             raise ExecutionError(f"controller_joints: {unknown} are not joints of the robot {robot.joint_names}")
         return joints
 
-    def _timed_path(self, q_start: np.ndarray, q_goal: np.ndarray) -> TimedPath:
-        """The straight joint path timed within ``trajectory_velocity_scale`` × the URDF velocity
-        limits and the acceleration and jerk limits."""
+    def _timed_path(self, q_start: np.ndarray, q_goal: np.ndarray, waypoints: np.ndarray | None = None) -> TimedPath:
+        """The joint path (straight, or a planned path's ``waypoints``) timed within
+        ``trajectory_velocity_scale`` × the URDF velocity limits and the acceleration and jerk limits."""
         robot = self._arm.robot
         vmax = np.asarray(robot.model.velocityLimit, dtype=np.float64) * self.trajectory_velocity_scale
-        return time_parameterise(q_start, q_goal, vmax, self.max_joint_acceleration, self.max_joint_jerk,
-                                 self.trajectory_dt_s)  # fmt: skip
+        points = np.stack([q_start, q_goal]) if waypoints is None else np.asarray(waypoints, dtype=np.float64)
+        return time_parameterise_path(points, vmax, self.max_joint_acceleration, self.max_joint_jerk,
+                                      self.trajectory_dt_s)  # fmt: skip
 
     def _move_camera(self, target: PoseStamped) -> int:
         """Move the camera; returns the stamp (ns) of the first frame taken at the target."""
