@@ -9,6 +9,7 @@ import numpy as np
 from nbv_prob_cnn.basics.camera import DATASETS
 from nbv_prob_cnn.exploration.explore import explore, write_csv
 from nbv_prob_cnn.gain import BACKENDS, GAIN_VARIANTS
+from nbv_prob_cnn.gain.sampling import SAMPLINGS, SENSOR_MODELS, GainSensor
 from nbv_prob_cnn.planners import METHODS, PlanningContext, make_planner
 
 NAME = "explore"
@@ -38,6 +39,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--noise", default="ideal", help="depth-sensor noise preset: ideal, kinect_v1, astra")
     parser.add_argument("--room-margin", type=float, default=None,
                         help="with --noise: walls this far [m] outside the grid (default: none)")  # fmt: skip
+    parser.add_argument("--sensor-model", choices=SENSOR_MODELS, default="paper",
+                        help="gain: the paper's, or 'returns': a cell counts by the probability that the "
+                             "--noise preset measures it (its ranges, grazing limit; the walls of "
+                             "--room-margin; docs/sensing.md)")  # fmt: skip
+    parser.add_argument("--sampling", choices=SAMPLINGS, default="rounded",
+                        help="the gain's ray samples: the paper's rounded ones, or the exact voxel "
+                             "traversal (docs/sensing.md)")  # fmt: skip
     parser.add_argument("--no-guard", action="store_true",
                         help="the paper's plain loop: a view that changed nothing may be taken again")  # fmt: skip
     parser.add_argument("--guard-min-cells", type=int, default=None,
@@ -64,6 +72,15 @@ def run(args: argparse.Namespace) -> int:
             raise ValueError(f"--scene {args.scene} is a {world.dataset!r} world, not {args.dataset!r}")
     else:
         world = load_or_generate(args.dataset, args.seed)
+    from nbv_prob_cnn.sensing.sensor_noise import sensor_noise
+
+    noise = sensor_noise(args.noise)
+    gain_sensor = None
+    if not noise.is_ideal:  # the preset's ranges, for the "returns" gain
+        gain_sensor = GainSensor.from_noise(noise, world.geometry.resolution, walls=args.room_margin is not None)
+    elif args.sensor_model == "returns":
+        raise ValueError("--sensor-model returns needs a --noise preset (kinect_v1, astra): the ideal sensor "
+                         "measures every cell within R_max, so no ranges to know")  # fmt: skip
     planner = make_planner(args.method)
     context = PlanningContext.for_dataset(
         args.dataset,
@@ -73,15 +90,17 @@ def run(args: argparse.Namespace) -> int:
         n_rays=args.n_rays,
         gain_variant=args.gain_variant,
         view_set=args.view_set,
+        sensor_model=args.sensor_model,
+        gain_sensor=gain_sensor,
+        sampling=args.sampling,
     )
     from nbv_prob_cnn.exploration.view_guard import ViewGuard
-    from nbv_prob_cnn.sensing.sensor_noise import sensor_noise
 
     if args.no_guard and args.guard_min_cells is not None:
         raise ValueError("--guard-min-cells and --no-guard exclude each other")
     guard = None if args.no_guard else ViewGuard.for_grid(world.shape, args.guard_min_cells)
 
-    result = explore(world, planner, context, args.views, progress=not args.quiet, noise=sensor_noise(args.noise),
+    result = explore(world, planner, context, args.views, progress=not args.quiet, noise=noise,
                      room_margin_m=args.room_margin, guard=guard)  # fmt: skip
     write_csv(result.records, args.log)
     written = [args.log]

@@ -9,6 +9,11 @@ Public API:
       planners' path; on OpenCL one fused kernel that never stores per-ray gains).
     * :func:`view_gains` — ``G_W(v, W)`` from given ray gains, one (origins × rays) @ (rays × views)
       product (also the numpy reference of :func:`origin_view_gains`).
+
+Each gain function takes two optional modes (docs/sensing.md, :mod:`nbv_prob_cnn.gain.sampling`):
+``sensor`` (a :class:`~nbv_prob_cnn.gain.sampling.GainSensor`: the ``"returns"`` sensor model; None,
+the default: the paper's gain) and ``sampling`` (``"rounded"``, the default, or ``"exact"``
+voxel traversal), both with the paper's variant only.
 """
 
 from __future__ import annotations
@@ -25,7 +30,9 @@ from nbv_prob_cnn.gain.reference import (
     original_ray_terms,
     original_view_gains_reference,
     ray_gains_reference,
+    sampled_ray_gains,
 )
+from nbv_prob_cnn.gain.sampling import GainSensor, check_sampling, occupancy_normals, ray_samples
 from nbv_prob_cnn.gain.variant import GAIN_VARIANTS, check_variant, sample_count, sample_weights
 
 #: Ray-casting backends (defined once, in :mod:`nbv_prob_cnn.basics.modes`).
@@ -33,7 +40,7 @@ BACKENDS = BACKEND_NAMES
 
 __all__ = [
     "BACKENDS", "ray_directions", "ray_gains", "origin_view_gains", "view_gains", "view_membership",
-    "empty_origins", "best_origin_view", "BestOriginView", "GAIN_VARIANTS",
+    "empty_origins", "best_origin_view", "BestOriginView", "GAIN_VARIANTS", "GainSensor",
 ]  # fmt: skip
 
 
@@ -76,6 +83,8 @@ def ray_gains(
     min_range: float = 0.0,
     variant: str = "paper",
     free_hits: bool = False,
+    sensor: GainSensor | None = None,
+    sampling: str = "rounded",
 ) -> np.ndarray:
     """Normalised ray gain ``G_r(v, h) = H / (H + M)`` of docs/method.md#probabilistic-ray-casting-gain.
 
@@ -101,6 +110,10 @@ def ray_gains(
             weights, normalisation, ``ig``; :mod:`nbv_prob_cnn.gain.variant`).
         free_hits: ``variant="original"``, ``mode="prob"`` only: an unknown sample counts
             ``(1 - p_t) Pr(r_t)`` (the original's CNN and oracle maps).
+        sensor: the ``"returns"`` sensor model (:class:`~nbv_prob_cnn.gain.sampling.GainSensor`,
+            docs/sensing.md): an unknown cell counts by the probability that the sensor measures
+            it; with ``mode="ig"`` only its minimum range replaces ``min_range``. None: the paper's.
+        sampling: ``"rounded"`` (docs/method.md) or ``"exact"`` voxel traversal of the rays.
 
     Returns:
         ``(N, R)`` float32 in [0, 1].
@@ -112,6 +125,16 @@ def ray_gains(
         state, prob, directions, r_max, origins, backend, mode, eps
     )
     kernel_mode = _kernel_mode(mode, variant, free_hits)
+    options = _march_options(state, prob, directions, r_max, mode, min_range, variant, free_hits, sensor, sampling)
+    if options is not None:
+        min_range = options.min_range
+        if backend == "numpy":
+            return _reference_sampled(state, prob, directions, origins, mode, options)
+        from nbv_prob_cnn.gain.opencl import encode_grid, get_ray_caster
+
+        code = encode_grid(state, prob if mode == "prob" else None)
+        return get_ray_caster().run(code, origins, options.samples.offsets, options.samples.total, kernel_mode, eps,
+                                    min_range, variant, options)  # fmt: skip
     if backend == "numpy":
         return _reference_ray_gains(state, prob, directions, r_max, origins, mode, min_range, variant, free_hits)
     from nbv_prob_cnn.gain.opencl import get_ray_caster
@@ -134,6 +157,8 @@ def origin_view_gains(
     min_range: float = 0.0,
     variant: str = "paper",
     free_hits: bool = False,
+    sensor: GainSensor | None = None,
+    sampling: str = "rounded",
 ) -> np.ndarray:
     """``G_W(v, W)`` (equation (7)) for every origin ``v`` and candidate view ``W``.
 
@@ -155,6 +180,16 @@ def origin_view_gains(
     )
     member = _check_membership(membership, directions)
     kernel_mode = _kernel_mode(mode, variant, free_hits)
+    options = _march_options(state, prob, directions, r_max, mode, min_range, variant, free_hits, sensor, sampling)
+    if options is not None:
+        if backend == "numpy":
+            return _reference_sampled(state, prob, directions, origins, mode, options) @ member.astype(np.float32)
+        from nbv_prob_cnn.gain.opencl import encode_grid, get_ray_caster
+
+        code = encode_grid(state, prob if mode == "prob" else None)
+        return get_ray_caster().run_views(code, origins, options.samples.offsets, member, options.samples.total,
+                                          kernel_mode, eps, options.min_range, variant=variant,
+                                          options=options)  # fmt: skip
     if backend == "numpy":
         return _reference_view_gains(state, prob, directions, r_max, member, origins, mode, min_range, variant,
                                      free_hits)  # fmt: skip
@@ -179,6 +214,8 @@ def best_origin_view(
     min_range: float = 0.0,
     variant: str = "paper",
     free_hits: bool = False,
+    sensor: GainSensor | None = None,
+    sampling: str = "rounded",
     block_size: int | None = None,
     prune_views: bool = True,
 ) -> BestOriginView:
@@ -205,7 +242,8 @@ def best_origin_view(
         return BestOriginView(-1, 0, 0.0)
     if backend == "numpy":
         gains = origin_view_gains(state, prob, directions, r_max, member, origins, "numpy", mode=mode,
-                                  min_range=min_range, variant=variant, free_hits=free_hits)  # fmt: skip
+                                  min_range=min_range, variant=variant, free_hits=free_hits, sensor=sensor,
+                                  sampling=sampling)  # fmt: skip
         flat = int(np.argmax(gains))
         index = flat // gains.shape[1]
         return BestOriginView(index, flat % gains.shape[1], float(gains.flat[flat]), origins[index])
@@ -213,10 +251,17 @@ def best_origin_view(
 
     if block_size is not None and (not isinstance(block_size, (int, np.integer)) or block_size < 1):
         raise ValueError(f"block_size: expected a positive integer, got {block_size!r}")
-    code, offsets, total = _kernel_inputs(state, prob, directions, r_max, mode, variant)
+    options = _march_options(state, prob, directions, r_max, mode, min_range, variant, free_hits, sensor, sampling)
+    if options is None:
+        code, offsets, total = _kernel_inputs(state, prob, directions, r_max, mode, variant)
+    else:
+        from nbv_prob_cnn.gain.opencl import encode_grid
+
+        code = encode_grid(state, prob if mode == "prob" else None)
+        offsets, total, min_range = options.samples.offsets, options.samples.total, options.min_range
     origin, view, gain, _ = get_ray_caster().best_view(
         code, origins, offsets, member, total, kernel_mode, eps, min_range, block_size=block_size or BOUND_BLOCK,
-        prune_views=prune_views, variant=variant,
+        prune_views=prune_views, variant=variant, options=options,
     )  # fmt: skip
     return BestOriginView(origin, view, gain, origins[origin] if origin >= 0 else None)
 
@@ -240,6 +285,32 @@ def _reference_view_gains(state, prob, directions, r_max, member, origins, mode,
         return original_view_gains_reference(hits, totals, member)
     rays = _reference_ray_gains(state, prob, directions, r_max, origins, mode, min_range)
     return rays @ member.astype(np.float32)
+
+
+def _march_options(state, prob, directions, r_max, mode, min_range, variant, free_hits, sensor, sampling):
+    """The :class:`~nbv_prob_cnn.gain.opencl.MarchOptions` of ``sensor`` and ``sampling``, or None
+    for the paper's gain on rounded samples (the default path, unchanged)."""
+    from nbv_prob_cnn.gain.opencl import MarchOptions
+
+    check_sampling(sampling)
+    if sensor is not None and not isinstance(sensor, GainSensor):
+        raise ValueError(f"sensor: expected a GainSensor or None, got {type(sensor).__name__}")
+    if sensor is None and sampling == "rounded":
+        return None
+    if variant != "paper" or free_hits:
+        raise ValueError(f"sensor/sampling: only with the paper's gain variant, got {variant!r}")
+    if mode == "ig" and sensor is not None:  # ig: the first unknown cell is the return
+        min_range, sensor = sensor.min_range, None
+    if sensor is None:
+        return MarchOptions(ray_samples(directions, r_max, sampling), float(min_range))
+    samples = ray_samples(directions, r_max, sampling, sensor.reach(state.shape))
+    return MarchOptions(samples, sensor.min_range, sensor, directions, occupancy_normals(state, prob))
+
+
+def _reference_sampled(state, prob, directions, origins, mode, options) -> np.ndarray:
+    """``(N, R)`` ray gains of the numpy reference of ``options`` (:func:`sampled_ray_gains`)."""
+    return sampled_ray_gains(state, prob, options.samples, origins, mode, options.min_range, options.sensor,
+                             directions)  # fmt: skip
 
 
 def _kernel_mode(mode: str, variant: str, free_hits: bool) -> str:

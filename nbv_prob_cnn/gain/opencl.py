@@ -8,18 +8,24 @@ neighbouring origins at once (:func:`default_lanes`).
 
 The gain variant (:mod:`nbv_prob_cnn.gain.variant`) is a build option of the same source
 (``-DGAIN_ORIGINAL=1`` for ``"original"``): one program per variant, built on first use. The
-caller passes the variant's sample offsets (its range) and the sum of its weights.
+caller passes the variant's sample offsets (its range) and the sum of its weights. The optional
+exact-traversal sampling and ``"returns"`` sensor model of the paper's variant
+(:mod:`nbv_prob_cnn.gain.sampling`) are build options too (``-DGAIN_EXACT=1``, ``-DGAIN_SENSOR=1``),
+whose extra kernel arguments :class:`MarchOptions` carries; without them every launch is the
+paper's.
 """
 
 from __future__ import annotations
 
 import functools
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 from scipy.ndimage import distance_transform_cdt
 
 from nbv_prob_cnn.basics.cl_device import cl_runtime
+from nbv_prob_cnn.gain.sampling import GainSensor, RaySamples, border_normal
 from nbv_prob_cnn.gain.variant import ORIGINAL_FOCAL, ORIGINAL_NEAR_HIT, check_variant
 
 KERNEL_SOURCE = Path(__file__).with_name("raycast.cl")
@@ -51,6 +57,66 @@ BOUND_BLOCK = 2
 MIN_ORIGINS_PER_BLOCK = 2.0
 #: Relative (and absolute) margin added to the block bounds of ``best_view``.
 BOUND_MARGIN = 1e-4
+
+
+@dataclass(frozen=True)
+class MarchOptions:
+    """The optional modes of a launch (docs/sensing.md; the paper's variant only).
+
+    Attributes:
+        samples: the rays' :class:`~nbv_prob_cnn.gain.sampling.RaySamples` (their offsets are the
+            launch's ``offsets``); ``"exact"`` builds ``GAIN_EXACT``.
+        min_range: minimum range (cells) of the exact tables' per-ray first return (``ig``: its
+            minimum range; the ``"returns"`` model: the sensor's).
+        sensor: the ``"returns"`` model's sensor (builds ``GAIN_SENSOR``), or None.
+        directions: ``(R, dims)`` ray directions (the grazing test), with ``sensor``.
+        normals: ``(dims, *shape)`` surface normals of the grid
+            (:func:`~nbv_prob_cnn.gain.sampling.occupancy_normals`), with ``sensor``.
+    """
+
+    samples: RaySamples
+    min_range: float = 0.0
+    sensor: GainSensor | None = None
+    directions: np.ndarray | None = None
+    normals: np.ndarray | None = None
+
+    @property
+    def exact(self) -> bool:
+        return self.samples.sampling == "exact"
+
+    @property
+    def flags(self) -> tuple[bool, bool]:
+        """``(GAIN_EXACT, GAIN_SENSOR)`` of the program."""
+        return self.exact, self.sensor is not None
+
+    def bound_options(self) -> MarchOptions | None:
+        """The options of the coarse-to-fine bounds: the paper's gain on the same samples (an
+        upper bound of the ``"returns"`` gain: every cell counts at most its visibility), marched
+        only as far as a sample has weight."""
+        if not self.exact:
+            return None
+        cut = self.samples.weighted
+        s = self.samples
+        truncated = RaySamples(s.offsets[:, :cut], s.distance[:, :cut], np.minimum(s.counts, cut), s.weights[:, :cut],
+                               s.total, s.sampling)  # fmt: skip
+        return MarchOptions(truncated, self.min_range)
+
+
+def march_normals(normals: np.ndarray, padded_shape: tuple[int, int, int]) -> np.ndarray:
+    """The normals of :func:`~nbv_prob_cnn.gain.sampling.occupancy_normals` laid out as three planes
+    of the marched grid (:func:`march_grid`): ``(3, *padded_shape)`` float32, the padding cells
+    with the border's normal (:func:`~nbv_prob_cnn.gain.sampling.border_normal`), 2D with a zero z."""
+    dims = normals.shape[0]
+    out = np.zeros((3, *padded_shape), dtype=np.float32)
+    shape = tuple(n - 2 for n in padded_shape[:dims])
+    grid = np.stack(np.meshgrid(*(np.arange(n) - 1 for n in padded_shape[:dims]), indexing="ij"), axis=-1)
+    border = np.moveaxis(border_normal(grid, shape), -1, 0).astype(np.float32)
+    inner = tuple(slice(1, -1) for _ in range(dims))
+    for axis in range(dims):
+        plane = border[axis].copy()
+        plane[inner] = normals[axis]
+        out[axis] = plane.reshape(padded_shape)
+    return out
 
 
 def encode_grid(state: np.ndarray, prob: np.ndarray | None) -> np.ndarray:
@@ -229,20 +295,44 @@ class OpenCLRayCaster:
         if self.lanes not in LANE_WIDTHS:
             raise ValueError(f"lanes: expected one of {LANE_WIDTHS}, got {lanes!r}")
         self._runtime = runtime
-        self._kernels: dict[str, tuple] = {}
+        self._kernels: dict[tuple[str, bool, bool], tuple] = {}
         self._ray_kernel, self._view_kernel = self.kernels("paper")
         self._cache: dict[tuple, object] = {}
 
-    def kernels(self, variant: str) -> tuple:
-        """``(ray_gain, view_gain)`` of the program of gain ``variant`` (built on first use)."""
-        if variant not in self._kernels:
+    def kernels(self, variant: str, exact: bool = False, sensor: bool = False) -> tuple:
+        """``(ray_gain, view_gain)`` of the program of gain ``variant`` (built on first use), with
+        the exact-traversal and ``"returns"`` options (:class:`MarchOptions`)."""
+        key = (variant, bool(exact), bool(sensor))
+        if key not in self._kernels:
             options = [f"-DLANES={self.lanes}"]
             if check_variant(variant) == "original":
                 options += ["-DGAIN_ORIGINAL=1", f"-DORIGINAL_FOCAL={ORIGINAL_FOCAL!r}f",
                             f"-DORIGINAL_NEAR_HIT={ORIGINAL_NEAR_HIT!r}f"]  # fmt: skip
+            options += ["-DGAIN_EXACT=1"] if exact else []
+            options += ["-DGAIN_SENSOR=1"] if sensor else []
             program = self._runtime.build(KERNEL_SOURCE, tuple(options))
-            self._kernels[variant] = (self._cl.Kernel(program, "ray_gain"), self._cl.Kernel(program, "view_gain"))
-        return self._kernels[variant]
+            self._kernels[key] = (self._cl.Kernel(program, "ray_gain"), self._cl.Kernel(program, "view_gain"))
+        return self._kernels[key]
+
+    def _option_args(self, options: MarchOptions | None, padded_shape: tuple[int, int, int]) -> list:
+        """The extra kernel arguments of ``options`` (after the kernels' own; none for the paper's)."""
+        if options is None:
+            return []
+        args: list = []
+        if options.exact:
+            s = options.samples
+            args += [self._constant(s.weights.astype(np.float32)), self._constant(s.counts.astype(np.int32)),
+                     self._constant(s.first_at(options.min_range))]  # fmt: skip
+        if options.sensor is not None:
+            normals = march_normals(np.asarray(options.normals), padded_shape)
+            mf = self._cl.mem_flags
+            normal_buf = self._cl.Buffer(self.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=normals)
+            d = np.asarray(options.directions, dtype=np.float32)
+            directions = np.zeros((d.shape[0], 4), dtype=np.float32)
+            directions[:, : d.shape[1]] = d
+            args += [normal_buf, np.int32(int(np.prod(padded_shape))), self._constant(directions),
+                     np.float32(options.sensor.cos_grazing), np.int32(options.samples.weighted)]  # fmt: skip
+        return args
 
     def _constant(self, array: np.ndarray):
         """A read-only device copy of ``array``, cached by content."""
@@ -276,24 +366,28 @@ class OpenCLRayCaster:
         eps: float,
         min_range: float,
         variant: str = "paper",
+        options: MarchOptions | None = None,
     ) -> np.ndarray:
         """Ray gains ``(N, R)`` float32 for the encoded grid ``code`` (``variant``: see
-        :mod:`nbv_prob_cnn.gain.variant`; ``offsets`` and ``total_weight`` must be its)."""
+        :mod:`nbv_prob_cnn.gain.variant`; ``offsets`` and ``total_weight`` must be its;
+        ``options``: the optional modes, :class:`MarchOptions`)."""
         cl, mf = self._cl, self._cl.mem_flags
         n, r, lanes = origins.shape[0], offsets.shape[0], self.lanes
         if n == 0:
             return np.empty((n, r), dtype=np.float32)
-        code_buf, _, origin_index, offset_buf = self._common(code, origins, offsets, _border(variant, mode))
+        code_buf, padded, origin_index, offset_buf = self._common(code, origins, offsets,
+                                                                  _border(variant, mode, options))  # fmt: skip
         origin_index = pad_to(origin_index, lanes)
         blocks = origin_index.size // lanes
         out = np.empty((blocks, r, lanes), dtype=np.float32)
         origin_buf = cl.Buffer(self.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=origin_index)
         out_buf = cl.Buffer(self.context, mf.WRITE_ONLY, out.nbytes)
-        kernel = self.kernels(variant)[0]
+        kernel = self.kernels(variant, *(options.flags if options else ()))[0]
+        extra = self._option_args(options, padded.shape)  # held until the queue has finished
         kernel.set_args(
             code_buf, origin_buf, np.int32(origin_index.size), offset_buf, np.int32(r), np.int32(offsets.shape[1]),
             np.int32(code.ndim - 1), np.float32(1.0 / total_weight), np.float32(total_weight), np.float32(eps),
-            np.int32(MODES[mode]), np.float32(min_range), out_buf,
+            np.int32(MODES[mode]), np.float32(min_range), out_buf, *extra,
         )  # fmt: skip
         cl.enqueue_nd_range_kernel(self.queue, kernel, (blocks * r,), None)
         cl.enqueue_copy(self.queue, out, out_buf)
@@ -313,19 +407,21 @@ class OpenCLRayCaster:
         local_size: int = VIEW_GAIN_LOCAL_SIZE,
         view_sets: np.ndarray | None = None,
         variant: str = "paper",
+        options: MarchOptions | None = None,
     ) -> np.ndarray:
         """View gains ``(N, V)`` float32: the ray gains of each origin summed over the rays of
         each view (``membership`` is the ``(R, V)`` 0/1 ray-in-view matrix; the original variant:
         sum of hits over sum of hits + miss). ``view_sets``: see :meth:`_views` (None: every view)."""
-        code_buf, padded, origin_index, offset_buf = self._common(code, origins, offsets, _border(variant, mode))
+        code_buf, padded, origin_index, offset_buf = self._common(code, origins, offsets,
+                                                                  _border(variant, mode, options))  # fmt: skip
         return self._views(
             code_buf, padded, origin_index, offset_buf, offsets.shape, membership, code.ndim - 1, total_weight,
-            mode, eps, min_range, local_size, view_sets, variant,
+            mode, eps, min_range, local_size, view_sets, variant, options,
         )  # fmt: skip
 
     def _views(self, code_buf, padded, origin_index, offset_buf, offsets_shape, membership, nu, total_weight,
                mode, eps, min_range, local_size=VIEW_GAIN_LOCAL_SIZE, view_sets=None,
-               variant="paper") -> np.ndarray:  # fmt: skip
+               variant="paper", options=None) -> np.ndarray:  # fmt: skip
         """``view_gain`` on a device grid ``code_buf`` (host copy ``padded``) at linear origins.
 
         ``view_sets``: None (every view exact) or per origin the views wanted exactly, ``(N, V)``
@@ -354,7 +450,8 @@ class OpenCLRayCaster:
         if view_sets is None:
             cl.enqueue_copy(self.queue, set_buf, every)
         out_buf = cl.Buffer(self.context, mf.WRITE_ONLY, block * v * 4)
-        kernel = self.kernels(variant)[1]
+        kernel = self.kernels(variant, *(options.flags if options else ()))[1]
+        extra = self._option_args(options, padded.shape)
         for begin in range(0, n, block):
             count = min(block, n - begin)
             cl.enqueue_copy(self.queue, origin_buf, pad_to(origin_index[begin : begin + count], local_size))
@@ -367,7 +464,7 @@ class OpenCLRayCaster:
                 np.int32(nu), np.float32(1.0 / total_weight), np.float32(total_weight), np.float32(eps),
                 np.int32(MODES[mode]), np.float32(min_range), start_buf, rays_buf, np.int32(v), first_buf, set_buf,
                 np.int32(set_stride), np.int32(-(-v // 32)),
-                cl.LocalMemory(4 * words * local_size), out_buf,
+                cl.LocalMemory(4 * words * local_size), out_buf, *extra,
             )  # fmt: skip
             cl.enqueue_nd_range_kernel(self.queue, kernel, (groups * local_size // lanes,), (local_size // lanes,))
             cl.enqueue_copy(self.queue, out[begin : begin + count], out_buf)
@@ -384,7 +481,7 @@ class OpenCLRayCaster:
                                   variant=variant)  # fmt: skip
 
     def _block_bounds(self, padded, origins, offsets, membership, total_weight, mode, size=BOUND_BLOCK,
-                      min_per_block=0.0, variant="paper"):  # fmt: skip
+                      min_per_block=0.0, variant="paper", options=None):  # fmt: skip
         """``(block_of, bounds)``; bounds None when blocks hold fewer than ``min_per_block``
         origins on average (bounds would cost about as much as exact gains), and for the original
         ``ig``, whose per-ray totals vary (its view gain is a ratio: no bound here)."""
@@ -409,7 +506,7 @@ class OpenCLRayCaster:
         bound_mode = "prob_free" if mode == "prob_free" else "prob"
         view_bound = self._views(
             bound_buf, bound, corners, offset_buf, offsets.shape, membership, dims - 1, total_weight, bound_mode,
-            0.0, 0.0, variant=variant,
+            0.0, 0.0, variant=variant, options=options,
         )  # fmt: skip
         return block_of.ravel(), view_bound
 
@@ -427,6 +524,7 @@ class OpenCLRayCaster:
         block_size: int = BOUND_BLOCK,
         prune_views: bool = True,
         variant: str = "paper",
+        options: MarchOptions | None = None,
     ) -> tuple[int, int, float, int]:
         """The first ``(origin, view)`` of largest ``G_W`` in origin-major order, exactly as the
         exhaustive ``run_views(...)`` argmax, without computing every origin's gains.
@@ -445,14 +543,24 @@ class OpenCLRayCaster:
         The original variant (:mod:`~nbv_prob_cnn.gain.variant`): the same bounds hold for its
         probabilistic modes (non-negative weights; every ray of a view has the same ``hits + miss``,
         so a view's gain is its bounded hits over a constant); its ``ig`` evaluates every origin.
+        ``options`` (:class:`MarchOptions`): the bounds are the paper's gain on the same samples up
+        to ``r_max`` (:meth:`MarchOptions.bound_options`), which bounds the ``"returns"`` gain too.
 
         Returns:
             ``(origin position, view, gain, origins evaluated exactly)``.
         """
         n, dims = origins.shape[0], code.ndim
-        code_buf, padded, origin_index, offset_buf = self._common(code, origins, offsets, _border(variant, mode))
-        block_of, view_bound = self._block_bounds(padded, origins, offsets, membership, total_weight, mode,
-                                                  block_size, MIN_ORIGINS_PER_BLOCK, variant)  # fmt: skip
+        code_buf, padded, origin_index, offset_buf = self._common(code, origins, offsets,
+                                                                  _border(variant, mode, options))  # fmt: skip
+        if options is None:
+            block_of, view_bound = self._block_bounds(padded, origins, offsets, membership, total_weight, mode,
+                                                      block_size, MIN_ORIGINS_PER_BLOCK, variant)  # fmt: skip
+        else:  # the paper's gain on the same samples, with the border occupied
+            bound_padded = padded if _border(variant, mode, options) == -1.0 else march_grid(code)
+            block_of, view_bound = self._block_bounds(
+                bound_padded, origins, offsets[:, : options.samples.weighted], membership, total_weight, mode,
+                block_size, MIN_ORIGINS_PER_BLOCK, variant, options.bound_options(),
+            )  # fmt: skip
         sparse = view_bound is None
         if view_bound is None:  # sparse origins: evaluate them all at once
             block_of, view_bound, first_batch = np.zeros(n, dtype=np.int64), np.ones((1, 1), np.float32), n
@@ -476,7 +584,7 @@ class OpenCLRayCaster:
                 chosen, view_sets = chosen[by_pattern], reach[pattern[by_pattern]]
             gains = self._views(
                 code_buf, padded, origin_index[chosen], offset_buf, offsets.shape, membership, dims - 1,
-                total_weight, mode, eps, min_range, view_sets=view_sets, variant=variant,
+                total_weight, mode, eps, min_range, view_sets=view_sets, variant=variant, options=options,
             )  # fmt: skip
             top = float(gains.max())
             rows, cols = np.nonzero(gains == gains.max())
@@ -488,9 +596,14 @@ class OpenCLRayCaster:
         return best[1], best[2], best[0], done
 
 
-def _border(variant: str, mode: str) -> float:
-    """Padding code of the marched grid: occupied, or for the original ``ig`` the border code."""
-    return ORIGINAL_BORDER_CODE if variant == "original" and mode == "ig" else -1.0
+def _border(variant: str, mode: str, options: MarchOptions | None = None) -> float:
+    """Padding code of the marched grid: occupied, or the border code (in (-2, -1): stops a ray,
+    no return) for the original ``ig`` and for the ``"returns"`` model without walls."""
+    if variant == "original" and mode == "ig":
+        return ORIGINAL_BORDER_CODE
+    if options is not None and options.sensor is not None and not options.sensor.walls:
+        return ORIGINAL_BORDER_CODE
+    return -1.0
 
 
 def reaching_views(view_bound: np.ndarray, block_of: np.ndarray, best: float) -> tuple[np.ndarray, np.ndarray]:

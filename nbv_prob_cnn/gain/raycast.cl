@@ -31,6 +31,21 @@
 // hits and hits + miss (`totals`; total_weight = the sum of all weights for the probabilistic
 // modes), view gains sum(hits) / sum(totals), and the original ig (see march_rays). With 0 the
 // preprocessed kernels are the paper's alone.
+//
+// Two more build options of the paper's variant (gain/sampling.py, docs/sensing.md; both 0 by
+// default, when the preprocessed kernels are the paper's alone):
+// GAIN_EXACT = 1: the rays' samples are the cells of their exact voxel traversal (the host's
+// table from the simulator's traversal): each ray marches its own number of samples
+// (ray_samples), sample t weighs sample_weights[h][t], and the minimum range is a per-ray first
+// sample (ray_first_return). Each step still moves one cell along one axis, so the properties
+// above (padding, first_sample) hold.
+// GAIN_SENSOR = 1, the "returns" sensor model (mode prob): an unknown sample t counts w_t times
+// the probability that the sensor measures it, sum_{j >= t} q_j with q_j = Pr(r_j) p_j g_j for the
+// samples j at or beyond the minimum range (the table ends at the maximum range), g_j = 0 where
+// the surface normal (normals: three planes of the marched grid) meets the ray at more than the
+// grazing angle. In one pass: H = Q B - C with B = sum_t u_t w_t, S(t) = sum_{j < t} q_j,
+// C = sum_t u_t w_t S(t) and Q = S at the end. Samples past weighted_samples only carry returns.
+// A padding code in (-2, -1) (the grid border without walls) stops a ray without a return.
 #pragma OPENCL FP_CONTRACT OFF
 
 #define MODE_PROBABILISTIC 0
@@ -52,6 +67,45 @@
 
 #ifndef LANES
 #define LANES 1
+#endif
+#ifndef GAIN_EXACT
+#define GAIN_EXACT 0
+#endif
+#ifndef GAIN_SENSOR
+#define GAIN_SENSOR 0
+#endif
+#if GAIN_ORIGINAL && (GAIN_EXACT || GAIN_SENSOR)
+#error "GAIN_EXACT and GAIN_SENSOR are options of the paper's variant"
+#endif
+
+// The extra parameters of the two options: of the kernels (after their last parameter), of
+// march_rays, and what a kernel passes for ray h.
+#if GAIN_EXACT
+#define EXACT_KERNEL_PARAMS , __global const float *sample_weights, __global const int *ray_samples, \
+                              __global const int *ray_first_return
+#define EXACT_MARCH_PARAMS , __global const float *weights_t, const int ray_end, const int first_return
+#define EXACT_ARGS(h) , sample_weights + (size_t)(h) * n_samples, ray_samples[h], ray_first_return[h]
+#define LOOP_END ray_end
+#define WEIGHT(t) (weights_t[t])
+#define AT_MIN_RANGE(t) ((t) >= first_return)
+#else
+#define EXACT_KERNEL_PARAMS
+#define EXACT_MARCH_PARAMS
+#define EXACT_ARGS(h)
+#define LOOP_END n_samples
+#define WEIGHT(t) ((nu == 1) ? (float)(t) : (float)((t) * (t)))
+#define AT_MIN_RANGE(t) ((float)(t) >= min_range)
+#endif
+#if GAIN_SENSOR
+#define SENSOR_KERNEL_PARAMS , __global const float *normals, const int n_cells, __global const float *directions, \
+                               const float cos_grazing, const int weighted_samples
+#define SENSOR_MARCH_PARAMS , __global const float *normals, const int n_cells, __global const float *direction, \
+                              const float cos_grazing, const int weighted_samples
+#define SENSOR_ARGS(h) , normals, n_cells, directions + 4 * (size_t)(h), cos_grazing, weighted_samples
+#else
+#define SENSOR_KERNEL_PARAMS
+#define SENSOR_MARCH_PARAMS
+#define SENSOR_ARGS(h)
 #endif
 
 // Lane vectors (floatv, intv) with aligned reads and writes (p: a multiple of LANES items from
@@ -103,7 +157,7 @@ inline float original_weight(const int t, const int nu)
 inline void march_rays(__global const float *code, __global const int *origins, __global const int *off,
                        const int first_sample, const int n_samples, const int nu, const float inv_total,
                        const float total_weight, const float eps, const int mode, const float min_range,
-                       floatv *gains, floatv *totals)
+                       floatv *gains, floatv *totals EXACT_MARCH_PARAMS SENSOR_MARCH_PARAMS)
 {
     const intv origin = LANES_AT(__global const intv, origins);
     floatv visible = 1.0f;  // Pr(r_t) = prod_{i<t} (1 - p_i)
@@ -118,7 +172,14 @@ inline void march_rays(__global const float *code, __global const int *origins, 
         }
     }
 #endif
-    for (int t = first_sample; t < n_samples; ++t) {
+#if GAIN_SENSOR
+    floatv weighted = 0.0f;  // B
+    floatv early = 0.0f;     // C
+    floatv returned = 0.0f;  // S(t)
+    __global const float *normal_y = normals + n_cells;
+    __global const float *normal_z = normal_y + n_cells;
+#endif
+    for (int t = first_sample; t < LOOP_END; ++t) {
         const intv cell = alive ? origin + off[t] : origin;
         const floatv c = GATHER(code, cell);
         const intv unknown = alive & (c >= 0.0f);
@@ -136,10 +197,29 @@ inline void march_rays(__global const float *code, __global const int *origins, 
             visible = unknown ? visible * (1.0f - c) : visible;
             alive = alive & ((c <= -2.0f) | (unknown & (visible > eps)));
         }
-#else
-        const float weight = (nu == 1) ? (float)t : (float)(t * t);
+#elif GAIN_SENSOR
+        const float weight = t < weighted_samples ? WEIGHT(t) : 0.0f;
         if (mode == MODE_INFORMATION_GAIN) {
-            hit = (unknown & (intv)((float)t >= min_range ? -1 : 0)) ? (floatv)(weight) : hit;
+            hit = (unknown & (intv)(AT_MIN_RANGE(t) ? -1 : 0)) ? (floatv)(weight) : hit;
+            alive = alive & (c <= -2.0f);
+        } else {
+            const intv occupied = alive & (c == -1.0f);
+            const floatv p = unknown ? c : (occupied ? (floatv)(1.0f) : (floatv)(0.0f));
+            weighted = unknown ? weighted + weight : weighted;
+            early = unknown ? early + returned * weight : early;
+            if (AT_MIN_RANGE(t)) {
+                const floatv nx = GATHER(normals, cell), ny = GATHER(normal_y, cell), nz = GATHER(normal_z, cell);
+                const floatv dot = nx * direction[0] + ny * direction[1] + nz * direction[2];
+                const intv facing = ((nx * nx + ny * ny + nz * nz) == 0.0f) | (fabs(dot) >= cos_grazing);
+                returned = facing ? returned + visible * p : returned;
+            }
+            visible = visible * (1.0f - p);
+            alive = alive & ((c <= -2.0f) | (unknown & (visible > eps)));
+        }
+#else
+        const float weight = WEIGHT(t);
+        if (mode == MODE_INFORMATION_GAIN) {
+            hit = (unknown & (intv)(AT_MIN_RANGE(t) ? -1 : 0)) ? (floatv)(weight) : hit;
             alive = alive & (c <= -2.0f);  // stops at the first non-empty sample
         } else {
             hit = unknown ? hit + visible * weight : hit;
@@ -155,6 +235,11 @@ inline void march_rays(__global const float *code, __global const int *origins, 
     *gains = hit;
     *totals = total;
 #else
+#if GAIN_SENSOR
+    if (mode != MODE_INFORMATION_GAIN) {
+        hit = fmax(returned * weighted - early, (floatv)(0.0f));
+    }
+#endif
     *gains = hit * inv_total;
 #endif
 }
@@ -165,7 +250,7 @@ __kernel void ray_gain(__global const float *code, __global const int *origins, 
                        __global const int *offsets, const int n_rays, const int n_samples,
                        const int nu, const float inv_total, const float total_weight, const float eps,
                        const int mode, const float min_range,
-                       __global float *out)
+                       __global float *out EXACT_KERNEL_PARAMS SENSOR_KERNEL_PARAMS)
 {
     const int gid = get_global_id(0);
     if (gid >= n_origins / LANES * n_rays) {
@@ -175,7 +260,7 @@ __kernel void ray_gain(__global const float *code, __global const int *origins, 
     const int h = gid - n * n_rays;
     floatv gains, totals;
     march_rays(code, origins + (size_t)n * LANES, offsets + (size_t)h * n_samples, 0, n_samples, nu, inv_total,
-               total_weight, eps, mode, min_range, &gains, &totals);
+               total_weight, eps, mode, min_range, &gains, &totals EXACT_ARGS(h) SENSOR_ARGS(h));
 #if GAIN_ORIGINAL
     gains = (totals > 0.0f) ? gains / totals : (floatv)(0.0f);
 #endif
@@ -203,7 +288,8 @@ __kernel void view_gain(__global const float *code, __global const int *origins,
                         const int mode, const float min_range,
                         __global const int *view_start, __global const int *view_rays, const int n_views,
                         __global const int *group_first_sample, __global const uint *group_sets, const int set_stride,
-                        const int view_words, __local float *ray_gains, __global float *out)
+                        const int view_words, __local float *ray_gains, __global float *out
+                        EXACT_KERNEL_PARAMS SENSOR_KERNEL_PARAMS)
 {
     const int lid = get_local_id(0);
     const int size = get_local_size(0) * LANES;  // origins per work-group
@@ -222,7 +308,8 @@ __kernel void view_gain(__global const float *code, __global const int *origins,
         floatv totals = 0.0f;
         if (((ray_set[h >> 5] >> (h & 31)) & 1u) != 0u) {
             march_rays(code, origins + first + lid * LANES, offsets + (size_t)h * n_samples, first_sample, n_samples,
-                       nu, inv_total, total_weight, eps, mode, min_range, &gains, &totals);
+                       nu, inv_total, total_weight, eps, mode, min_range, &gains, &totals EXACT_ARGS(h)
+                       SENSOR_ARGS(h));
         }
         LANES_AT(__local floatv, ray_gains + (size_t)h * size + lid * LANES) = gains;
 #if GAIN_ORIGINAL

@@ -1,6 +1,7 @@
 """Plain numpy reference of the ray gain (docs/method.md#probabilistic-ray-casting-gain): the literal
 equations, no early stop; and
-of the original variant (:func:`original_ray_terms`, the authors' host choices).
+of the original variant (:func:`original_ray_terms`, the authors' host choices); and of the optional
+exact-traversal sampling and ``"returns"`` sensor model (:func:`sampled_ray_gains`, docs/sensing.md).
 
 It is the readable implementation the OpenCL kernel is tested against (vectorized over
 origins and rays, a Python loop over the samples ``t``).
@@ -11,6 +12,7 @@ from __future__ import annotations
 import numpy as np
 
 from nbv_prob_cnn.gain.directions import distance_weights, sample_offsets
+from nbv_prob_cnn.gain.sampling import GainSensor, RaySamples, border_normal, occupancy_normals
 from nbv_prob_cnn.gain.variant import ORIGINAL_IG_MIN_RANGE, ORIGINAL_NEAR_HIT, sample_count, sample_weights
 
 _CHUNK = 2048  # origins per block, bounds the (chunk, R, dims) temporaries
@@ -135,3 +137,72 @@ def original_view_gains_reference(hits: np.ndarray, totals: np.ndarray, membersh
     member = np.asarray(membership, dtype=np.float64)
     num, den = hits @ member, totals @ member
     return np.where(den > 0, num / np.where(den > 0, den, 1.0), 0.0).astype(np.float32)
+
+
+def sampled_ray_gains(
+    state: np.ndarray,
+    prob: np.ndarray | None,
+    samples: RaySamples,
+    origins: np.ndarray,
+    mode: str = "prob",
+    min_range: float = 0.0,
+    sensor: GainSensor | None = None,
+    directions: np.ndarray | None = None,
+) -> np.ndarray:
+    """``G_r`` of the paper's gain on any :class:`~nbv_prob_cnn.gain.sampling.RaySamples` table
+    (rounded or exact traversal), and of the ``"returns"`` sensor model (``sensor`` given), from
+    the literal sums, ``(N, R)`` float32.
+
+    Paper (``sensor`` None): ``H = Σ_k u_k w_k Pr_k``, ``Pr_k = Π_{i<k} (1 - p_i)``, cells outside
+    the grid occupied; ``ig``: the weight of the first non-empty sample if it is unknown and at
+    least ``min_range`` away. ``"returns"`` (``mode="prob"``): ``H = Σ_k u_k w_k Σ_{j>=k} q_j``
+    with ``q_j = Pr_j p_j g_j`` for samples ``j`` between the sensor's minimum and maximum range
+    (else 0): the probability that the first return is at or behind sample ``k`` and is measured;
+    ``g_j = 0`` at grazing incidence (the normal of :func:`occupancy_normals`, outside the grid the
+    border's), cells outside the grid occupied with ``sensor.walls``, else empty (no return).
+    ``G_r = H / samples.total``.
+    """
+    n_rays, width = samples.distance.shape
+    valid = np.arange(width)[None, :] < samples.counts[:, None]  # (R, K)
+    occupancy = np.where(state == 1, 1.0, 0.0)
+    if prob is not None:
+        occupancy = np.where(state == -1, prob, occupancy)
+    if sensor is not None:
+        normals = occupancy_normals(state, prob)
+        b = np.asarray(directions, dtype=np.float32)  # (R, dims)
+        returns_range = valid & (samples.distance >= sensor.min_range) & (samples.distance <= sensor.max_range)
+    gains = np.zeros((origins.shape[0], n_rays))
+    chunk = 64
+    for start in range(0, origins.shape[0], chunk):
+        o = origins[start : start + chunk]
+        cells = o[:, None, None, :] + samples.offsets[None].astype(np.int64)  # (n, R, K, dims)
+        inside = np.all((cells >= 0) & (cells < np.array(state.shape)), axis=3)
+        index = tuple(np.clip(cells, 0, np.array(state.shape) - 1).transpose(3, 0, 1, 2))
+        value = np.where(inside, state[index], 1)
+        unknown = inside & (value == -1) & valid[None]
+        outside_p = 1.0 if sensor is None or sensor.walls else 0.0
+        p = np.where(inside, occupancy[index], outside_p) * valid[None]
+        if mode == "ig":
+            stops = (value != 0) & valid[None]
+            first = np.argmax(stops, axis=2)
+            has = np.take_along_axis(stops, first[..., None], axis=2)[..., 0]
+            at = np.take_along_axis(unknown, first[..., None], axis=2)[..., 0]
+            far = samples.distance[np.arange(n_rays)[None, :], first] >= min_range
+            w = samples.weights[np.arange(n_rays)[None, :], first]
+            gains[start : start + chunk] = np.where(has & at & far, w, 0.0)
+            continue
+        visible = np.concatenate([np.ones(p.shape[:2] + (1,)), np.cumprod(1.0 - p, axis=2)[..., :-1]], axis=2)
+        if sensor is None:
+            measured = visible
+        else:
+            normal = np.where(
+                inside[..., None],
+                np.moveaxis(normals, 0, -1)[index],
+                border_normal(cells, state.shape),
+            ).astype(np.float32)  # (n, R, K, dims)
+            dot = np.abs(np.sum(normal * b[None, :, None, :], axis=3, dtype=np.float32))
+            facing = (np.sum(normal * normal, axis=3) == 0) | (dot >= np.float32(sensor.cos_grazing))
+            q = visible * p * facing * returns_range[None]
+            measured = np.cumsum(q[..., ::-1], axis=2)[..., ::-1]  # Σ_{j >= k} q_j
+        gains[start : start + chunk] = np.sum(unknown * samples.weights[None] * measured, axis=2)
+    return (gains / samples.total).astype(np.float32)

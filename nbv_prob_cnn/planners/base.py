@@ -14,6 +14,7 @@ from nbv_prob_cnn.basics.geometry import GridGeometry
 from nbv_prob_cnn.basics.view_pose import ViewPose, view_pose
 from nbv_prob_cnn.gain import best_origin_view, empty_origins, origin_view_gains, ray_directions, view_membership
 from nbv_prob_cnn.gain.original_sets import original_view_set
+from nbv_prob_cnn.gain.sampling import GainSensor, check_sampling, check_sensor_model
 from nbv_prob_cnn.gain.variant import check_variant, ig_min_range, uses_free_hits
 
 #: Ray and orientation sets of :class:`PlanningContext`: the paper's, or the authors' code's.
@@ -55,6 +56,13 @@ class PlanningContext:
         view_set: ``"spec"`` (the rays and orientations of docs/method.md: gain, candidate views) or ``"original"``
         (the authors'
             ray and orientation sets, :mod:`nbv_prob_cnn.gain.original_sets`; not with ``n_rays``).
+        sensor_model: ``"paper"`` (the default) or ``"returns"``: the gain counts a cell by the
+            probability that ``gain_sensor`` measures it (docs/sensing.md; gain-based methods).
+        gain_sensor: the sensor's ranges, grazing limit and walls
+            (:class:`~nbv_prob_cnn.gain.sampling.GainSensor`, e.g. ``GainSensor.from_noise``); read
+            with ``sensor_model="returns"`` only, which needs it.
+        sampling: ``"rounded"`` (docs/method.md, the default) or ``"exact"`` voxel traversal of the
+            gain's rays (docs/sensing.md).
     """
 
     defaults: DatasetDefaults
@@ -69,9 +77,17 @@ class PlanningContext:
     origin_stride: int | None = None
     gain_variant: str = "paper"
     view_set: str = "spec"
+    sensor_model: str = "paper"
+    gain_sensor: GainSensor | None = None
+    sampling: str = "rounded"
 
     def __post_init__(self) -> None:
         check_variant(self.gain_variant)
+        check_sampling(self.sampling)
+        if check_sensor_model(self.sensor_model) == "returns" and self.gain_sensor is None:
+            raise ValueError("sensor_model 'returns' needs gain_sensor: the sensor's ranges (GainSensor)")
+        if (self.sensor_model != "paper" or self.sampling != "rounded") and self.gain_variant != "paper":
+            raise ValueError(f"sensor_model/sampling: only with gain_variant 'paper', got {self.gain_variant!r}")
         if self.view_set not in VIEW_SETS or (self.view_set == "original" and self.n_rays):
             raise ValueError(f"view_set: expected one of {VIEW_SETS} ('original': no n_rays), got {self.view_set!r}")
         if self.origin_stride is not None and (not isinstance(self.origin_stride, int) or self.origin_stride < 1):
@@ -92,6 +108,11 @@ class PlanningContext:
     @property
     def active_sensor(self) -> Sensor:
         return self.sensor or self.defaults.sensor
+
+    @property
+    def returns_sensor(self) -> GainSensor | None:
+        """The sensor the gain knows: ``gain_sensor`` with ``sensor_model="returns"``, else None."""
+        return self.gain_sensor if self.sensor_model == "returns" else None
 
     def view_quaternion(self, view_index: int) -> np.ndarray:
         """Quaternion (x, y, z, w) of a candidate orientation (2D: the yaw about +z)."""
@@ -192,7 +213,7 @@ def search_views(
         index, view, gain = best_origin_view(
             state, prob, context.directions, sensor.r_max, context.membership, origins, "opencl",
             mode=mode, eps=context.eps, min_range=min_range, block_size=block, prune_views=prune_views,
-            variant=variant, free_hits=free_hits,
+            variant=variant, free_hits=free_hits, sensor=context.returns_sensor, sampling=context.sampling,
         )  # fmt: skip
         times = {"cnn": 0.0, "raycast": time.perf_counter() - t0, "views": 0.0}
         return [ViewChoice(origins[index].copy(), int(view), float(gain), times)] if gain > 0.0 else []
@@ -207,6 +228,7 @@ def search_views(
         views = origin_view_gains(
             state, prob, context.directions, sensor.r_max, context.membership, chunk, context.backend,
             mode=mode, eps=context.eps, min_range=min_range, variant=variant, free_hits=free_hits,
+            sensor=context.returns_sensor, sampling=context.sampling,
         )  # fmt: skip
         if view_mask is not None:
             allowed = np.asarray(view_mask(chunk), dtype=bool)

@@ -96,7 +96,8 @@ def score_poses(
         unique_cells, which = np.unique(cells[ok], axis=0, return_inverse=True)
         per_ray = ray_gains(
             state, prob, context.directions, sensor.r_max, unique_cells, context.backend,
-            mode=mode, eps=context.eps, min_range=sensor.min_range,
+            mode=mode, eps=context.eps, min_range=sensor.min_range, sensor=context.returns_sensor,
+            sampling=context.sampling,
         )  # fmt: skip
         q = unit_quaternions(quats, tiny=1e-6)[0][ok]
         orientations = np.array([yaw_of(v) for v in q]) if state.ndim == 2 else q
