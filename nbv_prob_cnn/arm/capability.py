@@ -10,15 +10,19 @@ chain's total length are unreachable without IK.
 
 A query cell takes the OR of the eight nodes around it, so the map errs towards "reachable"
 (false positives are removed by the exact check after the gain, false negatives lose views; tests
-count them against exact IK).
+count them against exact IK). The map also keeps each reachable entry's IK solution
+(``configurations``): the warm seed of the exact IK of a view near that node
+(:meth:`CapabilityMap.seed_configurations`).
 
 Maps are cached in ``<cache>/arm/capability_<key>.npz``, keyed by a hash of the robot (URDF, base
-pose, camera mount), the grid geometry, the stride, the orientations and the solver settings.
+pose, camera mount), the grid geometry, the stride, the orientations, the solver settings and the
+file format's version; a changed key builds a new map.
 """
 
 from __future__ import annotations
 
 import hashlib
+import os
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -32,7 +36,7 @@ from nbv_prob_cnn.arm.robot import RobotModel, arm_cache_dir
 from nbv_prob_cnn.basics.camera import matrix_from_quaternion, orientations
 from nbv_prob_cnn.basics.geometry import GridGeometry
 
-MAP_VERSION = 1
+MAP_VERSION = 2  # 2: the IK solutions (configurations) are stored with the table
 #: Targets solved per IK batch while building (bounds memory).
 BUILD_BATCH = 20_000
 #: Solver settings of the build: fewer iterations per round than a single solve (most reachable
@@ -53,12 +57,15 @@ class CapabilityMap:
         stride: lattice spacing in cells.
         geometry: the grid the lattice covers.
         build_seconds: time the build took (0 when loaded from the cache).
+        configurations: optional ``(I, J, K, V, n)`` float32 chain configurations that reach
+            each reachable entry (NaN elsewhere).
     """
 
     reachable: np.ndarray
     stride: int
     geometry: GridGeometry
     build_seconds: float = 0.0
+    configurations: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         if not np.any(self.reachable):
@@ -102,6 +109,17 @@ class CapabilityMap:
                 table = table & at_node if strict else table | at_node
             cache[strict] = table.reshape(*(2 * nodes), -1)
         return cache[strict]
+
+    def seed_configurations(self, cells: np.ndarray, views: np.ndarray) -> np.ndarray | None:
+        """``(N, n)`` chain configurations stored at the lattice node nearest to each cell for
+        its orientation (NaN rows where that node does not reach it); None without stored ones."""
+        if self.configurations is None:
+            return None
+        cells = np.asarray(cells, dtype=np.int64).reshape(-1, 3)
+        nodes = np.array(self.reachable.shape[:3])
+        node = np.clip(np.rint(cells / self.stride).astype(np.int64), 0, nodes - 1)
+        views = np.asarray(views, dtype=np.int64).ravel()
+        return self.configurations[node[:, 0], node[:, 1], node[:, 2], views].astype(np.float64)
 
     def strict_views_at(self, cells: np.ndarray) -> np.ndarray:
         """:meth:`views_at` with ``strict=True``."""
@@ -172,6 +190,7 @@ def build_capability_map(
     near = np.nonzero(np.linalg.norm(centres - first, axis=1) <= reach)[0]
     pairs = np.stack(np.meshgrid(near, np.arange(n_views), indexing="ij"), axis=-1).reshape(-1, 2)
     reachable = np.zeros(n_nodes * n_views, dtype=bool)
+    configurations = np.full((n_nodes * n_views, chain.n), np.nan, dtype=np.float32)
     seed_q = robot.reference_q[chain.q_index]
     batches = range(0, pairs.shape[0], BUILD_BATCH)
     for begin in tqdm(batches, desc="capability map", unit="batch", disable=not progress):
@@ -184,13 +203,16 @@ def build_capability_map(
         for round_ in range(random_rounds + 1):
             if round_ > 0:
                 seeds = rng.uniform(chain.lower, chain.upper, size=(todo.size, chain.n))
-            _, ok = solve_batch(chain, targets[todo], seeds, settings)
-            reachable[chunk[todo[ok], 0] * n_views + chunk[todo[ok], 1]] = True
+            q, ok = solve_batch(chain, targets[todo], seeds, settings)
+            entries = chunk[todo[ok], 0] * n_views + chunk[todo[ok], 1]
+            reachable[entries] = True
+            configurations[entries] = q[ok]
             todo = todo[~ok]
             if todo.size == 0:
                 break
     table = reachable.reshape(cells.shape[:3] + (n_views,))
-    return CapabilityMap(table, int(stride), geometry, time.perf_counter() - start)
+    stored = configurations.reshape(cells.shape[:3] + (n_views, chain.n))
+    return CapabilityMap(table, int(stride), geometry, time.perf_counter() - start, stored)
 
 
 def capability_map_path(key: str) -> Path:
@@ -205,14 +227,41 @@ def load_or_build_capability_map(
     random_rounds: int = 2,
     progress: bool = True,
 ) -> CapabilityMap:
-    """The cached map of this robot/grid/stride, built (and cached) on first use."""
+    """The cached map of this robot/grid/stride (see :func:`capability_key`), built and cached
+    when there is none (or the file cannot be read)."""
     path = capability_map_path(capability_key(robot, geometry, stride, settings, random_rounds))
     if path.is_file():
-        with np.load(path) as data:
-            return CapabilityMap(data["reachable"].astype(bool), int(data["stride"]), geometry)
+        try:
+            return load_capability_map(path, geometry)
+        except (OSError, KeyError, ValueError):
+            pass  # a damaged or foreign file: build again and replace it
     capability = build_capability_map(robot, geometry, stride, settings, random_rounds, progress=progress)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(path.stem + ".tmp.npz")
-    np.savez_compressed(tmp, reachable=capability.reachable, stride=capability.stride)
-    tmp.replace(path)
+    save_capability_map(capability, path)
     return capability
+
+
+def save_capability_map(capability: CapabilityMap, path: Path) -> None:
+    """Write a map atomically (a temporary file renamed into place)."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(path.stem + f".tmp{os.getpid()}.npz")
+    arrays = {"reachable": capability.reachable, "stride": np.int64(capability.stride)}
+    if capability.configurations is not None:
+        arrays["configurations"] = capability.configurations
+    np.savez_compressed(tmp, **arrays)
+    tmp.replace(path)
+
+
+def load_capability_map(path: Path, geometry: GridGeometry) -> CapabilityMap:
+    """A map written by :func:`save_capability_map` for grids of ``geometry``.
+
+    Raises:
+        ValueError: a table whose lattice does not cover ``geometry``.
+    """
+    with np.load(path) as data:
+        reachable = data["reachable"].astype(bool)
+        stride = int(data["stride"])
+        configurations = data["configurations"] if "configurations" in data.files else None
+    expected = node_cells(geometry, stride).shape[:3]
+    if reachable.shape[:3] != expected:
+        raise ValueError(f"capability map {path}: lattice {reachable.shape[:3]}, expected {expected} for this grid")
+    return CapabilityMap(reachable, stride, geometry, configurations=configurations)

@@ -12,6 +12,11 @@ is free of self- and grid collision, and the straight joint path to it is free a
 (it is there, so nothing else is; the map may hold them as unknown or, unfiltered, occupied).
 With a ``path_planner`` (:mod:`nbv_prob_cnn.arm.path_planning`), a goal whose straight path is
 blocked gets a planned path instead, and ``L`` is that path's joint-space length.
+
+The IK of the candidates is solved for blocks of upcoming candidates at once (4, then twice as
+many each time up to 64; warm-started from the capability map's stored configurations), while
+the checks still run and count in gain order: a view unreachable by IK costs about a tenth of a
+one-by-one solve (``nbv bench --suite arm_loop``, docs/arm.md).
 """
 
 from __future__ import annotations
@@ -24,7 +29,7 @@ import numpy as np
 
 from nbv_prob_cnn.arm.capability import CapabilityMap
 from nbv_prob_cnn.arm.collision import CollisionChecker, GridObstacles
-from nbv_prob_cnn.arm.ik import DEFAULT_IK, IkSettings, alternative_solutions, solve_camera_pose
+from nbv_prob_cnn.arm.ik import DEFAULT_IK, IkResult, IkSettings, alternative_solutions, solve_camera_poses
 from nbv_prob_cnn.arm.kinematics import CameraChain
 from nbv_prob_cnn.arm.path_planning import JointPathPlanner, PathPlanningError, path_length
 from nbv_prob_cnn.arm.robot import RobotModel
@@ -32,6 +37,10 @@ from nbv_prob_cnn.basics.camera import matrix_from_quaternion
 from nbv_prob_cnn.basics.geometry import GridGeometry
 from nbv_prob_cnn.planners import GainPlanner, PlanningContext, ViewChoice
 from nbv_prob_cnn.planners.requests import view_pose
+
+#: Candidates whose IK is solved together: the first block, and the largest (:class:`_IkAhead`).
+IK_BLOCK_FIRST = 4
+IK_BLOCK_MAX = 64
 
 
 @dataclass
@@ -222,21 +231,20 @@ class ArmFeasibility:
         obstacles = obstacles.cleared(self.checker.body_points(current_q))
         camera_rigid = self.checker.camera_rigid_points(current_q)
         best: ArmView | None = None
-        for choice in candidates:
+        ahead = _IkAhead(self, candidates, context, geometry, current_q, obstacles, camera_rigid)
+        for index, choice in enumerate(candidates):
             if best is not None and (self.motion_weight == 0.0 or choice.gain <= best.utility):
                 break
-            position, quaternion = view_pose(choice, context, geometry)
-            target = np.eye(4)
-            target[:3, :3] = matrix_from_quaternion(quaternion)
-            target[:3, 3] = position
-            if np.any(obstacles.hits(camera_rigid @ target[:3, :3].T + position)):
+            if ahead.blocked(index):
                 report.camera_blocked += 1  # exact for these bodies and cheap: no IK, no budget
                 continue
             if self.max_checks and report.checked >= self.max_checks:
                 report.budget_exhausted = True
                 break
             report.checked += 1
-            solution = solve_camera_pose(self.chain, target, current_q, self.rng, self.ik_settings)
+            remaining = self.max_checks - report.checked + 1 if self.max_checks else len(candidates)
+            solution = ahead.solution(index, remaining)
+            target = ahead.targets[index]
             if solution.q is None:
                 report.unreachable += 1
                 continue
@@ -256,6 +264,56 @@ class ArmFeasibility:
         report.view = best
         report.times["ik_collision"] = time.perf_counter() - start
         return report
+
+
+class _IkAhead:
+    """The candidates' camera-rigid check and IK, computed for blocks of upcoming candidates at
+    once (:func:`solve_camera_poses`), in gain order: the first block is small (the first
+    candidate is often feasible), each next one twice as large up to :data:`IK_BLOCK_MAX`.
+    Warm seeds come from the capability map's stored configurations. Blocks never reach past
+    the check budget."""
+
+    def __init__(self, arm: ArmFeasibility, candidates, context, geometry, current_q, obstacles, camera_rigid) -> None:
+        self.arm, self.candidates, self.current_q = arm, candidates, current_q
+        self.context, self.geometry = context, geometry
+        self.obstacles, self.camera_rigid = obstacles, camera_rigid
+        self.targets: dict[int, np.ndarray] = {}
+        self._blocked: dict[int, bool] = {}
+        self._solved: dict[int, IkResult] = {}
+        self._block = IK_BLOCK_FIRST
+
+    def blocked(self, index: int) -> bool:
+        """Whether a camera-rigid body (hand, fingers) of candidate ``index`` enters a blocked cell."""
+        if index not in self._blocked:
+            position, quaternion = view_pose(self.candidates[index], self.context, self.geometry)
+            target = np.eye(4)
+            target[:3, :3] = matrix_from_quaternion(quaternion)
+            target[:3, 3] = position
+            self.targets[index] = target
+            points = self.camera_rigid @ target[:3, :3].T + position
+            self._blocked[index] = bool(np.any(self.obstacles.hits(points)))
+        return self._blocked[index]
+
+    def solution(self, index: int, budget: int) -> IkResult:
+        """The IK result of candidate ``index`` (not camera-blocked); solves it with up to
+        ``budget`` - 1 of the next candidates that are not camera-blocked."""
+        if index not in self._solved:
+            block, later = [index], index + 1
+            while len(block) < min(self._block, max(1, budget)) and later < len(self.candidates):
+                if not self.blocked(later):
+                    block.append(later)
+                later += 1
+            self._block = min(2 * self._block, IK_BLOCK_MAX)
+            arm = self.arm
+            warm = None
+            if arm.capability is not None:
+                cells = np.array([self.candidates[i].cell for i in block])
+                views = np.array([self.candidates[i].view_index for i in block])
+                warm = arm.capability.seed_configurations(cells, views)
+            targets = np.stack([self.targets[i] for i in block])
+            results = solve_camera_poses(arm.chain, targets, self.current_q, arm.rng, arm.ik_settings, warm)
+            self._solved.update(zip(block, results, strict=True))
+        return self._solved[index]
 
 
 def takes_view_mask(planner) -> bool:

@@ -1,7 +1,9 @@
 """Inverse kinematics of camera poses: damped least squares, batched, within joint limits.
 
 One solver serves single requests (the seed from the current configuration plus random restarts
-run side by side as one batch) and the capability map (thousands of targets at once).
+run side by side as one batch), many candidate views at once (:func:`solve_camera_poses`: each
+target's seeds form a group that stops at its first convergence) and the capability map
+(thousands of targets at once).
 
 Per iteration, for every row: the pose error ``e = [p* - p, log(R* Rᵀ)]`` (metres, radians, world
 axes), the step ``dq = Jᵀ (J Jᵀ + λ² I)⁻¹ e`` scaled down to at most ``max_step`` rad, and
@@ -62,15 +64,21 @@ def solve_batch(
     seeds: np.ndarray,
     settings: IkSettings = DEFAULT_IK,
     stop_at_first: bool = False,
+    groups: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Solve ``targets (N, 4, 4)`` from ``seeds (N, n)``; with ``stop_at_first`` the iteration
-    ends as soon as one row has converged (restarts of one target).
+    ends as soon as one row has converged (restarts of one target), or, with ``groups`` (a
+    group id per row, e.g. the target's index), each group's rows stop as soon as one of
+    them has converged (the rows converged at that iteration count as converged).
 
     Returns:
         ``(q (N, n), converged (N,) bool)``; unconverged rows hold their last iterate.
     """
     q = np.clip(np.array(seeds, dtype=np.float64).reshape(-1, chain.n), chain.lower, chain.upper)
     targets = np.asarray(targets, dtype=np.float64).reshape(-1, 4, 4)
+    grouped = stop_at_first and groups is not None
+    group_ids = np.unique(np.asarray(groups), return_inverse=True)[1].ravel() if grouped else None
+    group_done = np.zeros(int(group_ids.max()) + 1 if group_ids is not None and group_ids.size else 0, dtype=bool)
     converged = np.zeros(q.shape[0], dtype=bool)
     active = np.arange(q.shape[0])
     best = np.full(q.shape[0], np.inf)
@@ -87,13 +95,17 @@ def solve_batch(
             np.linalg.norm(error[:, 3:], axis=1) < settings.rotation_tol
         )
         converged[active[done]] = True
-        if stop_at_first and np.any(done):
+        if grouped:
+            group_done[group_ids[active[done]]] = True
+        elif stop_at_first and np.any(done):
             break
         norm = np.linalg.norm(error, axis=1)
         improved = norm < 0.99 * best[active]
         best[active] = np.where(improved, norm, best[active])
         stalled[active] = np.where(improved, 0, stalled[active] + 1)
         keep = ~done & (stalled[active] < settings.patience)
+        if grouped:
+            keep &= ~group_done[group_ids[active]]
         active, jac, error = active[keep], jac[keep], error[keep]
         if active.size == 0:
             break
@@ -136,6 +148,47 @@ def solve_camera_pose(
     distances = np.linalg.norm(q[ok] - start, axis=1)
     best = int(np.argmin(distances))
     return IkResult(chain.full_configuration(q[ok][best], current_q), float(distances[best]))
+
+
+def solve_camera_poses(
+    chain: CameraChain,
+    targets: np.ndarray,
+    current_q: np.ndarray,
+    rng: np.random.Generator,
+    settings: IkSettings = DEFAULT_IK,
+    warm_seeds: np.ndarray | None = None,
+) -> list[IkResult]:
+    """:func:`solve_camera_pose` of many ``world_from_optical`` targets ``(M, 4, 4)`` in one
+    batch: per target the seed ``current_q``, its warm seed (``warm_seeds (M, n)`` chain
+    configurations, e.g. the capability map's solution near the target; rows with NaN have
+    none) and ``settings.restarts`` random seeds; each target's rows stop at their first
+    convergence, and of its rows converged then the closest (chain joints) to ``current_q`` wins.
+    """
+    current_q = np.asarray(current_q, dtype=np.float64)
+    targets = np.asarray(targets, dtype=np.float64).reshape(-1, 4, 4)
+    count = targets.shape[0]
+    if count == 0:
+        return []
+    start = current_q[chain.q_index]
+    per_target = [np.broadcast_to(start, (count, chain.n))]
+    if warm_seeds is not None:
+        warm = np.asarray(warm_seeds, dtype=np.float64).reshape(count, chain.n)
+        per_target.append(np.where(np.isfinite(warm), warm, start))  # no warm seed: the start again (harmless)
+    per_target += [rng.uniform(chain.lower, chain.upper, size=(count, chain.n)) for _ in range(settings.restarts)]
+    seeds = np.stack(per_target, axis=1).reshape(-1, chain.n)  # target-major: rows of a target together
+    groups = np.repeat(np.arange(count), len(per_target))
+    q, ok = solve_batch(chain, np.repeat(targets, len(per_target), axis=0), seeds, settings, True, groups)
+    q, ok = q.reshape(count, len(per_target), chain.n), ok.reshape(count, len(per_target))
+    results = []
+    for m in range(count):
+        if not np.any(ok[m]):
+            results.append(IkResult(None))
+            continue
+        found = q[m][ok[m]]
+        distances = np.linalg.norm(found - start, axis=1)
+        best = int(np.argmin(distances))
+        results.append(IkResult(chain.full_configuration(found[best], current_q), float(distances[best])))
+    return results
 
 
 def alternative_solutions(

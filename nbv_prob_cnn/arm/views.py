@@ -12,7 +12,7 @@ import numpy as np
 from nbv_prob_cnn.arm.capability import load_or_build_capability_map
 from nbv_prob_cnn.arm.collision import CollisionChecker, GridObstacles
 from nbv_prob_cnn.arm.feasibility import ArmFeasibility
-from nbv_prob_cnn.arm.ik import solve_camera_pose
+from nbv_prob_cnn.arm.ik import solve_camera_poses
 from nbv_prob_cnn.arm.path_planning import JointPathPlanner, PathPlannerSettings
 from nbv_prob_cnn.arm.robot import RobotConfig, RobotModel
 from nbv_prob_cnn.basics.camera import matrix_from_quaternion
@@ -101,15 +101,15 @@ def reachable_poses(
     current_q = arm.robot.check_q(current_q, "current_q")
     obstacles = GridObstacles.from_state(state, geometry, arm.margin_cells, arm.free_above_m)
     obstacles = obstacles.cleared(arm.checker.body_points(current_q))
+    valid = np.all(np.isfinite(positions), axis=1) & np.all(np.isfinite(quaternions), axis=1)
+    valid &= np.any(quaternions != 0, axis=1)
+    targets = np.broadcast_to(np.eye(4), (int(valid.sum()), 4, 4)).copy()
+    targets[:, :3, :3] = [matrix_from_quaternion(q) for q in quaternions[valid]]
+    targets[:, :3, 3] = positions[valid]
+    solved = iter(solve_camera_poses(arm.chain, targets, current_q, arm.rng, arm.ik_settings))  # one batch
     solutions: list[np.ndarray | None] = []
-    for position, quaternion in zip(positions, quaternions, strict=True):
-        if not (np.all(np.isfinite(position)) and np.all(np.isfinite(quaternion)) and np.any(quaternion != 0)):
-            solutions.append(None)
-            continue
-        target = np.eye(4)
-        target[:3, :3] = matrix_from_quaternion(quaternion)
-        target[:3, 3] = position
-        q = solve_camera_pose(arm.chain, target, current_q, arm.rng, arm.ik_settings).q
+    for ok in valid:
+        q = next(solved).q if ok else None
         solutions.append(q if q is not None and arm.checker.is_free(q, obstacles) else None)
     return solutions
 

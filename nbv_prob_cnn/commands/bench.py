@@ -11,9 +11,10 @@ NAME = "bench"
 HELP = (
     "Benchmarks: planning iterations on half-explored grids (OpenCL vs numpy), CNN inference, TSDF "
     "integration, the transport overhead of the ROS node split, the arm (capability map, IK, added cost) and "
-    "the cost of rendering the arm into depth frames and filtering it out."
+    "the cost of rendering the arm into depth frames and filtering it out, and the arm's planning step through the ROS "
+    "nodes against the in-process core (arm_loop)."
 )
-SUITES = ("planning", "sweep", "cnn", "integrator", "ros", "arm", "arm_render")
+SUITES = ("planning", "sweep", "cnn", "integrator", "ros", "arm", "arm_render", "arm_loop")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -28,6 +29,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--views", type=int, default=20, help="sweep: views of the timed exploration")
     parser.add_argument("--out", default="docs", help="sweep: folder of the CSV and PNG")
     parser.add_argument("--every", type=int, default=1, help="sweep: time every N-th planned view")
+    parser.add_argument("--loop-views", type=int, default=6, help="arm_loop: planning steps timed (first included)")
+    parser.add_argument("--log-dir", default="", help="arm_loop: folder of the nodes' logs (default: none)")
     parser.add_argument(
         "--cases",
         nargs="*",
@@ -47,6 +50,7 @@ def run(args: argparse.Namespace) -> int:
             "ros": run_ros,
             "arm": run_arm,
             "arm_render": run_arm_render,
+            "arm_loop": run_arm_loop,
         }
         runners[suite](args)
         print(flush=True)
@@ -89,6 +93,12 @@ def run_arm(args: argparse.Namespace) -> None:
     from nbv_prob_cnn.bench.arm import arm_benchmark
 
     print(arm_benchmark(seed=args.seed, iterations=args.repeats))
+
+
+def run_arm_loop(args: argparse.Namespace) -> None:
+    from nbv_prob_cnn.bench.arm_loop import arm_loop_benchmark
+
+    print(arm_loop_benchmark(seed=args.seed, views=args.loop_views, log_dir=args.log_dir or None))
 
 
 def run_arm_render(args: argparse.Namespace) -> None:

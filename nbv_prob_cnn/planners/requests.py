@@ -12,7 +12,8 @@ import numpy as np
 from nbv_prob_cnn.basics.camera import dataset_defaults
 from nbv_prob_cnn.basics.geometry import GridGeometry
 from nbv_prob_cnn.planners import GAIN_METHODS, GainMethod, PlanningContext, ViewChoice, make_planner, ros_method
-from nbv_prob_cnn.planners.base import OriginFilter
+from nbv_prob_cnn.planners.base import OriginFilter, ViewMask
+from nbv_prob_cnn.planners.methods import GainPlanner
 
 
 def gain_method(name: str, default: str) -> GainMethod:
@@ -144,13 +145,15 @@ def rank_for_request(
     top_k: int,
     origin_filter: OriginFilter | None,
     given_probability: np.ndarray | None = None,
+    view_mask: ViewMask | None = None,
 ) -> list[ViewChoice]:
     """What ``/nbv/rank_views`` runs: the registry planner of ``method`` in this process, with
     ``given_probability`` (the map the planner node got from ``/nbv/complete``) as its
-    completion when one is sent.
+    completion when one is sent, and ``view_mask`` (the request's ``allowed_views``) when given.
 
     Raises:
-        ValueError: unknown method, an oracle, or a probability map of another shape.
+        ValueError: unknown method, an oracle, a probability map of another shape, or a view
+            mask for a method whose search takes none.
     """
     spec = ros_method(method, default)
     if given_probability is not None:
@@ -158,4 +161,9 @@ def rank_for_request(
             raise ValueError(f"probability grid {given_probability.shape} does not match grid {state.shape}")
         context.completion = lambda _state, _context: given_probability
     context.ranker = None  # rank here
-    return make_planner(spec.name).rank(state, context, max(1, int(top_k)), origin_filter)
+    planner = make_planner(spec.name)
+    if view_mask is None:
+        return planner.rank(state, context, max(1, int(top_k)), origin_filter)
+    if not isinstance(planner, GainPlanner):
+        raise ValueError(f"allowed_views: method {spec.name!r} takes no view mask (only the gain-based methods do)")
+    return planner.rank(state, context, max(1, int(top_k)), origin_filter, view_mask=view_mask)

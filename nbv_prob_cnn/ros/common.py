@@ -1,10 +1,16 @@
-"""Small pieces every node of ours uses: parameter declaration, QoS, service calls from
-callbacks, and a ``main`` that spins and shuts down cleanly."""
+"""Small pieces every node of ours uses: parameter declaration, QoS, waits that wake on cancel
+and shutdown (:class:`Interrupt`), service calls from callbacks, and a ``main`` that spins and
+shuts down in a safe order (:func:`run_node`)."""
 
 from __future__ import annotations
 
+import contextlib
+import signal
 import threading
-from collections.abc import Callable
+import time
+import weakref
+from collections.abc import Callable, Iterator
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import MISSING, dataclass, field, fields
 from typing import Any, TypeVar
 
@@ -14,6 +20,7 @@ from rclpy.exceptions import ParameterException
 from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.signals import SignalHandlerOptions
 
 ConfigT = TypeVar("ConfigT")
 
@@ -174,25 +181,314 @@ def subscription_qos(depth: int, reliability: str) -> QoSProfile:
     )
 
 
-def call_service(node: Node, client, request, timeout_s: float):
+class WaitInterruptedError(Exception):
+    """A wait ended early because its :class:`Interrupt` was triggered (a goal was canceled, the
+    node is shutting down); the message is the interrupt's reason."""
+
+
+class Interrupt:
+    """A one-way flag that wakes every wait made through it at once.
+
+    A callback that waits (for a service reply, a grid, the arm's arrival) waits through an
+    interrupt: :meth:`wait_for` on a condition, :meth:`wait_future` on an rclpy future, or
+    :meth:`wait_until` on something that can only be polled. :meth:`trigger` (a goal's cancel
+    callback, :func:`run_node`'s shutdown) wakes all of them; they raise :class:`WaitInterruptedError`.
+    A :meth:`child` is triggered with its parent (a goal's interrupt with the node's).
+    """
+
+    def __init__(self, parent: Interrupt | None = None) -> None:
+        self._lock = threading.Lock()
+        self._reason: str | None = None
+        self._wakers: list[Callable[[], None]] = []  # called once when triggered
+        self._parent = parent
+        if parent is not None and not parent._add_waker(self._follow_parent):
+            self._follow_parent()  # the parent was triggered already
+
+    def _follow_parent(self) -> None:
+        assert self._parent is not None
+        self.trigger(self._parent.reason or "")
+
+    @property
+    def reason(self) -> str | None:
+        """Why it was triggered; None while it was not."""
+        return self._reason
+
+    def is_set(self) -> bool:
+        return self._reason is not None
+
+    def trigger(self, reason: str) -> None:
+        """Set the flag (the first reason stays) and wake every wait made through it."""
+        with self._lock:
+            if self._reason is not None:
+                return
+            self._reason = reason
+            wakers, self._wakers = self._wakers, []
+        for wake in wakers:
+            wake()
+
+    def check(self) -> None:
+        """Raise :class:`WaitInterruptedError` when triggered."""
+        if self._reason is not None:
+            raise WaitInterruptedError(self._reason)
+
+    def child(self) -> Interrupt:
+        """An interrupt of its own that this one also triggers (:meth:`release` it when done)."""
+        return Interrupt(self)
+
+    def release(self) -> None:
+        """A child that is no longer used: its parent stops holding it."""
+        if self._parent is not None:
+            self._parent._remove_waker(self._follow_parent)
+
+    def _add_waker(self, wake: Callable[[], None]) -> bool:
+        """Register ``wake``; False (not registered) when already triggered."""
+        with self._lock:
+            if self._reason is not None:
+                return False
+            self._wakers.append(wake)
+            return True
+
+    def _remove_waker(self, wake: Callable[[], None]) -> None:
+        with self._lock, contextlib.suppress(ValueError):
+            self._wakers.remove(wake)
+
+    @contextlib.contextmanager
+    def _waking(self, wake: Callable[[], None]) -> Iterator[None]:
+        """``wake`` is called if the interrupt is triggered while the block runs."""
+        registered = self._add_waker(wake)
+        try:
+            yield
+        finally:
+            if registered:
+                self._remove_waker(wake)
+
+    def wait_for(self, condition: threading.Condition, predicate: Callable[[], bool], timeout_s: float) -> bool:
+        """``condition.wait_for(predicate, timeout_s)`` (call with ``condition`` held) that also
+        ends when the interrupt is triggered.
+
+        Returns:
+            The predicate's last value (False: timed out).
+
+        Raises:
+            WaitInterruptedError: triggered before or while waiting.
+        """
+
+        def wake() -> None:
+            with condition:
+                condition.notify_all()
+
+        with self._waking(wake):
+            result = condition.wait_for(lambda: self.is_set() or predicate(), timeout_s)
+        self.check()
+        return bool(result)
+
+    def wait_future(self, future, timeout_s: float) -> bool:
+        """Wait until an rclpy future (completed by the executor's other threads) is done.
+
+        Returns:
+            Whether it is done (False: timed out).
+
+        Raises:
+            WaitInterruptedError: triggered before or while waiting.
+        """
+        done = threading.Event()
+        future.add_done_callback(lambda _: done.set())
+        with self._waking(done.set):
+            done.wait(timeout_s)
+        self.check()
+        return bool(future.done())
+
+    def wait_until(self, predicate: Callable[[], bool], timeout_s: float, period_s: float = 0.05) -> bool:
+        """Poll ``predicate`` every ``period_s`` until it holds or ``timeout_s`` passes (for what
+        has no notification: a service or action server becoming available).
+
+        Raises:
+            WaitInterruptedError: triggered before or while waiting.
+        """
+        woken = threading.Event()
+        deadline = time.monotonic() + timeout_s
+        with self._waking(woken.set):
+            while True:
+                self.check()
+                if predicate():
+                    return True
+                remaining = deadline - time.monotonic()
+                if remaining <= 0:
+                    return False
+                woken.wait(min(period_s, remaining))
+
+
+def wait_on(
+    condition: threading.Condition, predicate: Callable[[], bool], timeout_s: float, interrupt: Interrupt | None
+) -> bool:
+    """``condition.wait_for`` (``condition`` held), through ``interrupt`` when there is one."""
+    if interrupt is None:
+        return condition.wait_for(predicate, timeout_s)
+    return interrupt.wait_for(condition, predicate, timeout_s)
+
+
+_shutdown_interrupts: weakref.WeakKeyDictionary[Node, Interrupt] = weakref.WeakKeyDictionary()
+_shutdown_lock = threading.Lock()
+
+
+def shutdown_interrupt(node: Node) -> Interrupt:
+    """The node's shutdown interrupt: :func:`run_node` triggers it first when the node stops, so
+    that every wait made through it (or a :meth:`Interrupt.child` of it) ends before the executor
+    is joined and the node destroyed."""
+    with _shutdown_lock:
+        interrupt = _shutdown_interrupts.get(node)
+        if interrupt is None:
+            interrupt = _shutdown_interrupts[node] = Interrupt()
+        return interrupt
+
+
+def call_service(node: Node, client, request, timeout_s: float, interrupt: Interrupt | None = None):
     """Call a service from inside a callback (needs a multi-threaded executor and a reentrant
-    callback group on the client). Returns the response.
+    callback group on the client). Returns the response. The wait (for the service, then for
+    its answer) ends at once when ``interrupt`` (default: the node's :func:`shutdown_interrupt`)
+    is triggered; the pending request is then dropped.
 
     Raises:
         TimeoutError: the service is not available or did not answer in time.
+        WaitInterruptedError: the interrupt was triggered.
     """
+    interrupt = interrupt or shutdown_interrupt(node)
     name = node.resolve_service_name(client.srv_name)  # the full name, namespace included
-    if not client.wait_for_service(timeout_sec=min(timeout_s, 5.0)):
+    if not interrupt.wait_until(client.service_is_ready, min(timeout_s, 5.0)):
         raise TimeoutError(f"service {name} is not available")
-    done = threading.Event()
     future = client.call_async(request)
-    future.add_done_callback(lambda _: done.set())
-    if not done.wait(timeout_s):
+    try:
+        answered = interrupt.wait_future(future, timeout_s)
+    except WaitInterruptedError:
+        client.remove_pending_request(future)
+        raise
+    if not answered:
         client.remove_pending_request(future)
         raise TimeoutError(f"service {name} did not answer within {timeout_s:.1f} s")
     if future.exception() is not None:
         raise RuntimeError(f"service {name} failed: {future.exception()}")
     return future.result()
+
+
+#: Longest time the main thread of :func:`run_node` stays in one wait of the executor, so that a
+#: signal (handled by Python between waits) is acted on within this time.
+SPIN_PERIOD_S = 0.1
+#: At shutdown, how long :func:`run_node` keeps spinning after the shutdown interrupt so that the
+#: callbacks it ended can send their answers (service replies, an Explore goal's result).
+DRAIN_S = 2.0
+#: Then how long it waits for callbacks still running (CPU-bound work) before it gives up
+#: destroying the node (destroying it under a running callback can crash the process).
+CALLBACK_JOIN_S = 10.0
+
+
+class SignalStop:
+    """SIGINT and SIGTERM stop :func:`run_node`: the first one sets :attr:`received`, and raises
+    ``KeyboardInterrupt`` in the main thread unless a :class:`NodeExecutor` is spinning there
+    (that one ends its spin within :data:`SPIN_PERIOD_S`, outside any rclpy call). Later signals
+    only log: the shutdown that the first one started is not cut short. Installed instead of
+    rclpy's handler, which shuts the context down from its own thread at once, while callbacks
+    still use it and before they could be ended."""
+
+    def __init__(self) -> None:
+        self.received: int | None = None
+        self.spinning = False  # a NodeExecutor spins in the main thread
+        self._previous: dict[int, Any] = {}
+        if threading.current_thread() is threading.main_thread():
+            for signum in (signal.SIGINT, signal.SIGTERM):
+                self._previous[signum] = signal.signal(signum, self._handle)
+
+    def _handle(self, signum: int, _frame) -> None:
+        if self.received is None:
+            self.received = signum
+            if not self.spinning:
+                raise KeyboardInterrupt
+            return
+        rclpy.logging.get_logger("run_node").warning(f"{signal.Signals(signum).name}: already shutting down")
+
+    def restore(self) -> None:
+        for signum, handler in self._previous.items():
+            signal.signal(signum, handler)
+
+
+class NodeExecutor:
+    """What :func:`run_node` adds to rclpy's executors: a :meth:`spin` that waits at most
+    :data:`SPIN_PERIOD_S` at a time and ends on a signal (:class:`SignalStop`), a :meth:`drain`
+    that spins until the running callbacks have ended, and :meth:`join_callbacks`."""
+
+    signals: SignalStop | None = None
+
+    def spin(self) -> None:
+        signals = self.signals
+        if signals is not None:
+            signals.spinning = True
+        try:
+            while self.context.ok() and (signals is None or signals.received is None):  # type: ignore[attr-defined]
+                self.spin_once(timeout_sec=SPIN_PERIOD_S)  # type: ignore[attr-defined]
+        finally:
+            if signals is not None:
+                signals.spinning = False
+
+    def running(self) -> list:
+        """The callbacks (rclpy tasks) submitted to other threads and not finished."""
+        return []
+
+    def drain(self, timeout_s: float) -> bool:
+        """Spin until the callbacks running now have ended, then until the tasks they left
+        (an Explore goal's result response, which rclpy sends from a task of its own) have
+        ended too; at most ``timeout_s``.
+
+        Returns:
+            True when everything ended in time.
+        """
+        deadline = time.monotonic() + timeout_s
+        for _ in range(3):  # what runs now, what it left, what that left
+            running = self.running()
+            while running and time.monotonic() < deadline and self.context.ok():  # type: ignore[attr-defined]
+                self.spin_once(timeout_sec=0.02)  # type: ignore[attr-defined]
+                running = [task for task in running if not task.done()]
+            if running:
+                return False
+            self.spin_once(timeout_sec=0)  # type: ignore[attr-defined]
+        return True
+
+    def join_callbacks(self, timeout_s: float) -> bool:
+        """Callbacks run in the spinning (main) thread: none is running once spinning stopped."""
+        return True
+
+
+class SingleThreadedNodeExecutor(NodeExecutor, SingleThreadedExecutor):
+    """rclpy's single-threaded executor with :class:`NodeExecutor`'s spin and drain."""
+
+
+class MultiThreadedNodeExecutor(NodeExecutor, MultiThreadedExecutor):
+    """rclpy's multi-threaded executor with :class:`NodeExecutor`'s spin and drain, and a
+    :meth:`join_callbacks` that waits for its worker threads.
+
+    rclpy 7.1.5's ``Executor.shutdown`` returns without waiting for running callbacks (it sets
+    ``_is_shutdown`` and then skips the wait that tests it), and ``MultiThreadedExecutor`` never
+    joins its worker threads: ``destroy_node`` could run under a callback that still uses the
+    node's clients and goal handles. This reads two private attributes of rclpy 7.1.5 (the
+    submitted callbacks and the worker pool); without them it falls back to not waiting.
+    """
+
+    def running(self) -> list:
+        return [task for task in list(getattr(self, "_futures", ())) if not task.done()]
+
+    def join_callbacks(self, timeout_s: float) -> bool:
+        """Wait until every worker thread ended (call after spinning stopped).
+
+        Returns:
+            True when they all ended within ``timeout_s``.
+        """
+        pool = getattr(self, "_executor", None)
+        if not isinstance(pool, ThreadPoolExecutor):
+            return True
+        pool.shutdown(wait=False)  # callbacks already queued still run (the node is not destroyed yet)
+        deadline = time.monotonic() + timeout_s
+        workers = list(getattr(pool, "_threads", ()))
+        for worker in workers:
+            worker.join(max(0.0, deadline - time.monotonic()))
+        return not any(worker.is_alive() for worker in workers)
 
 
 def run_node(
@@ -206,20 +502,33 @@ def run_node(
     startup_message: str = "cannot start",
 ) -> int:
     """The ``main`` of every node: ``rclpy.init``, build the node, spin (or ``run(node,
-    executor)``) until Ctrl-C or an external shutdown, then destroy the node, log its
-    ``summary`` and shut down.
+    executor)``) until SIGINT, SIGTERM or an external shutdown, then shut down in this order
+    (:func:`shut_down_node`):
+
+    1. trigger the node's :func:`shutdown_interrupt`: every wait made through it ends at once
+       (service calls, an exploration's waits);
+    2. keep spinning until the callbacks it ended have sent their answers (an Explore goal's
+       result, a service's error reply), :data:`DRAIN_S` at most;
+    3. stop the executor and wait for its worker threads (:data:`CALLBACK_JOIN_S` at most);
+    4. destroy the node's action servers and clients, then the node (skipped, with an error
+       logged, while a callback still runs: destroying it then could crash the process);
+    5. log the ``summary``, shut rclpy down.
+
+    rclpy's signal handler is not installed: :class:`SignalStop` takes SIGINT and SIGTERM.
 
     Returns:
         0, or 1 when building/running the node raised one of ``startup_errors`` (bad
         parameters, unreadable inputs), logged as fatal with ``startup_message``.
     """
-    rclpy.init(args=args)
+    rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+    signals = SignalStop()
     node = None
-    executor = None
+    executor: SingleThreadedNodeExecutor | MultiThreadedNodeExecutor | None = None
     code = 0
     try:
         node = factory()
-        executor = MultiThreadedExecutor(num_threads=threads) if threads > 1 else SingleThreadedExecutor()
+        executor = MultiThreadedNodeExecutor(num_threads=threads) if threads > 1 else SingleThreadedNodeExecutor()
+        executor.signals = signals
         executor.add_node(node)
         if run is None:
             executor.spin()
@@ -228,21 +537,50 @@ def run_node(
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     except Exception as exc:
-        if rclpy.ok() and isinstance(exc, startup_errors):
+        stopping = signals.received is not None or not rclpy.ok()
+        if not stopping and isinstance(exc, startup_errors):
             name = node.get_name() if node is not None else getattr(factory, "__name__", "node")
             rclpy.logging.get_logger(name).fatal(f"{startup_message}: {exc}")
             code = 1
-        elif rclpy.ok():
+        elif not stopping:
             raise
         # else: interrupted during start-up (SIGINT can surface as another error, e.g. an aborted import)
     finally:
-        if executor is not None:
-            executor.shutdown()
-        if node is not None:
-            name = node.get_name()
-            node.destroy_node()
-            if summary is not None:
-                # not the node's logger: its rosout publisher may be gone already (SIGINT shuts the context down)
-                rclpy.logging.get_logger(f"{name}.summary").info(summary(node))
-        rclpy.try_shutdown()
+        try:
+            shut_down_node(node, executor, summary)
+        finally:
+            signals.restore()
     return code
+
+
+def shut_down_node(
+    node: Node | None,
+    executor: NodeExecutor | None,
+    summary: Callable[[Node], str] | None = None,
+    drain_s: float = DRAIN_S,
+    join_s: float = CALLBACK_JOIN_S,
+) -> None:
+    """Steps 1-5 of :func:`run_node`'s shutdown (either argument may be None: start-up failed)."""
+    if node is not None:
+        shutdown_interrupt(node).trigger(f"{node.get_name()} is shutting down")
+    joined = True
+    if executor is not None:
+        if node is not None and rclpy.ok():
+            executor.drain(drain_s)
+        executor.shutdown(timeout_sec=0)  # type: ignore[attr-defined]
+        joined = executor.join_callbacks(join_s)
+    if node is not None:
+        name = node.get_name()
+        if joined:
+            for waitable in list(node.waitables):  # action servers and clients: destroy_node leaves them
+                destroy = getattr(waitable, "destroy", None)
+                if destroy is not None:
+                    destroy()
+            node.destroy_node()
+        else:
+            rclpy.logging.get_logger(name).error(
+                f"a callback still runs {drain_s + join_s:g} s after shutdown began; the node is left to process exit"
+            )
+        if summary is not None:
+            rclpy.logging.get_logger(f"{name}.summary").info(summary(node))
+    rclpy.try_shutdown()

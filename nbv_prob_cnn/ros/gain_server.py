@@ -41,13 +41,13 @@ from nbv_prob_cnn.perception.tf_buffer import TransformError, matrix_from_transl
 from nbv_prob_cnn.planners import PlanningContext, check_ros_method
 from nbv_prob_cnn.planners.methods import cnn_completion, probability_map
 from nbv_prob_cnn.planners.pose_scoring import INVALID_POSE, score_poses
+from nbv_prob_cnn.planners.ranked_views import ranked_to_arrays, view_mask_from_bytes
 from nbv_prob_cnn.planners.requests import (
     allowed_origins_filter,
     gain_method,
     origin_filter,
     planning_context,
     rank_for_request,
-    view_pose,
 )
 from nbv_prob_cnn.ros import names
 from nbv_prob_cnn.ros.camera_sensor import CameraInfoSensor, SensorParams
@@ -232,6 +232,7 @@ class GainServer(Node):
         return errors
 
     def _rank_views(self, request: RankViews.Request, response: RankViews.Response):
+        start = time.perf_counter()
         try:
             grid = request.grid if request.grid.size_x else self._latest_grid()
             state, geometry = msg_to_grid(grid)
@@ -254,10 +255,14 @@ class GainServer(Node):
                 np.array([request.workspace_max.x, request.workspace_max.y, request.workspace_max.z]),
                 int(request.max_origins), self._rng,
             )  # fmt: skip
-            if len(request.allowed_origins):
-                allowed = allowed_origins_filter(np.frombuffer(request.allowed_origins, dtype=np.uint32), state.shape)
-            else:
-                allowed = None
+            allowed_flat = np.frombuffer(request.allowed_origins, dtype=np.uint32)
+            allowed = allowed_origins_filter(allowed_flat, state.shape) if allowed_flat.size else None
+            view_mask = None
+            if len(request.allowed_views):
+                if not allowed_flat.size:
+                    raise ValueError("allowed_views needs allowed_origins (one row of orientations per allowed origin)")
+                n_views = len(context.orientations)
+                view_mask = view_mask_from_bytes(allowed_flat, bytes(request.allowed_views), state.shape, n_views)
             evaluated = []
 
             def counting(origins):
@@ -265,11 +270,19 @@ class GainServer(Node):
                 evaluated.append(kept.shape[0])
                 return kept
 
-            ranked = rank_for_request(request.method, self.method, state, context, request.top_k, counting, given)
-            response.ranked = [
-                ViewScore(pose=arrays_to_pose_stamped(*view_pose(c, context, geometry), frame), gain=float(c.gain))
-                for c in ranked
-            ]
+            ranked = rank_for_request(request.method, self.method, state, context, request.top_k, counting, given,
+                                      view_mask)  # fmt: skip
+            arrays = ranked_to_arrays(ranked, context, geometry)
+            response.ranked_cells = array.array("I", arrays.cells.astype(np.uint32).tobytes())
+            response.ranked_orientations = array.array("H", arrays.orientations.astype(np.uint16).tobytes())
+            response.ranked_positions = array.array("d", arrays.positions.astype(np.float64).tobytes())
+            response.ranked_quaternions = array.array("d", arrays.quaternions.astype(np.float64).tobytes())
+            response.ranked_gains = array.array("f", arrays.gains.astype(np.float32).tobytes())
+            if not request.compact:
+                response.ranked = [
+                    ViewScore(pose=arrays_to_pose_stamped(p, q, frame), gain=float(g))
+                    for p, q, g in zip(arrays.positions, arrays.quaternions, arrays.gains.tolist(), strict=True)
+                ]
             response.evaluated_origins = int(evaluated[0]) if evaluated else 0
             if ranked:
                 response.time_raycast_s = ranked[0].times["raycast"]
@@ -280,6 +293,7 @@ class GainServer(Node):
             response.success = False
             response.message = str(exc)
             self.get_logger().warning(f"rank_views: {exc}")
+        response.time_total_s = time.perf_counter() - start
         return response
 
 

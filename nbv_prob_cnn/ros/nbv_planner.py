@@ -7,9 +7,8 @@
   ``/camera/goal_pose`` and wait for the camera to arrive there (``camera_frame`` in the grid frame
   by TF, or ``/camera/pose`` with ``pose_source:=topic``), or with ``move_mode:=arm``
   send the joint goal to ``/arm_sim/move_to_joints`` and wait for ``/joint_states`` to reach it,
-  or with ``move_mode:=trajectory`` send the joint path (straight, or planned around obstacles by
-  OMPL when the straight one collides, ``arm_path_timeout_s``), timed within the velocity,
-  acceleration and jerk limits (:func:`~nbv_prob_cnn.arm.trajectory.time_parameterise_path`), to a
+  or with ``move_mode:=trajectory`` send the straight joint path, timed within the velocity,
+  acceleration and jerk limits (:func:`~nbv_prob_cnn.arm.trajectory.time_parameterise`), to a
   ``joint_trajectory_controller``'s ``control_msgs/FollowJointTrajectory`` action
   (``trajectory_action``, default ``/arm_controller/follow_joint_trajectory``)),
   wait for a grid that includes a frame from the new pose, repeat until a stop condition.
@@ -59,10 +58,9 @@ from trajectory_msgs.msg import JointTrajectoryPoint
 from visualization_msgs.msg import MarkerArray
 
 from nbv_prob_cnn.arm.feasibility import ArmView, FeasibilityReport, takes_view_mask
-from nbv_prob_cnn.arm.path_planning import PathPlannerSettings
 from nbv_prob_cnn.arm.selection import ArmViewSelector
 from nbv_prob_cnn.arm.swept import SweptVolume
-from nbv_prob_cnn.arm.trajectory import TimedPath, time_parameterise_path
+from nbv_prob_cnn.arm.trajectory import TimedPath, time_parameterise
 from nbv_prob_cnn.arm.views import ArmPlanningSetup
 from nbv_prob_cnn.basics.camera import DATASETS
 from nbv_prob_cnn.basics.grid import unknown_fraction_all
@@ -72,12 +70,14 @@ from nbv_prob_cnn.gain.variant import GAIN_VARIANTS
 from nbv_prob_cnn.perception.messages import stamp_ns
 from nbv_prob_cnn.perception.tf_buffer import TransformError
 from nbv_prob_cnn.planners import check_ros_method, make_planner, ros_method
+from nbv_prob_cnn.planners.ranked_views import ranked_from_arrays, view_mask_to_bytes
 from nbv_prob_cnn.planners.requests import choice_from_pose, flat_cells, origin_filter, planning_context, view_pose
 from nbv_prob_cnn.ros import names
 from nbv_prob_cnn.ros.camera_sensor import CameraInfoSensor, SensorParams
 from nbv_prob_cnn.ros.common import GRID_QOS, call_service, declare_config, param, positive_seconds, run_node
 from nbv_prob_cnn.ros.conversions import (
     arrays_to_pose_stamped,
+    geometry_of,
     grid_to_msg,
     msg_to_grid,
     msg_to_probability,
@@ -111,7 +111,8 @@ class RecordingPlanner:
 
     def __init__(self, planner, request_filter, arm_limit=None) -> None:
         self.planner, self.request_filter, self.arm_limit = planner, request_filter, arm_limit
-        self.ranked, self.arm_filter = [], None
+        self.ranked, self.arm_filter, self.view_mask = [], None, None
+        self.seconds = 0.0  # the last rank's time (CNN included)
         self.takes_view_mask = takes_view_mask(planner)  # passed on to the planner (plan_with_arm)
 
     def rank(self, state, context, top_k=1, origin_filter=None, view_mask=None):
@@ -124,10 +125,13 @@ class RecordingPlanner:
             return keep(origins if capability is None else arm_filter(origins))
 
         self.arm_filter = None if capability is None else arm_filter
+        self.view_mask = view_mask  # a remote ranking gets it as allowed_views
+        start = time.perf_counter()
         if view_mask is None:
             self.ranked = self.planner.rank(state, context, top_k, both)
         else:
             self.ranked = self.planner.rank(state, context, top_k, both, view_mask=view_mask)
+        self.seconds = time.perf_counter() - start
         return self.ranked
 
 
@@ -178,11 +182,6 @@ class PlannerConfig(SensorParams, ArmViewParams):
                                   max_value=100000.0)  # fmt: skip
     trajectory_dt_s: float = param(0.05, "move_mode trajectory: time between trajectory points (s)", min_value=0.001,
                                    max_value=10.0)  # fmt: skip
-    arm_path_timeout_s: float = param(
-        1.0, "move_mode trajectory: when the straight joint path to a view collides, plan one (OMPL RRTConnect, "
-        "simplified, checked every 0.05 rad) within this time (s); 0 = straight paths only, as in the other move modes",
-        min_value=0.0, max_value=60.0,
-    )  # fmt: skip
     goal_tolerance: float = param(0.01, "move_mode trajectory: goal position tolerance sent with the goal (rad or m)",
                                   min_value=0.0, max_value=10.0)  # fmt: skip
     guard_min_cells: int = param(
@@ -245,6 +244,7 @@ class NbvPlanner(Node):
         self._selectors: dict[tuple, tuple[ArmViewSelector, list]] = {}  # per grid geometry: selector, fed count
         self._seen_lock = threading.Lock()  # guards _seen_q (not _arm_lock: a plan holds that for long)
         self._seen_q: list[np.ndarray] = []  # configurations seen on joint_states, >= one swept step apart
+        self._preparing: set[tuple] = set()  # grid geometries whose arm set-up started (guarded by _seen_lock)
         self._last_arm_plan: tuple[ArmViewSelector, np.ndarray, ArmView] | None = None
         self._view_guard: ViewGuard | None = None  # of the running exploration (guard_min_cells)
         self._last_choice = None  # the last plan's view (cell, orientation), for the view guard
@@ -254,8 +254,6 @@ class NbvPlanner(Node):
             self._arm = ArmPlanningSetup(
                 cfg.robot_config(self), cfg.motion_weight, cfg.free_above(), cfg.arm_max_checks, cfg.capability_stride,
                 ik_alternatives=cfg.arm_ik_alternatives, strict_capability=cfg.arm_strict_capability,
-                path_planning=PathPlannerSettings(timeout_s=cfg.arm_path_timeout_s)
-                if self.move_mode == "trajectory" and cfg.arm_path_timeout_s > 0 else None,
             )  # fmt: skip
             self._joints = JointStateTracker(self._arm.robot)
             self.create_subscription(JointState, names.JOINT_STATES, self._on_joint_state, 10, callback_group=group)
@@ -301,6 +299,35 @@ class NbvPlanner(Node):
         with self._grid_lock:
             self._grid = msg
             self._grid_lock.notify_all()
+        if self._arm is not None:
+            self._prepare_arm(msg)
+
+    def _prepare_arm(self, msg: VoxelGrid) -> None:
+        """use_arm: on the first grid of a geometry, load (or build) its capability map and
+        collision model in a background thread, so the first plan does not wait for them (a plan
+        that comes earlier waits for the thread under ``_arm_lock``)."""
+        try:
+            geometry = geometry_of(msg)
+        except ValueError:
+            return  # the plan reports the bad grid
+        key = (tuple(geometry.origin), float(geometry.resolution), tuple(geometry.shape))
+        with self._seen_lock:
+            if key in self._preparing or geometry.dims != 3:
+                return
+            self._preparing.add(key)
+
+        def prepare() -> None:
+            start = time.perf_counter()
+            try:
+                with self._arm_lock:
+                    self._selector(geometry)
+            except ValueError as exc:  # e.g. an arm that reaches nothing of this grid: the plan says so
+                self.get_logger().warning(f"arm set-up for the grid failed: {exc}")
+                return
+            self.get_logger().info(f"arm set-up for the grid (capability map, collision model): "
+                                   f"{time.perf_counter() - start:.1f} s")  # fmt: skip
+
+        threading.Thread(target=prepare, name="arm_setup", daemon=True).start()
 
     def _on_camera_pose(self, msg: TransformStamped | None = None) -> None:
         with self._camera_lock:
@@ -415,10 +442,16 @@ class NbvPlanner(Node):
                     report = selector.select(planner, state, context, current_q, max(top_k, self.arm_top_k))
                     self._last_arm_plan = None if report.view is None else (selector, current_q, report.view)
             ranked = planner.ranked
-            views = [(*view_pose(c, context, geometry), c.gain) for c in ranked]
+            # messages only for the views the response and the markers show (arm_top_k may rank 20 000)
+            views = [(*view_pose(c, context, geometry), c.gain) for c in ranked[: max(top_k, 1)]]
             if ranked:
                 t = ranked[0].times
                 response.time_cnn_s, response.time_raycast_s, response.time_views_s = t["cnn"], t["raycast"], t["views"]
+                response.time_rank_s = max(0.0, planner.seconds - t["cnn"])
+            if report is not None:
+                response.time_capability_s = report.times.get("capability", 0.0)
+                response.time_ik_collision_s = report.times.get("ik_collision", 0.0)
+                response.arm_checked = int(report.checked)
             if not views:
                 raise ValueError(NO_POSITIVE_GAIN)
             ranked_msgs = [
@@ -505,15 +538,19 @@ class NbvPlanner(Node):
 
         def rank(method: str, state: np.ndarray, prob, top_k: int) -> list:
             call = RankViews.Request(
-                grid=grid_msg(state), method=method, top_k=top_k, use_workspace=box_min is not None
+                grid=grid_msg(state), method=method, top_k=top_k, use_workspace=box_min is not None, compact=True
             )
             if box_min is not None:
                 call.workspace_min = Point(x=float(box_min[0]), y=float(box_min[1]), z=float(box_min[2]))
                 call.workspace_max = Point(x=float(box_max[0]), y=float(box_max[1]), z=float(box_max[2]))
             call.max_origins = request.max_origins
             if planner.arm_filter is not None and (self.capability_stride or self.arm_min_view_height_m > 0):
-                allowed = flat_cells(planner.arm_filter(context.candidate_origins(state)), state.shape)
+                allowed_cells = planner.arm_filter(context.candidate_origins(state))
+                allowed = flat_cells(allowed_cells, state.shape)
                 call.allowed_origins = array.array("I", allowed.astype(np.uint32).tobytes())
+                if planner.view_mask is not None:  # the capability map's orientations, never a taken view
+                    mask = view_mask_to_bytes(allowed, planner.view_mask(allowed_cells))
+                    call.allowed_views = array.array("B", mask)
             if prob is not None:
                 call.probability = (
                     completed["msg"]
@@ -523,7 +560,14 @@ class NbvPlanner(Node):
             reply = call_service(self, self._rank_client, call, self.service_timeout_s)
             if not reply.success:
                 raise ValueError(f"ranking failed: {reply.message}")
-            choices = [choice_from_pose(*pose_to_arrays(v.pose.pose), v.gain, context, geometry) for v in reply.ranked]
+            if len(reply.ranked_gains) or not len(reply.ranked):  # the compact arrays (an older server: messages)
+                choices = ranked_from_arrays(np.frombuffer(reply.ranked_cells, dtype=np.uint32),
+                                             np.frombuffer(reply.ranked_orientations, dtype=np.uint16),
+                                             np.frombuffer(reply.ranked_gains, dtype=np.float32), state.shape,
+                                             len(context.orientations))  # fmt: skip
+            else:
+                choices = [choice_from_pose(*pose_to_arrays(v.pose.pose), v.gain, context, geometry)
+                           for v in reply.ranked]  # fmt: skip
             for choice in choices:
                 choice.times.update(raycast=reply.time_raycast_s, views=reply.time_views_s)
             return choices
@@ -608,7 +652,7 @@ class NbvPlanner(Node):
             raise ExecutionError("no planned joint path to execute")
         robot = self._arm.robot
         q_start, q_goal = plan[1], robot.joint_state_configuration(goal.name, goal.position)
-        path = self._timed_path(q_start, q_goal, plan[2].waypoints)
+        path = self._timed_path(q_start, q_goal)
         joints = self._controller_joints()
         index = [robot.joint_names.index(n) for n in joints]
         request = FollowJointTrajectory.Goal()
@@ -650,14 +694,13 @@ class NbvPlanner(Node):
             raise ExecutionError(f"controller_joints: {unknown} are not joints of the robot {robot.joint_names}")
         return joints
 
-    def _timed_path(self, q_start: np.ndarray, q_goal: np.ndarray, waypoints: np.ndarray | None = None) -> TimedPath:
-        """The joint path (straight, or a planned path's ``waypoints``) timed within
-        ``trajectory_velocity_scale`` × the URDF velocity limits and the acceleration and jerk limits."""
+    def _timed_path(self, q_start: np.ndarray, q_goal: np.ndarray) -> TimedPath:
+        """The straight joint path timed within ``trajectory_velocity_scale`` × the URDF velocity
+        limits and the acceleration and jerk limits."""
         robot = self._arm.robot
         vmax = np.asarray(robot.model.velocityLimit, dtype=np.float64) * self.trajectory_velocity_scale
-        points = np.stack([q_start, q_goal]) if waypoints is None else np.asarray(waypoints, dtype=np.float64)
-        return time_parameterise_path(points, vmax, self.max_joint_acceleration, self.max_joint_jerk,
-                                      self.trajectory_dt_s)  # fmt: skip
+        return time_parameterise(q_start, q_goal, vmax, self.max_joint_acceleration, self.max_joint_jerk,
+                                 self.trajectory_dt_s)  # fmt: skip
 
     def _move_camera(self, target: PoseStamped) -> int:
         """Move the camera; returns the stamp (ns) of the first frame taken at the target."""

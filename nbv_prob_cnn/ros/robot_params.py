@@ -45,7 +45,7 @@ from nbv_prob_cnn.arm.robot import (
     robot_config,
 )
 from nbv_prob_cnn.perception.messages import stamp_ns
-from nbv_prob_cnn.ros.common import param
+from nbv_prob_cnn.ros.common import Interrupt, param, wait_on
 
 #: ``urdf_path`` value of the built-in robot: the Franka Panda of ``pybullet_data``.
 BUILTIN_PANDA = "panda"
@@ -378,26 +378,35 @@ class JointStateTracker:
             self._merger.configuration()  # raises, naming the joints never received
         return self._q.copy(), self._stamp_ns
 
-    def wait_for_first(self, timeout_s: float) -> None:
+    def wait_for_first(self, timeout_s: float, interrupt: Interrupt | None = None) -> None:
         """Wait until every joint of the robot has a position (or a malformed message arrived).
 
         Raises:
             TimeoutError: not within ``timeout_s`` (the message names the missing joints).
+            WaitInterruptedError: ``interrupt`` was triggered first.
         """
         with self._condition:
-            if not self._condition.wait_for(lambda: self._q is not None or bool(self._error), timeout_s):
+            if not wait_on(self._condition, lambda: self._q is not None or bool(self._error), timeout_s, interrupt):
                 missing = self._merger.missing()
                 raise TimeoutError(
                     f"no complete joint state on joint_states within {timeout_s:g} s (never received: {missing})"
                 )
 
-    def wait_until(self, goal: np.ndarray, tolerance: float, min_stamp_ns: int, timeout_s: float) -> int:
+    def wait_until(
+        self,
+        goal: np.ndarray,
+        tolerance: float,
+        min_stamp_ns: int,
+        timeout_s: float,
+        interrupt: Interrupt | None = None,
+    ) -> int:
         """Wait until a joint state stamped at or after ``min_stamp_ns`` is within ``tolerance``
         (max abs difference, rad or m) of ``goal``; returns its stamp (ns).
 
         Raises:
             ValueError: a malformed joint state arrives meanwhile.
             TimeoutError: not reached in time.
+            WaitInterruptedError: ``interrupt`` was triggered first.
         """
 
         def done() -> bool:
@@ -408,7 +417,7 @@ class JointStateTracker:
             return float(np.max(np.abs(self._q - goal))) <= tolerance
 
         with self._condition:
-            if not self._condition.wait_for(done, timeout_s):
+            if not wait_on(self._condition, done, timeout_s, interrupt):
                 q = "none" if self._q is None else f"{float(np.max(np.abs(self._q - goal))):.4f} away"
                 raise TimeoutError(f"joint_states did not reach the joint goal within {timeout_s:.0f} s (last: {q})")
             return self._checked()[1]
