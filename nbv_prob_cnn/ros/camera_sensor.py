@@ -8,6 +8,10 @@ the latest ``CameraInfo`` on ``camera_info_topic`` (fields of view only, with
 ``sensor_from_camera_info``), then the data set's sensor (docs/method.md#sensor-and-simulated-observation).
 What is used is logged at
 start-up and again when the first (or a changed) ``CameraInfo`` arrives.
+
+The gain's sensor model (``sensor_model``: ``paper``, or ``returns`` with the measuring ranges
+``measure_min_range_m`` .. ``measure_max_range_m``, ``measure_grazing_deg`` and ``measure_walls``;
+docs/sensing.md) comes from parameters: ``CameraInfo`` carries no ranges.
 """
 
 from __future__ import annotations
@@ -20,6 +24,7 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import CameraInfo
 
 from nbv_prob_cnn.basics.camera import dataset_defaults
+from nbv_prob_cnn.gain.sampling import SENSOR_MODELS, GainSensor
 from nbv_prob_cnn.perception.messages import camera_info_to_intrinsics
 from nbv_prob_cnn.ros import names
 from nbv_prob_cnn.ros.common import param
@@ -45,6 +50,26 @@ class SensorParams:
                                max_value=100.0)  # fmt: skip
     max_range_m: float = param(0.0, "planning maximum range [m]; 0 = the data set's", min_value=0.0,
                                max_value=100.0)  # fmt: skip
+    sensor_model: str = param("paper", "gain: 'paper', or 'returns': a cell counts by the probability that the "
+                              "camera measures it (the measure_* parameters; docs/sensing.md)",
+                              choices=SENSOR_MODELS)  # fmt: skip
+    measure_min_range_m: float = param(0.5, "sensor_model returns: the camera's minimum measuring range [m]",
+                                       min_value=0.0, max_value=100.0)  # fmt: skip
+    measure_max_range_m: float = param(4.0, "sensor_model returns: the camera's maximum measuring range [m]",
+                                       min_value=0.01, max_value=100.0)  # fmt: skip
+    measure_grazing_deg: float = param(75.0, "sensor_model returns: no depth beyond this incidence [deg] (90 = "
+                                       "any)", min_value=1.0, max_value=90.0)  # fmt: skip
+    measure_walls: bool = param(True, "sensor_model returns: a ray leaving the grid meets a surface (a room); "
+                                "false: it returns nothing")  # fmt: skip
+
+    def apply_sensor_model(self, context, resolution_m: float) -> None:
+        """Set ``context``'s gain sensor model from these parameters (grid of ``resolution_m``)."""
+        if self.sensor_model == "paper":
+            return
+        context.gain_sensor = GainSensor(self.measure_min_range_m / resolution_m,
+                                         self.measure_max_range_m / resolution_m, self.measure_grazing_deg,
+                                         self.measure_walls)  # fmt: skip
+        context.sensor_model = self.sensor_model
 
 
 @dataclass(frozen=True)

@@ -112,9 +112,22 @@ class GainServer(Node):
         self._complete_client = self.create_client(CompleteGrid, names.COMPLETE, callback_group=group)
         self.create_service(EvaluateViews, names.EVALUATE_VIEWS, self._evaluate_views, callback_group=group)
         self.create_service(RankViews, names.RANK_VIEWS, self._rank_views, callback_group=group)
+        warm = self._warm_up_ray_caster()
         self.get_logger().info(
-            f"gain_server ready: dataset {self.dataset}, method {self.method}, TF by {self._tf.backend}"
+            f"gain_server ready: dataset {self.dataset}, method {self.method}, TF by {self._tf.backend}{warm}"
         )
+
+    def _warm_up_ray_caster(self) -> str:
+        """Build the OpenCL kernels now (about 1.5 s), not in the first request; "" without OpenCL."""
+        from nbv_prob_cnn.basics.cl_device import opencl_available
+
+        if self.backend == "numpy" or not opencl_available():
+            return ""
+        from nbv_prob_cnn.gain.opencl import get_ray_caster
+
+        start = time.perf_counter()
+        get_ray_caster()
+        return f", OpenCL kernels built in {time.perf_counter() - start:.1f} s"
 
     def _on_grid(self, msg: VoxelGrid) -> None:
         with self._lock:
@@ -171,6 +184,7 @@ class GainServer(Node):
                 frustum.hfov_deg, frustum.vfov_deg, frustum.max_range_m, frustum.min_range_m,
             )  # fmt: skip
             context.gain_variant = self.gain_variant
+            self.config.apply_sensor_model(context, geometry.resolution)
             positions = np.array([[p.pose.position.x, p.pose.position.y, p.pose.position.z] for p in request.poses])
             o = [p.pose.orientation for p in request.poses]
             quats = np.array([[q.x, q.y, q.z, q.w] for q in o])
@@ -243,6 +257,7 @@ class GainServer(Node):
                 frustum.hfov_deg, frustum.vfov_deg, frustum.max_range_m, frustum.min_range_m,
             )  # fmt: skip
             context.gain_variant = self.gain_variant
+            self.config.apply_sensor_model(context, geometry.resolution)
             given = None
             if request.probability.size_x:
                 given, _ = msg_to_probability(request.probability)

@@ -423,6 +423,7 @@ class NbvPlanner(Node):
                 frustum.hfov_deg, frustum.vfov_deg, frustum.max_range_m, frustum.min_range_m,
             )  # fmt: skip
             context.gain_variant = self.gain_variant
+            self.config.apply_sensor_model(context, geometry.resolution)
             box_min, box_max = self._planning_box(request)
             top_k = max(1, int(request.top_k), self.markers_top_k)
             keep = origin_filter(geometry, box_min is not None, box_min, box_max, int(request.max_origins), self._rng)
