@@ -20,7 +20,14 @@ from nbv_prob_cnn.arm.capability import (  # noqa: E402
     view_rotations,
 )
 from nbv_prob_cnn.arm.feasibility import ArmFeasibility  # noqa: E402
-from nbv_prob_cnn.arm.ik import DEFAULT_IK, rotation_error, solve_camera_pose, solve_camera_poses  # noqa: E402
+from nbv_prob_cnn.arm.ik import (  # noqa: E402
+    DEFAULT_IK,
+    alternative_solutions,
+    alternative_solutions_batch,
+    rotation_error,
+    solve_camera_pose,
+    solve_camera_poses,
+)
 from nbv_prob_cnn.basics.camera import DATASETS, matrix_from_quaternion  # noqa: E402
 from nbv_prob_cnn.basics.geometry import GridGeometry  # noqa: E402
 from nbv_prob_cnn.basics.grid import EMPTY  # noqa: E402
@@ -91,6 +98,21 @@ def test_batched_ik_with_restarts_reaches_as_many_targets(robot, chain):
         if got.q is not None:
             position_error, rotation = pinocchio_errors(robot, got.q, target)
             assert position_error < DEFAULT_IK.position_tol and rotation < DEFAULT_IK.rotation_tol
+
+
+def test_batched_alternative_solutions_equal_the_one_by_one_ones(robot, chain):
+    """The same random draws in the same order: the batch of 6 targets gives exactly the
+    per-target alternatives (configurations to 1e-9 rad, same count and order)."""
+    targets, _ = random_reachable_targets(robot, chain, 6, np.random.default_rng(21))
+    one_by_one = [alternative_solutions(chain, t, robot.reference_q, rng) for rng in [np.random.default_rng(5)]
+                  for t in targets]  # fmt: skip
+    batched = alternative_solutions_batch(chain, targets, robot.reference_q, np.random.default_rng(5))
+    assert sum(len(found) for found in one_by_one) >= 6
+    for single, batch, target in zip(one_by_one, batched, targets, strict=True):
+        assert len(single) == len(batch)
+        for a, b in zip(single, batch, strict=True):
+            np.testing.assert_allclose(b.q, a.q, atol=1e-9)
+            assert pinocchio_errors(robot, b.q, target)[0] < DEFAULT_IK.position_tol
 
 
 def test_batched_ik_keeps_the_closest_solution_to_the_start(robot, chain):

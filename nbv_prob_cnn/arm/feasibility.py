@@ -29,7 +29,14 @@ import numpy as np
 
 from nbv_prob_cnn.arm.capability import CapabilityMap
 from nbv_prob_cnn.arm.collision import CollisionChecker, GridObstacles
-from nbv_prob_cnn.arm.ik import DEFAULT_IK, IkResult, IkSettings, alternative_solutions, solve_camera_poses
+from nbv_prob_cnn.arm.ik import (
+    DEFAULT_IK,
+    IkResult,
+    IkSettings,
+    alternative_solutions,
+    alternative_solutions_batch,
+    solve_camera_poses,
+)
 from nbv_prob_cnn.arm.kinematics import CameraChain
 from nbv_prob_cnn.arm.path_planning import JointPathPlanner, PathPlanningError, path_length
 from nbv_prob_cnn.arm.robot import RobotModel
@@ -160,12 +167,21 @@ class ArmFeasibility:
         keep = self.capability.views_at(cells, self.strict_capability)[np.arange(len(ranked)), views]
         return [c for c, k in zip(ranked, keep, strict=True) if k]
 
-    def _goals(self, first: np.ndarray, target: np.ndarray, current_q: np.ndarray) -> Iterator[np.ndarray]:
-        """``first``, then (computed only if asked for) up to ``ik_alternatives`` other IK
-        solutions of ``target``, closest to ``current_q`` first."""
+    def _goals(
+        self,
+        first: np.ndarray,
+        target: np.ndarray,
+        current_q: np.ndarray,
+        alternatives: Callable[[], list[IkResult]] | None = None,
+    ) -> Iterator[np.ndarray]:
+        """``first``, then (computed only if asked for, by ``alternatives`` when given) up to
+        ``ik_alternatives`` other IK solutions of ``target``, closest to ``current_q`` first."""
         yield first
         if self.ik_alternatives:
-            others = alternative_solutions(self.chain, target, current_q, self.rng, self.ik_settings)
+            if alternatives is not None:
+                others = alternatives()
+            else:
+                others = alternative_solutions(self.chain, target, current_q, self.rng, self.ik_settings)
             distinct = [r.q for r in others if r.q is not None and np.abs(r.q - first).max() > 1e-3]
             yield from distinct[: self.ik_alternatives]
 
@@ -176,6 +192,7 @@ class ArmFeasibility:
         current_q: np.ndarray,
         obstacles: GridObstacles,
         report: FeasibilityReport | None = None,
+        alternatives: Callable[[], list[IkResult]] | None = None,
     ) -> tuple[np.ndarray | None, str, np.ndarray | None]:
         """The first of :meth:`_goals` that is collision-free with a free straight path from
         ``current_q``; else, with a ``path_planner``, the first collision-free goal with a planned
@@ -183,7 +200,7 @@ class ArmFeasibility:
         ``"path"``)."""
         failure = ""
         blocked: np.ndarray | None = None  # the first collision-free goal whose straight path is blocked
-        for goal in self._goals(first, target, current_q):
+        for goal in self._goals(first, target, current_q, alternatives):
             if not self.checker.is_free(goal, obstacles):
                 failure = "collision"
             elif not self.checker.path_is_free(current_q, goal, obstacles, self.path_step):
@@ -248,7 +265,9 @@ class ArmFeasibility:
             if solution.q is None:
                 report.unreachable += 1
                 continue
-            goal, failure, waypoints = self._free_goal(solution.q, target, current_q, obstacles, report)
+            goal, failure, waypoints = self._free_goal(
+                solution.q, target, current_q, obstacles, report, lambda index=index: ahead.alternatives(index)
+            )
             if goal is None:
                 if failure == "collision":
                     report.in_collision += 1
@@ -280,7 +299,8 @@ class _IkAhead:
         self.targets: dict[int, np.ndarray] = {}
         self._blocked: dict[int, bool] = {}
         self._solved: dict[int, IkResult] = {}
-        self._block = IK_BLOCK_FIRST
+        self._alternatives: dict[int, list[IkResult]] = {}
+        self._block = self._alt_block = IK_BLOCK_FIRST
 
     def blocked(self, index: int) -> bool:
         """Whether a camera-rigid body (hand, fingers) of candidate ``index`` enters a blocked cell."""
@@ -314,6 +334,27 @@ class _IkAhead:
             results = solve_camera_poses(arm.chain, targets, self.current_q, arm.rng, arm.ik_settings, warm)
             self._solved.update(zip(block, results, strict=True))
         return self._solved[index]
+
+    def alternatives(self, index: int) -> list[IkResult]:
+        """:func:`alternative_solutions` of candidate ``index`` (whose first IK solution failed a
+        check), solved together with those of the next already-solved candidates whose first
+        solution collides (they would ask for theirs next)."""
+        if index not in self._alternatives:
+            arm = self.arm
+            block, later = [index], index + 1
+            while len(block) < self._alt_block and later in self._blocked:
+                if not self._blocked[later]:
+                    if later not in self._solved:
+                        break
+                    q = self._solved[later].q
+                    if q is not None and not arm.checker.is_free(q, self.obstacles):
+                        block.append(later)
+                later += 1
+            self._alt_block = min(2 * self._alt_block, IK_BLOCK_MAX)
+            targets = np.stack([self.targets[i] for i in block])
+            found = alternative_solutions_batch(arm.chain, targets, self.current_q, arm.rng, arm.ik_settings)
+            self._alternatives.update(zip(block, found, strict=True))
+        return self._alternatives[index]
 
 
 def takes_view_mask(planner) -> bool:

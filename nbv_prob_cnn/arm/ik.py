@@ -203,16 +203,36 @@ def alternative_solutions(
     placements): ``settings.restarts`` random seeds plus ``current_q``, each run to convergence,
     the converged ones sorted by chain-joint distance from the seed, keeping only solutions at
     least ``min_separation`` rad (Euclidean) from every one kept before."""
+    return alternative_solutions_batch(chain, np.asarray(target)[None], current_q, rng, settings, min_separation)[0]
+
+
+def alternative_solutions_batch(
+    chain: CameraChain,
+    targets: np.ndarray,
+    current_q: np.ndarray,
+    rng: np.random.Generator,
+    settings: IkSettings = DEFAULT_IK,
+    min_separation: float = 0.2,
+) -> list[list[IkResult]]:
+    """:func:`alternative_solutions` of many targets ``(M, 4, 4)`` in one batch (per target the
+    same seeds, rules and order)."""
     current_q = np.asarray(current_q, dtype=np.float64)
+    targets = np.asarray(targets, dtype=np.float64).reshape(-1, 4, 4)
     start = current_q[chain.q_index]
-    seeds = np.vstack([start, rng.uniform(chain.lower, chain.upper, size=(settings.restarts, chain.n))])
-    q, ok = solve_batch(chain, np.broadcast_to(target, (seeds.shape[0], 4, 4)), seeds, settings)
-    found = q[ok]
-    distances = np.linalg.norm(found - start, axis=1)
-    kept: list[np.ndarray] = []
-    results = []
-    for index in np.argsort(distances, kind="stable"):
-        if all(np.linalg.norm(found[index] - other) >= min_separation for other in kept):
-            kept.append(found[index])
-            results.append(IkResult(chain.full_configuration(found[index], current_q), float(distances[index])))
-    return results
+    rows = 1 + settings.restarts
+    seeds = np.concatenate(
+        [np.vstack([start, rng.uniform(chain.lower, chain.upper, size=(settings.restarts, chain.n))]) for _ in targets]
+    ) if targets.shape[0] else np.zeros((0, chain.n))  # fmt: skip
+    q, ok = solve_batch(chain, np.repeat(targets, rows, axis=0), seeds, settings)
+    out = []
+    for m in range(targets.shape[0]):
+        found = q[m * rows : (m + 1) * rows][ok[m * rows : (m + 1) * rows]]
+        distances = np.linalg.norm(found - start, axis=1)
+        kept: list[np.ndarray] = []
+        results = []
+        for index in np.argsort(distances, kind="stable"):
+            if all(np.linalg.norm(found[index] - other) >= min_separation for other in kept):
+                kept.append(found[index])
+                results.append(IkResult(chain.full_configuration(found[index], current_q), float(distances[index])))
+        out.append(results)
+    return out
