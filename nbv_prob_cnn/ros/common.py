@@ -448,7 +448,8 @@ class NodeExecutor:
                 running = [task for task in running if not task.done()]
             if running:
                 return False
-            self.spin_once(timeout_sec=0)  # type: ignore[attr-defined]
+            for _ in range(5):  # one callback per spin: let timers pass before the tasks they left
+                self.spin_once(timeout_sec=0.01)  # type: ignore[attr-defined]
         return True
 
     def join_callbacks(self, timeout_s: float) -> bool:
@@ -509,7 +510,7 @@ def run_node(
        (service calls, an exploration's waits);
     2. keep spinning until the callbacks it ended have sent their answers (an Explore goal's
        result, a service's error reply), :data:`DRAIN_S` at most;
-    3. stop the executor and wait for its worker threads (:data:`CALLBACK_JOIN_S` at most);
+    3. wait for the executor's worker threads (:data:`CALLBACK_JOIN_S` at most), stop it;
     4. destroy the node's action servers and clients, then the node (skipped, with an error
        logged, while a callback still runs: destroying it then could crash the process);
     5. log the ``summary``, shut rclpy down.
@@ -567,8 +568,8 @@ def shut_down_node(
     if executor is not None:
         if node is not None and rclpy.ok():
             executor.drain(drain_s)
-        executor.shutdown(timeout_sec=0)  # type: ignore[attr-defined]
         joined = executor.join_callbacks(join_s)
+        executor.shutdown(timeout_sec=0)  # type: ignore[attr-defined]  # after the join: callbacks use its guard
     if node is not None:
         name = node.get_name()
         if joined:

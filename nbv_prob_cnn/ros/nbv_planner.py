@@ -7,8 +7,9 @@
   ``/camera/goal_pose`` and wait for the camera to arrive there (``camera_frame`` in the grid frame
   by TF, or ``/camera/pose`` with ``pose_source:=topic``), or with ``move_mode:=arm``
   send the joint goal to ``/arm_sim/move_to_joints`` and wait for ``/joint_states`` to reach it,
-  or with ``move_mode:=trajectory`` send the straight joint path, timed within the velocity,
-  acceleration and jerk limits (:func:`~nbv_prob_cnn.arm.trajectory.time_parameterise`), to a
+  or with ``move_mode:=trajectory`` send the joint path (straight, or planned around obstacles by
+  OMPL when the straight one collides, ``arm_path_timeout_s``), timed within the velocity,
+  acceleration and jerk limits (:func:`~nbv_prob_cnn.arm.trajectory.time_parameterise_path`), to a
   ``joint_trajectory_controller``'s ``control_msgs/FollowJointTrajectory`` action
   (``trajectory_action``, default ``/arm_controller/follow_joint_trajectory``)),
   wait for a grid that includes a frame from the new pose, repeat until a stop condition.
@@ -58,9 +59,10 @@ from trajectory_msgs.msg import JointTrajectoryPoint
 from visualization_msgs.msg import MarkerArray
 
 from nbv_prob_cnn.arm.feasibility import ArmView, FeasibilityReport, takes_view_mask
+from nbv_prob_cnn.arm.path_planning import PathPlannerSettings
 from nbv_prob_cnn.arm.selection import ArmViewSelector
 from nbv_prob_cnn.arm.swept import SweptVolume
-from nbv_prob_cnn.arm.trajectory import TimedPath, time_parameterise
+from nbv_prob_cnn.arm.trajectory import TimedPath, time_parameterise_path
 from nbv_prob_cnn.arm.views import ArmPlanningSetup
 from nbv_prob_cnn.basics.camera import DATASETS
 from nbv_prob_cnn.basics.grid import unknown_fraction_all
@@ -74,7 +76,17 @@ from nbv_prob_cnn.planners.ranked_views import ranked_from_arrays, view_mask_to_
 from nbv_prob_cnn.planners.requests import choice_from_pose, flat_cells, origin_filter, planning_context, view_pose
 from nbv_prob_cnn.ros import names
 from nbv_prob_cnn.ros.camera_sensor import CameraInfoSensor, SensorParams
-from nbv_prob_cnn.ros.common import GRID_QOS, call_service, declare_config, param, positive_seconds, run_node
+from nbv_prob_cnn.ros.common import (
+    GRID_QOS,
+    Interrupt,
+    WaitInterruptedError,
+    call_service,
+    declare_config,
+    param,
+    positive_seconds,
+    run_node,
+    shutdown_interrupt,
+)
 from nbv_prob_cnn.ros.conversions import (
     arrays_to_pose_stamped,
     geometry_of,
@@ -97,6 +109,11 @@ NO_POSITIVE_GAIN = "no view with positive gain"
 NO_REACHABLE_VIEW = "no view the arm reaches collision-free"
 #: Box bound standing for "no limit" on an axis.
 UNBOUNDED = 1e9
+#: Reason of an exploration's interrupt when its goal is canceled.
+GOAL_CANCELED = "goal canceled"
+#: An accepted goal that never reached execution (its acceptance failed in rclpy) frees the
+#: exploration slot after this long.
+GOAL_CLAIM_S = 10.0
 
 
 class ExecutionError(RuntimeError):
@@ -182,6 +199,11 @@ class PlannerConfig(SensorParams, ArmViewParams):
                                   max_value=100000.0)  # fmt: skip
     trajectory_dt_s: float = param(0.05, "move_mode trajectory: time between trajectory points (s)", min_value=0.001,
                                    max_value=10.0)  # fmt: skip
+    arm_path_timeout_s: float = param(
+        1.0, "move_mode trajectory: when the straight joint path to a view collides, plan one (OMPL RRTConnect, "
+        "simplified, checked every 0.05 rad) within this time (s); 0 = straight paths only, as in the other move modes",
+        min_value=0.0, max_value=60.0,
+    )  # fmt: skip
     goal_tolerance: float = param(0.01, "move_mode trajectory: goal position tolerance sent with the goal (rad or m)",
                                   min_value=0.0, max_value=10.0)  # fmt: skip
     guard_min_cells: int = param(
@@ -230,9 +252,12 @@ class NbvPlanner(Node):
         self._grid: VoxelGrid | None = None
         self._camera_lock = threading.Condition()
         self._camera_pose: TransformStamped | None = None
-        self._explore_lock = threading.Lock()  # guards the two fields below
+        self._explore_lock = threading.Lock()  # guards the four fields below
         self._active_goal = None  # the running exploration's goal handle
-        self._refused_goals: set[bytes] = set()  # accepted while another ran: aborted on execution
+        self._canceled_before_start = None  # an accepted goal whose cancel came before its execution
+        self._goal_accepted_at: float | None = None  # a goal accepted, not yet executing (monotonic s)
+        self._goal_interrupt: Interrupt | None = None  # the running exploration's (cancel and shutdown)
+        self._shutdown = shutdown_interrupt(self)  # triggered by run_node when the node stops
         if self.move_mode in ("arm", "trajectory") and not self.use_arm:
             raise ValueError(
                 f"move_mode {self.move_mode!r} needs use_arm:=true (the joint goal comes from planning with the arm)"
@@ -254,6 +279,8 @@ class NbvPlanner(Node):
             self._arm = ArmPlanningSetup(
                 cfg.robot_config(self), cfg.motion_weight, cfg.free_above(), cfg.arm_max_checks, cfg.capability_stride,
                 ik_alternatives=cfg.arm_ik_alternatives, strict_capability=cfg.arm_strict_capability,
+                path_planning=PathPlannerSettings(timeout_s=cfg.arm_path_timeout_s)
+                if self.move_mode == "trajectory" and cfg.arm_path_timeout_s > 0 else None,
             )  # fmt: skip
             self._joints = JointStateTracker(self._arm.robot)
             self.create_subscription(JointState, names.JOINT_STATES, self._on_joint_state, 10, callback_group=group)
@@ -287,8 +314,7 @@ class NbvPlanner(Node):
         self.create_service(PlanNextBestView, names.PLAN, self._plan_service, callback_group=group)
         self._action = ActionServer(
             self, Explore, names.EXPLORE, execute_callback=self._explore,
-            goal_callback=self._check_goal, handle_accepted_callback=self._claim_goal,
-            cancel_callback=lambda _: CancelResponse.ACCEPT, callback_group=group,
+            goal_callback=self._check_goal, cancel_callback=self._cancel_goal, callback_group=group,
         )  # fmt: skip
         mode = "in-process" if self.in_process else "via /nbv/complete and /nbv/rank_views"
         mode += f", arm {self._arm.robot.joint_names} (λ = {self.motion_weight:g})" if self._arm else ""
@@ -398,18 +424,22 @@ class NbvPlanner(Node):
                 raise ValueError("no grid received yet on /nbv/grid")
             return self._grid
 
-    def _wait_for_grid(self, min_stamp_ns: int, timeout_s: float) -> VoxelGrid:
+    def _wait_for_grid(self, min_stamp_ns: int, timeout_s: float, interrupt: Interrupt) -> VoxelGrid:
         with self._grid_lock:
-            ok = self._grid_lock.wait_for(
-                lambda: self._grid is not None and stamp_ns(self._grid.header.stamp) >= min_stamp_ns, timeout_s
+            ok = interrupt.wait_for(
+                self._grid_lock,
+                lambda: self._grid is not None and stamp_ns(self._grid.header.stamp) >= min_stamp_ns,
+                timeout_s,
             )
             if not ok:
                 raise TimeoutError(f"no grid including the frame at {min_stamp_ns} ns within {timeout_s:.0f} s")
             return self._grid
 
     # -- planning -----------------------------------------------------------------------------
-    def plan(self, request: PlanNextBestView.Request) -> PlanNextBestView.Response:
-        """Plan on the latest grid; never raises (errors go into the response)."""
+    def plan(self, request: PlanNextBestView.Request, interrupt: Interrupt | None = None) -> PlanNextBestView.Response:
+        """Plan on the latest grid; never raises (errors go into the response). The waits for the
+        servers end when ``interrupt`` (default: the node's shutdown) is triggered."""
+        interrupt = interrupt or self._shutdown
         response = PlanNextBestView.Response()
         start = time.perf_counter()
         try:
@@ -429,7 +459,7 @@ class NbvPlanner(Node):
             keep = origin_filter(geometry, box_min is not None, box_min, box_max, int(request.max_origins), self._rng)
             planner = RecordingPlanner(make_planner(method.name), keep, self._height_limit(geometry))
             if not self.in_process:
-                hooks = self._server_hooks(grid, state, geometry, request, context, planner)
+                hooks = self._server_hooks(grid, state, geometry, request, context, planner, interrupt)
                 context.completion, context.ranker = hooks
             report = None
             if self._arm is None and self._view_guard is None:
@@ -481,7 +511,7 @@ class NbvPlanner(Node):
                 planning_markers(frame, grid.header.stamp, views[: self.markers_top_k], sensor.hfov_deg,
                                  sensor.vfov_deg or 0.0, depth, 4 * geometry.resolution)
             )  # fmt: skip
-        except (ValueError, TimeoutError, RuntimeError) as exc:
+        except (ValueError, TimeoutError, RuntimeError, WaitInterruptedError) as exc:
             response.success = False
             response.message = str(exc)
             self.get_logger().warning(f"plan: {exc}")
@@ -511,7 +541,14 @@ class NbvPlanner(Node):
         return lambda origins: origins[geometry.cell_centre(origins)[:, 2] >= low]
 
     def _server_hooks(
-        self, grid: VoxelGrid, original: np.ndarray, geometry, request: PlanNextBestView.Request, context, planner
+        self,
+        grid: VoxelGrid,
+        original: np.ndarray,
+        geometry,
+        request: PlanNextBestView.Request,
+        context,
+        planner,
+        interrupt: Interrupt,
     ):
         """Completion (``/nbv/complete``) and ranking (``/nbv/rank_views``) hooks of the core
         planner; the arm's capability filter (``planner.arm_filter``) travels as allowed origins.
@@ -530,7 +567,7 @@ class NbvPlanner(Node):
 
         def complete(state: np.ndarray, context) -> np.ndarray:
             call = CompleteGrid.Request(grid=grid_msg(state), dataset=self.dataset)
-            reply = call_service(self, self._complete_client, call, self.service_timeout_s)
+            reply = call_service(self, self._complete_client, call, self.service_timeout_s, interrupt)
             if not reply.success:
                 raise ValueError(f"completion failed: {reply.message}")
             prob, _ = msg_to_probability(reply.probability)
@@ -558,7 +595,7 @@ class NbvPlanner(Node):
                     if prob is completed.get("prob")
                     else probability_to_msg(prob, geometry, grid.header.frame_id, grid.header.stamp)
                 )
-            reply = call_service(self, self._rank_client, call, self.service_timeout_s)
+            reply = call_service(self, self._rank_client, call, self.service_timeout_s, interrupt)
             if not reply.success:
                 raise ValueError(f"ranking failed: {reply.message}")
             if len(reply.ranked_gains) or not len(reply.ranked):  # the compact arrays (an older server: messages)
@@ -583,53 +620,62 @@ class NbvPlanner(Node):
 
     # -- exploration --------------------------------------------------------------------------
     def _check_goal(self, goal: Explore.Goal) -> GoalResponse:
-        """Refuse goals that cannot run (as ros2/examples ``server_single_goal.py``, the
-        one-at-a-time decision is taken later, under a lock, in :meth:`_claim_goal`)."""
+        """Refuse goals that cannot run, and every goal while an exploration runs or was just
+        accepted (one at a time: the client learns it from the goal response; the reason is
+        logged). An accepted goal holds the exploration slot until :meth:`_explore` ends it."""
         if goal.max_views < 1 or not np.isfinite(goal.stop_unknown_fraction) or not np.isfinite(goal.stop_gain):
             self.get_logger().warning("explore: rejected a goal with max_views < 1 or non-finite thresholds")
             return GoalResponse.REJECT
+        with self._explore_lock:
+            claimed = self._goal_accepted_at is not None and time.monotonic() - self._goal_accepted_at < GOAL_CLAIM_S
+            if self._active_goal is not None or claimed:
+                self.get_logger().warning("explore: rejected a goal: another exploration is running (one at a time)")
+                return GoalResponse.REJECT
+            self._goal_accepted_at = time.monotonic()
         return GoalResponse.ACCEPT
 
-    def _claim_goal(self, goal_handle) -> None:
-        """Accepted goals arrive here: the first one while none runs takes the exploration slot;
-        one that arrives while another runs is executed only to be aborted with a reason."""
+    def _cancel_goal(self, goal_handle) -> CancelResponse:
+        """Accept every cancel request; the running exploration's waits end at once (rclpy marks
+        the goal CANCELING right after this returns, :meth:`_explore` waits for that)."""
         with self._explore_lock:
-            busy = self._active_goal is not None and self._active_goal.is_active
-            if busy:
-                self._refused_goals.add(bytes(goal_handle.goal_id.uuid))
-            else:
-                self._active_goal = goal_handle
-        goal_handle.execute()
+            interrupt = self._goal_interrupt if goal_handle is self._active_goal else None
+            if interrupt is None:
+                self._canceled_before_start = goal_handle
+        if interrupt is not None:
+            interrupt.trigger(GOAL_CANCELED)
+        return CancelResponse.ACCEPT
 
-    def _move_arm(self, goal: JointState) -> int:
+    def _move_arm(self, goal: JointState, interrupt: Interrupt) -> int:
         """Send the joint goal to ``arm_sim/move_to_joints``; wait until ``joint_states`` reach it
         and return the stamp (ns) of the first joint state there (frames stamped at or after it
         are taken at the goal)."""
         goal_q = np.asarray(goal.position, dtype=np.float64)
         sent = self.get_clock().now().nanoseconds
         request = MoveToJoints.Request(name=list(goal.name), position=list(goal.position))
-        reply = call_service(self, self._joints_client, request, self.move_timeout_s)
+        reply = call_service(self, self._joints_client, request, self.move_timeout_s, interrupt)
         if not reply.success:
             raise ExecutionError(f"arm move failed: {reply.message}")
         try:
-            return self._joints.wait_until(goal_q, self.joint_tolerance, sent, self.move_timeout_s + reply.duration_s)
+            timeout_s = self.move_timeout_s + reply.duration_s
+            return self._joints.wait_until(goal_q, self.joint_tolerance, sent, timeout_s, interrupt)
         except TimeoutError as exc:
             raise ExecutionError(str(exc)) from exc
 
-    def _move(self, planned: PlanNextBestView.Response) -> int:
+    def _move(self, planned: PlanNextBestView.Response, interrupt: Interrupt) -> int:
         """Move to a plan's view in ``move_mode``; returns the stamp (ns) from which frames are taken there.
 
         Raises:
             ExecutionError: the arm / controller did not take the view (the next view is tried).
+            WaitInterruptedError: the goal was canceled or the node shuts down meanwhile.
         """
         if self.move_mode == "arm":
-            return self._move_arm(planned.joint_goal)
+            return self._move_arm(planned.joint_goal, interrupt)
         if self.move_mode == "trajectory":
             try:
-                return self._move_trajectory(planned.joint_goal)
+                return self._move_trajectory(planned.joint_goal, interrupt)
             except TimeoutError as exc:
                 raise ExecutionError(str(exc)) from exc
-        return self._move_camera(planned.best_pose)
+        return self._move_camera(planned.best_pose, interrupt)
 
     def _rule_out_planned_view(self) -> None:
         """The move to the last plan's view failed: never plan that view again."""
@@ -639,7 +685,7 @@ class NbvPlanner(Node):
                 selector.take(view.choice)
                 self._last_arm_plan = None
 
-    def _move_trajectory(self, goal: JointState) -> int:
+    def _move_trajectory(self, goal: JointState, interrupt: Interrupt) -> int:
         """Send the straight joint path from the plan's start to ``goal``, timed within the limits,
         to the FollowJointTrajectory action; wait for the result and for ``joint_states`` at the
         goal; returns the stamp (ns) of the first joint state there.
@@ -653,7 +699,7 @@ class NbvPlanner(Node):
             raise ExecutionError("no planned joint path to execute")
         robot = self._arm.robot
         q_start, q_goal = plan[1], robot.joint_state_configuration(goal.name, goal.position)
-        path = self._timed_path(q_start, q_goal)
+        path = self._timed_path(q_start, q_goal, plan[2].waypoints)
         joints = self._controller_joints()
         index = [robot.joint_names.index(n) for n in joints]
         request = FollowJointTrajectory.Goal()
@@ -671,20 +717,26 @@ class NbvPlanner(Node):
         request.goal_tolerance = [JointTolerance(name=n, position=self.goal_tolerance) for n in joints]
         request.goal_time_tolerance = duration_msg(self.move_timeout_s)
         client = self._trajectory_client
-        if not client.wait_for_server(timeout_sec=min(self.move_timeout_s, 10.0)):
+        if not interrupt.wait_until(client.server_is_ready, min(self.move_timeout_s, 10.0)):
             raise ExecutionError(f"action {self.trajectory_action} is not available")
         sent = self.get_clock().now().nanoseconds
-        handle = wait_future(client.send_goal_async(request), self.move_timeout_s, "goal acceptance")
+        handle = wait_future(client.send_goal_async(request), self.move_timeout_s, "goal acceptance", interrupt)
         if handle is None or not handle.accepted:
             raise ExecutionError(f"{self.trajectory_action} rejected the trajectory (see the controller's log)")
-        outcome = wait_future(handle.get_result_async(), path.duration + 2 * self.move_timeout_s, "trajectory result")
+        try:
+            outcome = wait_future(
+                handle.get_result_async(), path.duration + 2 * self.move_timeout_s, "trajectory result", interrupt
+            )
+        except WaitInterruptedError:
+            handle.cancel_goal_async()  # the arm stops too (the answer is not awaited)
+            raise
         code, text = outcome.result.error_code, outcome.result.error_string
         if outcome.status != GoalStatus.STATUS_SUCCEEDED or code != FollowJointTrajectory.Result.SUCCESSFUL:
             raise ExecutionError(
                 f"{self.trajectory_action} failed: error code {code} {text!r} (status {outcome.status})"
             )
         tolerance = max(self.joint_tolerance, self.goal_tolerance)
-        return self._joints.wait_until(q_goal, tolerance, sent, self.move_timeout_s)
+        return self._joints.wait_until(q_goal, tolerance, sent, self.move_timeout_s, interrupt)
 
     def _controller_joints(self) -> list[str]:
         """The joints a trajectory names: ``controller_joints``, or the camera chain's."""
@@ -695,18 +747,20 @@ class NbvPlanner(Node):
             raise ExecutionError(f"controller_joints: {unknown} are not joints of the robot {robot.joint_names}")
         return joints
 
-    def _timed_path(self, q_start: np.ndarray, q_goal: np.ndarray) -> TimedPath:
-        """The straight joint path timed within ``trajectory_velocity_scale`` × the URDF velocity
-        limits and the acceleration and jerk limits."""
+    def _timed_path(self, q_start: np.ndarray, q_goal: np.ndarray, waypoints: np.ndarray | None = None) -> TimedPath:
+        """The joint path (straight, or a planned path's ``waypoints``) timed within
+        ``trajectory_velocity_scale`` × the URDF velocity limits and the acceleration and jerk limits."""
         robot = self._arm.robot
         vmax = np.asarray(robot.model.velocityLimit, dtype=np.float64) * self.trajectory_velocity_scale
-        return time_parameterise(q_start, q_goal, vmax, self.max_joint_acceleration, self.max_joint_jerk,
-                                 self.trajectory_dt_s)  # fmt: skip
+        points = np.stack([q_start, q_goal]) if waypoints is None else np.asarray(waypoints, dtype=np.float64)
+        return time_parameterise_path(points, vmax, self.max_joint_acceleration, self.max_joint_jerk,
+                                      self.trajectory_dt_s)  # fmt: skip
 
-    def _move_camera(self, target: PoseStamped) -> int:
+    def _move_camera(self, target: PoseStamped, interrupt: Interrupt) -> int:
         """Move the camera; returns the stamp (ns) of the first frame taken at the target."""
         if self.move_mode == "service":
-            reply = call_service(self, self._move_client, MoveCamera.Request(target=target), self.move_timeout_s)
+            request = MoveCamera.Request(target=target)
+            reply = call_service(self, self._move_client, request, self.move_timeout_s, interrupt)
             if not reply.success:
                 raise ValueError(f"camera move failed: {reply.message}")
             return stamp_ns(reply.frame_stamp)
@@ -727,7 +781,7 @@ class NbvPlanner(Node):
             return True
 
         with self._camera_lock:
-            if not self._camera_lock.wait_for(arrived, self.move_timeout_s):
+            if not interrupt.wait_for(self._camera_lock, arrived, self.move_timeout_s):
                 raise TimeoutError(f"camera did not report arrival within {self.move_timeout_s:.0f} s")
             return reached[-1]
 
@@ -744,43 +798,52 @@ class NbvPlanner(Node):
         when the client cancels, ABORTED on any error (with the error as ``reason_stopped``)."""
         goal: Explore.Goal = goal_handle.request
         result = Explore.Result()
+        interrupt = self._shutdown.child()  # triggered by a cancel request (_cancel_goal) or the shutdown
         with self._explore_lock:
-            refused = bytes(goal_handle.goal_id.uuid) in self._refused_goals
-            self._refused_goals.discard(bytes(goal_handle.goal_id.uuid))
-        if refused:
-            result.reason_stopped = "refused: another exploration is running"
-            self.get_logger().warning(f"explore: {result.reason_stopped}")
-            goal_handle.abort()
-            return result
-        outcome, result.reason_stopped, fraction = self._run_exploration(goal_handle, goal, result)
-        result.views = len(result.poses)
-        result.final_unknown_fraction = float(fraction)
-        with self._explore_lock:
+            self._active_goal, self._goal_interrupt, self._goal_accepted_at = goal_handle, interrupt, None
+            if self._canceled_before_start is goal_handle:
+                interrupt.trigger(GOAL_CANCELED)
+            self._canceled_before_start = None
+        try:
+            outcome, result.reason_stopped, fraction = self._run_exploration(goal_handle, goal, result, interrupt)
+            result.views = len(result.poses)
+            result.final_unknown_fraction = float(fraction)
+            if outcome == "canceled" and not cancel_requested(goal_handle, 1.0):
+                outcome = "aborted"  # never happens: rclpy marks an accepted cancel right after _cancel_goal
+                result.reason_stopped += " (the cancel request did not reach the goal's state)"
             if outcome == "canceled":
                 goal_handle.canceled()
             elif outcome == "aborted":
                 goal_handle.abort()
             else:
                 goal_handle.succeed()
-            self._active_goal = None
+        finally:
+            with self._explore_lock:
+                self._active_goal = self._goal_interrupt = None
+            interrupt.release()
         return result
 
-    def _run_exploration(self, goal_handle, goal: Explore.Goal, result: Explore.Result) -> tuple[str, str, float]:
-        """The exploration loop; returns (outcome: succeeded/canceled/aborted, reason, unknown fraction)."""
+    def _run_exploration(
+        self, goal_handle, goal: Explore.Goal, result: Explore.Result, interrupt: Interrupt
+    ) -> tuple[str, str, float]:
+        """The exploration loop; returns (outcome: succeeded/canceled/aborted, reason, unknown
+        fraction). Every wait of a step (grid, servers, move, joint states) ends at once when
+        ``interrupt`` is triggered: CANCELED after a cancel request, ABORTED on shutdown."""
         fraction = 1.0
+        index, failures = 0, 0  # views taken; failed moves in a row
         try:
-            previous = msg_to_grid(self._wait_for_grid(0, self.grid_timeout_s))[0]
+            previous = msg_to_grid(self._wait_for_grid(0, self.grid_timeout_s, interrupt))[0]
             fraction = unknown_fraction_all(previous)
             guard = self._view_guard = self._new_view_guard(previous.shape)
             if self._joints is not None:  # the arm's first joint state may still be on its way
-                self._joints.wait_for_first(self.move_timeout_s)
-            index, failures = 0, 0  # views taken; failed moves in a row
+                self._joints.wait_for_first(self.move_timeout_s, interrupt)
             while index < goal.max_views:
                 if goal_handle.is_cancel_requested:
                     return "canceled", f"canceled after {index} views", fraction
                 if goal.stop_unknown_fraction > 0 and fraction <= goal.stop_unknown_fraction:
                     return "succeeded", f"unknown fraction {fraction:.4f} <= {goal.stop_unknown_fraction}", fraction
-                planned = self.plan(goal_plan_request(goal))
+                planned = self.plan(goal_plan_request(goal), interrupt)
+                interrupt.check()  # a plan interrupted while it waited for a server answers an error
                 if not planned.success:
                     if planned.message == NO_POSITIVE_GAIN or planned.message.startswith(NO_REACHABLE_VIEW):
                         ruled = len(guard.ruled_out) if guard is not None else 0
@@ -791,7 +854,7 @@ class NbvPlanner(Node):
                     return "succeeded", f"best gain {planned.best_gain:.4f} <= {goal.stop_gain}", fraction
                 moving = time.perf_counter()
                 try:
-                    frame_ns = self._move(planned)
+                    frame_ns = self._move(planned, interrupt)
                 except ExecutionError as exc:
                     failures += 1
                     result.failed_executions += 1
@@ -814,7 +877,7 @@ class NbvPlanner(Node):
                 if self._arm is not None:
                     self._took_planned_view()
                 waiting = time.perf_counter()
-                grid = self._wait_for_grid(frame_ns, self.grid_timeout_s)
+                grid = self._wait_for_grid(frame_ns, self.grid_timeout_s, interrupt)
                 done = time.perf_counter()
                 seen = msg_to_grid(grid)[0]
                 fraction = unknown_fraction_all(seen)
@@ -835,6 +898,12 @@ class NbvPlanner(Node):
                     f"{changed} cells changed; {stage_times(planned, waiting - moving, done - waiting)}"
                 )
                 index += 1
+        except WaitInterruptedError as exc:
+            if interrupt.reason == GOAL_CANCELED:
+                self.get_logger().info(f"explore: canceled after {index} views")
+                return "canceled", f"canceled after {index} views", fraction
+            self.get_logger().warning(f"explore: stopped after {index} views: {exc}")
+            return "aborted", f"stopped after {index} views: {exc}", fraction
         except (ValueError, TimeoutError, RuntimeError) as exc:
             self.get_logger().error(f"explore: {exc}")
             return "aborted", f"error: {exc}", fraction
@@ -884,19 +953,29 @@ def duration_msg(seconds: float) -> Duration:
     return Duration(sec=nanoseconds // 1_000_000_000, nanosec=nanoseconds % 1_000_000_000)
 
 
-def wait_future(future, timeout_s: float, what: str):
+def wait_future(future, timeout_s: float, what: str, interrupt: Interrupt):
     """The result of an rclpy future completed by the executor's other threads.
 
     Raises:
         ExecutionError: not done within ``timeout_s``, or it raised.
+        WaitInterruptedError: ``interrupt`` was triggered first.
     """
-    done = threading.Event()
-    future.add_done_callback(lambda _: done.set())
-    if not done.wait(timeout_s):
+    if not interrupt.wait_future(future, timeout_s):
         raise ExecutionError(f"no {what} within {timeout_s:.0f} s")
     if future.exception() is not None:
         raise ExecutionError(f"{what} failed: {future.exception()}")
     return future.result()
+
+
+def cancel_requested(goal_handle, timeout_s: float) -> bool:
+    """Whether the goal is CANCELING, waiting up to ``timeout_s`` for rclpy to mark it (it does so
+    right after the cancel callback that woke the exploration returned)."""
+    deadline = time.monotonic() + timeout_s
+    while not goal_handle.is_cancel_requested:
+        if time.monotonic() >= deadline:
+            return False
+        time.sleep(0.002)
+    return True
 
 
 def stage_times(planned: PlanNextBestView.Response, move_s: float, grid_wait_s: float) -> str:
