@@ -269,3 +269,35 @@ def test_planner_context_passes_the_sensor_to_the_search():
     flat = int(np.argmax(gains))
     assert choice is not None and choice.gain == pytest.approx(float(gains.flat[flat]), rel=1e-5)
     assert tuple(choice.cell) == tuple(origins[flat // gains.shape[1]])
+
+
+def test_explore_command_passes_the_preset_to_the_gain(tmp_path, monkeypatch):
+    import argparse
+
+    from nbv_prob_cnn.commands import explore as command
+
+    seen = {}
+
+    def fake_explore(world, planner, context, views, **kwargs):
+        seen["context"], seen["noise"] = context, kwargs["noise"]
+        raise RuntimeError("stop here")
+
+    monkeypatch.setattr(command, "explore", fake_explore)
+    parser = argparse.ArgumentParser()
+    command.add_arguments(parser)
+    base = ["--dataset", "2d", "--log", str(tmp_path / "run.csv"), "--views", "2", "--quiet"]
+    with pytest.raises(ValueError, match="needs a --noise preset"):
+        command.run(parser.parse_args([*base, "--sensor-model", "returns"]))
+    args = parser.parse_args([*base, "--noise", "astra", "--room-margin", "0.3", "--sensor-model", "returns",
+                              "--sampling", "exact"])  # fmt: skip
+    with pytest.raises(RuntimeError, match="stop here"):
+        command.run(args)
+    context = seen["context"]
+    resolution = context.defaults.resolution_m
+    assert context.sampling == "exact" and context.sensor_model == "returns"
+    assert context.returns_sensor == GainSensor(0.6 / resolution, 8.0 / resolution, 72.0, walls=True)
+    assert seen["noise"].name == "astra"
+    plain = parser.parse_args([*base, "--noise", "kinect_v1"])  # the paper's gain unless asked
+    with pytest.raises(RuntimeError, match="stop here"):
+        command.run(plain)
+    assert seen["context"].returns_sensor is None and not seen["context"].gain_sensor.walls
