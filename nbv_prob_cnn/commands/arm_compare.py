@@ -132,36 +132,40 @@ def run(args: argparse.Namespace) -> int:
 
     capability = None
     bar = tqdm(total=len(seeds) * len(configs), desc="arm-compare", unit="run", disable=args.quiet)
-    for seed in seeds:
-        paths = {c: out / "runs" / f"seed{seed}_{c}.csv" for c in configs}
-        todo = [(w, p) for w, p in variants if not paths[config_name(w, p)].is_file()]
-        bar.update(len(variants) - len(todo))
-        if todo:
-            world = load_or_generate("3dt", seed)
-            geometry = world.geometry
-            if capability is None:
-                capability = load_or_build_capability_map(robot, geometry, args.stride, progress=not args.quiet)
-            arm = feasibility(0.0, seed, capability)
-            first, start = reachable_first_view(world, context(world), arm, np.random.default_rng(seed))
-        for weight, planned in todo:
-            name = config_name(weight, planned)
-            gain_planner = GainPlanner(GAIN_METHODS[args.method])
-            planner: Planner = gain_planner
-            moves = None
-            if weight is not None:
-                constrained = feasibility(weight, seed, capability, planned)
-                swept = None if args.no_swept else SweptVolume(checker, geometry)
-                arm_planner = ArmPlanner(
-                    gain_planner, constrained, geometry, start, args.top_k, swept, args.fallback_radius, first
-                )
-                planner, moves = arm_planner, arm_planner.moves
-            ctx = context(world)
-            bar.set_postfix(seed=seed, config=name)
-            result = explore(world, planner, ctx, args.views, progress=False, first=first)
-            write_run_csv(run_rows(result, ctx, moves), paths[name])
-            bar.update(1)
-        for c in configs:
-            runs[c].append(read_run_csv(paths[c]))
+    # --paths: every scene's planned run first, then the straight-only runs (a run cut short by
+    # time leaves whole configurations over the first scenes); otherwise all configurations per scene
+    passes = [[v] for v in variants] if args.paths else [variants]
+    for group in passes:
+        for seed in seeds:
+            paths = {config_name(w, p): out / "runs" / f"seed{seed}_{config_name(w, p)}.csv" for w, p in group}
+            todo = [(w, p) for w, p in group if not paths[config_name(w, p)].is_file()]
+            bar.update(len(group) - len(todo))
+            if todo:
+                world = load_or_generate("3dt", seed)
+                geometry = world.geometry
+                if capability is None:
+                    capability = load_or_build_capability_map(robot, geometry, args.stride, progress=not args.quiet)
+                arm = feasibility(0.0, seed, capability)
+                first, start = reachable_first_view(world, context(world), arm, np.random.default_rng(seed))
+            for weight, planned in todo:
+                name = config_name(weight, planned)
+                gain_planner = GainPlanner(GAIN_METHODS[args.method])
+                planner: Planner = gain_planner
+                moves = None
+                if weight is not None:
+                    constrained = feasibility(weight, seed, capability, planned)
+                    swept = None if args.no_swept else SweptVolume(checker, geometry)
+                    arm_planner = ArmPlanner(
+                        gain_planner, constrained, geometry, start, args.top_k, swept, args.fallback_radius, first
+                    )
+                    planner, moves = arm_planner, arm_planner.moves
+                ctx = context(world)
+                bar.set_postfix(seed=seed, config=name)
+                result = explore(world, planner, ctx, args.views, progress=False, first=first)
+                write_run_csv(run_rows(result, ctx, moves), paths[name])
+                bar.update(1)
+    for c in configs:
+        runs[c] = [read_run_csv(out / "runs" / f"seed{seed}_{c}.csv") for seed in seeds]
     bar.close()
 
     if args.paths:
