@@ -110,7 +110,8 @@ def _unknown_after(path: Path, views: int, at: int) -> float:
     return float(fractions[min(at, len(fractions)) - 1])
 
 
-def returns_table(out: Path, dataset: str, method: str, noise_name: str, rooms, seeds, views: int) -> str:
+def returns_table(out: Path, dataset: str, method: str, noise_name: str, rooms, seeds, views: int,
+                  committed: Path | None = None) -> str:  # fmt: skip
     """Markdown (returned) and CSV (written) of the ``returns`` runs."""
     at = [a for a in AT_VIEWS if a <= views]
     lines = ["| room | gain sensor model | runs | " + " | ".join(f"unknown after {a}" for a in at)
@@ -118,7 +119,7 @@ def returns_table(out: Path, dataset: str, method: str, noise_name: str, rooms, 
     rows = ["room,sensor_model,runs," + ",".join(f"mean_after_{a},std_after_{a}" for a in at) + ",ruled_out_mean"]
     for room_m in rooms:
         for model in ("paper", "returns"):
-            paths = [returns_path(out, dataset, method, noise_name, room_m, model, s) for s in seeds]
+            paths = [returns_path(out, dataset, method, noise_name, room_m, model, s, committed, views) for s in seeds]
             paths = [p for p in paths if _done(p, views)]
             if not paths:
                 continue
@@ -138,7 +139,13 @@ def read_csv_column(path: Path, name: str) -> list[str]:
         return [r[name] for r in csv.DictReader(f)]
 
 
-def returns_path(out, dataset, method, noise_name, room_m, model, seed) -> Path:
+def returns_path(out, dataset, method, noise_name, room_m, model, seed, committed=None, views=0) -> Path:
+    """The run's CSV; for the paper's model the committed noise-study run (``committed``, the
+    same guarded exploration; never written here) when it has the views."""
+    if model == "paper" and committed is not None:
+        path = committed / f"{dataset}_{method}_{noise_name}_{_room_name(room_m)}_seed{seed}.csv"
+        if _done(path, views):
+            return path
     return out / "runs" / f"{dataset}_{method}_{noise_name}_{_room_name(room_m)}_{model}_seed{seed}.csv"
 
 
@@ -200,7 +207,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--views", type=int, default=20)
     parser.add_argument("--noise", default="kinect_v1", help="returns: the noise preset")
     parser.add_argument("--rooms", nargs="+", default=["0.3", "none"], help="returns: wall margins [m] or none")
-    parser.add_argument("--committed", type=Path, default=None, help="sampling: the committed rounded runs")
+    parser.add_argument("--committed", type=Path, default=None,
+                        help="the committed runs to read (never written): sampling, the rounded ones of nbv evaluate; "
+                             "returns, the paper-model ones of the noise study")  # fmt: skip
     parser.add_argument("--summarise-only", action="store_true")
     args = parser.parse_args(argv)
     seeds = args.seeds or list(EVALUATION_SEEDS[:3])
@@ -211,6 +220,10 @@ def main(argv: list[str] | None = None) -> int:
             for room_m in rooms:
                 for model in ("paper", "returns"):
                     for seed in seeds:
+                        path = returns_path(args.out, args.dataset, method, args.noise, room_m, model, seed,
+                                            args.committed, args.views)  # fmt: skip
+                        if _done(path, args.views):
+                            continue
                         path = returns_path(args.out, args.dataset, method, args.noise, room_m, model, seed)
                         job = partial(run_returns, args.dataset, method, args.noise, room_m, model, seed, args.views,
                                       path)  # fmt: skip
@@ -231,7 +244,7 @@ def main(argv: list[str] | None = None) -> int:
             tqdm.write(f"{path.name}: done")
     if args.part == "returns":
         for method in args.methods:
-            print(returns_table(args.out, args.dataset, method, args.noise, rooms, seeds, args.views))
+            print(returns_table(args.out, args.dataset, method, args.noise, rooms, seeds, args.views, args.committed))
     else:
         print(sampling_table(args.out, args.committed, args.dataset, args.methods, seeds, args.views))
     return 0
