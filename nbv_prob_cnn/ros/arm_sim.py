@@ -24,9 +24,12 @@ What a real arm's driver graph publishes (names relative to the node namespace, 
   ``default_goal_tolerance``) of the last point by its time + ``goal_time_tolerance`` (default
   ``default_goal_time_s``), and succeeds with ``SUCCESSFUL``.
 
-The arm moves in straight joint-space segments, each joint at most at ``velocity_scale`` × its URDF
-velocity limit (:mod:`nbv_prob_cnn.arm.motion`): a trajectory faster than that lags behind and
-fails its goal tolerance, as an overloaded real arm would.
+The arm moves in straight joint-space segments between a trajectory's points, each joint at most
+at ``velocity_scale`` × its URDF velocity limit (:mod:`nbv_prob_cnn.arm.motion`): a trajectory
+faster than that lags behind and fails its goal tolerance, as an overloaded real arm would. A
+timed path sampled densely (``nbv_planner move_mode:=trajectory``: a straight or OMPL-planned
+joint path, :func:`~nbv_prob_cnn.arm.trajectory.time_parameterise_path`) is thus run on the path
+itself, the planned path's corners included.
 
 Also (our own, for ``sim_camera`` and the older move modes): ``arm/camera_pose``
 (``geometry_msgs/PoseStamped``, the optical frame by forward kinematics), the service
