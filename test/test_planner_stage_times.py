@@ -17,3 +17,19 @@ def test_stage_times_by_hand():
     # parts measured on another clock may exceed the total: "other" is never negative
     planned.time_total_s = 2.7
     assert "other 0.00)" in stage_times(planned, 0.0, 0.0)
+
+
+def test_stage_times_with_the_ranking_and_the_arm_by_hand():
+    from nbv_prob_cnn_msgs.srv import PlanNextBestView
+
+    from nbv_prob_cnn.ros.nbv_planner import stage_times
+
+    planned = PlanNextBestView.Response(
+        time_total_s=4.0, time_cnn_s=1.0, time_raycast_s=0.5, time_views_s=0.1, time_rank_s=0.9,
+        time_capability_s=0.2, time_ik_collision_s=1.5, arm_checked=12,
+    )  # fmt: skip
+    # rank reply = 0.9 - 0.5 - 0.1 = 0.3; other = 4.0 - 1.0 - 0.9 - 0.2 - 1.5 = 0.4
+    assert stage_times(planned, 1.0, 0.5) == (
+        "plan 4.00 s (CNN 1.00, ray casting 0.50, views 0.10, rank reply 0.30, capability 0.20, IK+collision 1.50 "
+        "(12 checked), other 0.40), move 1.00 s, grid wait 0.50 s"
+    )

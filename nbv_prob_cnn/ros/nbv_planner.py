@@ -980,13 +980,24 @@ def cancel_requested(goal_handle, timeout_s: float) -> bool:
 
 def stage_times(planned: PlanNextBestView.Response, move_s: float, grid_wait_s: float) -> str:
     """Where one exploration step's time went, for the log: planning (its CNN, ray casting and
-    view search, the rest being message conversion and, with the arm, the IK/collision
-    selection), the move, and the wait for a grid that includes a frame from the new pose."""
+    view search; with the ranking's and the arm's times in the response also the rest of the
+    ranking (transport, reply), the capability map and the IK/collision checks; the rest being
+    message conversion), the move, and the wait for a grid that includes a frame from the new pose."""
     parts = (planned.time_cnn_s, planned.time_raycast_s, planned.time_views_s)
-    rest = max(0.0, planned.time_total_s - sum(parts))
+    arm = planned.time_capability_s + planned.time_ik_collision_s
+    ranking = ""
+    if planned.time_rank_s or arm:
+        reply = max(0.0, planned.time_rank_s - parts[1] - parts[2])
+        ranking = (
+            f", rank reply {reply:.2f}, capability {planned.time_capability_s:.2f}, IK+collision "
+            f"{planned.time_ik_collision_s:.2f} ({planned.arm_checked} checked)"
+        )
+        rest = max(0.0, planned.time_total_s - parts[0] - max(planned.time_rank_s, parts[1] + parts[2]) - arm)
+    else:
+        rest = max(0.0, planned.time_total_s - sum(parts))
     return (
-        f"plan {planned.time_total_s:.2f} s (CNN {parts[0]:.2f}, ray casting {parts[1]:.2f}, views {parts[2]:.2f}, "
-        f"other {rest:.2f}), move {move_s:.2f} s, grid wait {grid_wait_s:.2f} s"
+        f"plan {planned.time_total_s:.2f} s (CNN {parts[0]:.2f}, ray casting {parts[1]:.2f}, views {parts[2]:.2f}"
+        f"{ranking}, other {rest:.2f}), move {move_s:.2f} s, grid wait {grid_wait_s:.2f} s"
     )
 
 
