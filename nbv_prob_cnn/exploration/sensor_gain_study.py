@@ -113,7 +113,7 @@ def _unknown_after(path: Path, views: int, at: int) -> float:
 def returns_table(out: Path, dataset: str, method: str, noise_name: str, rooms, seeds, views: int,
                   committed: Path | None = None) -> str:  # fmt: skip
     """Markdown (returned) and CSV (written) of the ``returns`` runs."""
-    at = [a for a in AT_VIEWS if a <= views]
+    at = sorted({a for a in AT_VIEWS if a <= views} | {views})
     lines = ["| room | gain sensor model | runs | " + " | ".join(f"unknown after {a}" for a in at)
              + " | views ruled out (mean) |", "|---|---|---|" + "---|" * len(at) + "---|"]  # fmt: skip
     rows = ["room,sensor_model,runs," + ",".join(f"mean_after_{a},std_after_{a}" for a in at) + ",ruled_out_mean"]
