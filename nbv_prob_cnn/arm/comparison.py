@@ -389,7 +389,8 @@ def summarize_paths(runs: dict[str, list[list[dict]]], views: int) -> list[Paths
     out = []
     for config, logs in runs.items():
         curves = np.empty((len(logs), views))
-        travel, planned_moves = [], []
+        travel: list[float] = []
+        planned_moves: list[float] = []
         per_view: dict[str, list[float]] = {k: [] for k in ("gain", "capability", "ik_collision", "path_planning")}
         counts: dict[str, list[float]] = {k: [] for k in ("path_blocked", "paths_planned", "paths_not_found")}
         for r, rows in enumerate(logs):
@@ -397,7 +398,7 @@ def summarize_paths(runs: dict[str, list[list[dict]]], views: int) -> list[Paths
             curves[r] = (fractions + [fractions[-1]] * views)[:views]
             travel.append(sum(_float(row["joint_travel"]) for row in rows))
             planned = rows[1:]
-            planned_moves.append(sum(_float(row.get("path_waypoints", "")) > 2 for row in planned))
+            planned_moves.append(float(sum(_float(row.get("path_waypoints", "")) > 2 for row in planned)))
             for stage in per_view:
                 per_view[stage] += [_float(row.get(f"time_{stage}_s", "")) for row in planned]
             for name in counts:

@@ -126,7 +126,10 @@ def time_parameterise_path(
         raise ValueError(f"time parameterisation: expected waypoints of shape (k >= 1, n), got {points.shape}")
     if points.shape[0] == 1:
         return time_parameterise(points[0], points[0], max_velocity, max_acceleration, max_jerk, dt)
-    times, positions, velocities, accelerations = [np.zeros(1)], [points[:1]], [], []
+    times: list[np.ndarray] = [np.zeros(1)]
+    positions: list[np.ndarray] = [points[:1]]
+    velocities: list[np.ndarray] = []
+    accelerations: list[np.ndarray] = []
     for a, b in zip(points[:-1], points[1:], strict=True):
         segment = time_parameterise(a, b, max_velocity, max_acceleration, max_jerk, dt)
         if not velocities:
