@@ -81,3 +81,15 @@ def test_summary_is_recomputed_from_the_logs(compared):
 def test_bad_path_settings_give_clear_errors(tmp_path, capsys):
     assert main(["arm-compare", "--out", str(tmp_path), "--paths", "--path-timeout", "0", "--quiet"]) == 2
     assert "timeout_s" in capsys.readouterr().err
+
+
+def test_the_configurations_differ_only_from_the_first_planned_move(compared):
+    """Path planning runs only where the straight path is blocked: until the first move along a
+    planned path, both configurations take the same views with the same joint goals."""
+    planned, straight = (read(compared / "runs" / f"seed{SEED}_{c}.csv") for c in CONFIGS)
+    keys = ["cell_i", "cell_j", "cell_k", "view_index", "unknown_fraction", "joint_travel"]
+    keys += [f"q{j}" for j in range(9)]
+    for a, b in zip(planned, straight, strict=False):
+        if int(a["path_waypoints"]) > 2:
+            break
+        assert [a[k] for k in keys] == [b[k] for k in keys]
