@@ -70,6 +70,7 @@ class NodeGraph:
         self.env = env or ros_environment()
         self.log_dir = Path(log_dir) if log_dir else None
         self.processes: dict[str, subprocess.Popen] = {}
+        self.shm_seen: set[str] = set()  # /dev/shm files the processes mapped (see note_shm)
 
     def start(self, name: str, command: list[str]) -> subprocess.Popen:
         out: IO[str] | int = subprocess.DEVNULL
@@ -93,8 +94,19 @@ class NodeGraph:
     def alive(self) -> dict[str, bool]:
         return {name: proc.poll() is None for name, proc in self.processes.items()}
 
+    def note_shm(self) -> set[str]:
+        """Add the /dev/shm files the live processes map now to :attr:`shm_seen` (also done by
+        :meth:`stop`) and return them."""
+        now: set[str] = set()
+        for proc in self.processes.values():
+            if proc.poll() is None:
+                now |= mapped_shm(proc.pid)
+        self.shm_seen |= now
+        return now
+
     def stop(self, grace_s: float = 5.0) -> dict[str, int]:
-        """Stop every process; returns their exit codes."""
+        """Stop every process (noting first the shared memory they map); returns their exit codes."""
+        self.note_shm()
         for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGKILL):
             running = [p for p in self.processes.values() if p.poll() is None]
             if not running:
@@ -136,6 +148,48 @@ def segment_in_use(name: str, ignore_pids: frozenset[int] = frozenset()) -> bool
         except OSError:
             continue
     return False
+
+
+def mapped_shm(pid: int) -> set[str]:
+    """Names of the /dev/shm files process ``pid`` maps or holds open, with the named mutex of
+    each Fast DDS port among them (open only while the port is locked); empty when it is gone."""
+    names: set[str] = set()
+    try:
+        with open(f"/proc/{pid}/maps") as maps:
+            for line in maps:
+                if "/dev/shm/" in line:
+                    names.add(line.split("/dev/shm/", 1)[1].split()[0])
+        for fd in os.listdir(f"/proc/{pid}/fd"):
+            with contextlib.suppress(OSError):
+                target = os.readlink(f"/proc/{pid}/fd/{fd}")
+                if target.startswith("/dev/shm/"):
+                    names.add(target[len("/dev/shm/") :])
+    except OSError:
+        pass
+    return names | {f"sem.{name}_mutex" for name in names if name.startswith("fastrtps_port")}
+
+
+def remove_stale_shm(names: set[str]) -> list[str]:
+    """Remove those of the Fast DDS files ``names`` that still exist and that no live process
+    holds (a port's named mutex only with its port); returns the removed names.
+
+    Fast DDS removes a port file when its last user closes it, unless the port was marked
+    unhealthy meanwhile; such a file stays after a clean exit (and is replaced by the next
+    participant that opens the port). See docs/ros.md, "Shared memory".
+    """
+    removed = []
+    for name in sorted(names):
+        if not name.startswith(("fastrtps_", "sem.fastrtps_", "fast_datasharing")):
+            continue
+        if not os.path.exists(f"/dev/shm/{name}"):
+            continue
+        port = name[len("sem.") : -len("_mutex")] if name.startswith("sem.") and name.endswith("_mutex") else name
+        if segment_in_use(name) or (port != name and segment_in_use(port)):
+            continue
+        with contextlib.suppress(OSError):
+            os.unlink(f"/dev/shm/{name}")
+            removed.append(name)
+    return removed
 
 
 def segment_domain(name: str) -> int | None:
@@ -193,11 +247,9 @@ def run_graph(
         if client is not None and client.poll() is None:
             client.kill()
             client.wait()
-        leaked = leaked_segments(shm_before, domain)
-        for name in leaked:  # files of our stopped processes that nothing uses any more
-            with contextlib.suppress(OSError):
-                os.unlink(f"/dev/shm/{name}")
-        print(f"[{label}] stopped {len(codes)} processes; removed {len(leaked)} stale shared-memory files", flush=True)
+        # files of our stopped processes that nothing uses any more (Fast DDS leaves some port files)
+        removed = remove_stale_shm(graph.shm_seen | leaked_segments(shm_before, domain))
+        print(f"[{label}] stopped {len(codes)} processes; removed {len(removed)} stale shared-memory files", flush=True)
     return code
 
 
@@ -253,7 +305,9 @@ __all__ = [
     "NodeGraph",
     "call_with_resend",
     "leaked_segments",
+    "mapped_shm",
     "node_command",
+    "remove_stale_shm",
     "ros_environment",
     "run_graph",
     "shm_segments",
