@@ -244,10 +244,10 @@ def save_capability_map(capability: CapabilityMap, path: Path) -> None:
     """Write a map atomically (a temporary file renamed into place)."""
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(path.stem + f".tmp{os.getpid()}.npz")
-    arrays = {"reachable": capability.reachable, "stride": np.int64(capability.stride)}
+    arrays: dict[str, np.ndarray] = {"reachable": capability.reachable, "stride": np.array(capability.stride)}
     if capability.configurations is not None:
         arrays["configurations"] = capability.configurations
-    np.savez_compressed(tmp, **arrays)
+    np.savez_compressed(tmp, **arrays)  # type: ignore[arg-type]
     tmp.replace(path)
 
 

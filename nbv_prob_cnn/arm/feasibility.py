@@ -21,6 +21,7 @@ one-by-one solve (``nbv bench --suite arm_loop``, docs/arm.md).
 
 from __future__ import annotations
 
+import functools
 import time
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
@@ -266,7 +267,7 @@ class ArmFeasibility:
                 report.unreachable += 1
                 continue
             goal, failure, waypoints = self._free_goal(
-                solution.q, target, current_q, obstacles, report, lambda index=index: ahead.alternatives(index)
+                solution.q, target, current_q, obstacles, report, functools.partial(ahead.alternatives, index)
             )
             if goal is None:
                 if failure == "collision":

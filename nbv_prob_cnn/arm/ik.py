@@ -77,8 +77,10 @@ def solve_batch(
     q = np.clip(np.array(seeds, dtype=np.float64).reshape(-1, chain.n), chain.lower, chain.upper)
     targets = np.asarray(targets, dtype=np.float64).reshape(-1, 4, 4)
     grouped = stop_at_first and groups is not None
-    group_ids = np.unique(np.asarray(groups), return_inverse=True)[1].ravel() if grouped else None
-    group_done = np.zeros(int(group_ids.max()) + 1 if group_ids is not None and group_ids.size else 0, dtype=bool)
+    group_ids = np.zeros(q.shape[0], dtype=np.int64)
+    if grouped:
+        group_ids = np.unique(np.asarray(groups), return_inverse=True)[1].ravel()
+    group_done = np.zeros(int(group_ids.max()) + 1 if group_ids.size else 0, dtype=bool)
     converged = np.zeros(q.shape[0], dtype=bool)
     active = np.arange(q.shape[0])
     best = np.full(q.shape[0], np.inf)
