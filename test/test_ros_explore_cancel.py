@@ -3,13 +3,15 @@ whose step waits for a grid that never comes (the integrator stopped: the stand-
 but publishes nothing) ends CANCELED within 2 s of the cancel request (target 1 s; before, it
 waited out ``grid_timeout_s`` and ended ABORTED), and SIGINT in the same state ends
 ``nbv_planner`` within 3 s with exit code 0 and the goal ABORTED with the reason. A second goal
-while one runs is rejected in the goal response, never accepted and aborted later."""
+while one runs is rejected in the goal response, never accepted and aborted later. Ctrl-C of
+``explore_client`` cancels its goal."""
 
 from __future__ import annotations
 
 import contextlib
 import os
 import signal
+import sys
 import threading
 import time
 
@@ -132,3 +134,31 @@ def test_sigint_while_waiting_for_a_grid_exits_at_once(tmp_path, ros_domain) -> 
         assert wait_for(result.done, 2.0, 0.01), "the goal's result never came"
         assert result.result().status == GoalStatus.STATUS_ABORTED
         assert "shutting down" in result.result().result.reason_stopped, result.result().result.reason_stopped
+
+
+def test_explore_client_cancels_on_ctrl_c(tmp_path, ros_domain) -> None:
+    """Ctrl-C of ``explore_client`` during a step's wait cancels the goal (the client keeps its
+    context up to send the cancel) and exits 130 once the goal is CANCELED."""
+    with planner_graph(tmp_path, ros_domain) as (client, camera, planner):
+        camera.stalled = True
+        graph = NodeGraph(dict(os.environ), log_dir=tmp_path / "client")
+        command = [sys.executable, "-m", "nbv_prob_cnn.ros.explore_client", "--views", "5", "--out",
+                   str(tmp_path / "out"), "--ready-timeout", "60"]  # fmt: skip
+        explore = graph.start("explore_client", command)
+        try:
+            assert camera.moved.wait(60.0), "the client's exploration never moved the camera"
+            time.sleep(0.3)  # inside the grid wait
+            start = time.monotonic()
+            os.killpg(explore.pid, signal.SIGINT)
+            code = explore.wait(timeout=GRID_TIMEOUT_S + 10)
+            exit_s = time.monotonic() - start
+        finally:
+            graph.stop()
+        log = (tmp_path / "client" / "explore_client.log").read_text()
+        print(f"explore_client exited {exit_s:.3f} s after SIGINT with code {code}")
+        assert code == 130, log
+        assert "exploration canceled" in log, log
+        assert exit_s <= EXIT_BOUND_S, f"{exit_s:.2f} s"
+        planner_log = tmp_path / "logs" / "nbv_planner.log"
+        assert "explore: canceled after 0 views" in planner_log.read_text()  # the cancel reached the planner
+        assert planner.poll() is None

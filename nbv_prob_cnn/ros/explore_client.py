@@ -1,13 +1,15 @@
 """A command-line client of the Explore action: sends a goal, prints progress per view, and
 writes the per-view CSV, a PNG of the explored grid and ``graph.json`` (every node's topics and
 services at the end) (run by the launch scripts as its own
-process: ``python -m nbv_prob_cnn.ros.explore_client --views 10 --out DIR``)."""
+process: ``python -m nbv_prob_cnn.ros.explore_client --views 10 --out DIR``). Ctrl-C (SIGINT)
+or SIGTERM cancels the running exploration and waits for its CANCELED result before exiting."""
 
 from __future__ import annotations
 
 import argparse
 import csv
 import json
+import signal
 import sys
 import threading
 import time
@@ -20,10 +22,11 @@ from nbv_prob_cnn_msgs.action import Explore
 from nbv_prob_cnn_msgs.msg import VoxelGrid
 from rclpy.action import ActionClient
 from rclpy.executors import SingleThreadedExecutor
+from rclpy.signals import SignalHandlerOptions
 
 from nbv_prob_cnn.basics.grid import unknown_fraction_all
 from nbv_prob_cnn.ros import names
-from nbv_prob_cnn.ros.common import GRID_QOS
+from nbv_prob_cnn.ros.common import GRID_QOS, SPIN_PERIOD_S
 from nbv_prob_cnn.ros.conversions import msg_to_grid, pose_to_arrays
 
 #: Terminal states of a goal, by ``action_msgs/GoalStatus`` value.
@@ -42,8 +45,22 @@ class ExploreClient:
         self.node.create_subscription(VoxelGrid, names.GRID, self._on_grid, GRID_QOS)
         self.feedback: list[tuple[float, Explore.Feedback]] = []
         self.status = ""  # of the last exploration: succeeded, canceled or aborted
+        self.stop_requested = threading.Event()  # set by SIGINT / SIGTERM (see main)
         self._executor = SingleThreadedExecutor()
         self._executor.add_node(self.node)
+
+    def _spin_until(self, future, timeout_s: float, stoppable: bool = True) -> None:
+        """Spin until ``future`` is done or ``timeout_s`` passes, at most :data:`SPIN_PERIOD_S`
+        per wait (rclpy's signal handler is off: the context must stay up to send a cancel).
+
+        Raises:
+            KeyboardInterrupt: ``stop_requested`` was set (only when ``stoppable``).
+        """
+        deadline = time.monotonic() + timeout_s
+        while not future.done() and (remaining := deadline - time.monotonic()) > 0:
+            if stoppable and self.stop_requested.is_set():
+                raise KeyboardInterrupt
+            self._executor.spin_once(timeout_sec=min(SPIN_PERIOD_S, remaining))
 
     def _on_grid(self, msg: VoxelGrid) -> None:
         with self._grid_lock:
@@ -57,7 +74,9 @@ class ExploreClient:
         """Wait for the action server and a first grid."""
         deadline = time.monotonic() + timeout_s
         while time.monotonic() < deadline:
-            self._executor.spin_once(timeout_sec=0.1)
+            if self.stop_requested.is_set():
+                raise KeyboardInterrupt
+            self._executor.spin_once(timeout_sec=SPIN_PERIOD_S)
             if self._action.server_is_ready() and self.latest_grid() is not None:
                 return True
         return False
@@ -76,13 +95,16 @@ class ExploreClient:
                 on_feedback(message.feedback, time.monotonic() - start)
 
         send = self._action.send_goal_async(goal, feedback_callback=feedback_cb)
-        self._executor.spin_until_future_complete(send, timeout_sec=30.0)
+        self._spin_until(send, 30.0)
         handle = send.result()
         if handle is None or not handle.accepted:
-            raise RuntimeError("the Explore goal was rejected (max_views < 1 or a non-finite threshold)")
+            raise RuntimeError(
+                "the Explore goal was rejected (max_views < 1, a non-finite threshold, or another exploration "
+                "is running: see nbv_planner's log)"
+            )
         self._goal_handle = handle
-        result = handle.get_result_async()
-        self._executor.spin_until_future_complete(result, timeout_sec=timeout_s)
+        self._result = result = handle.get_result_async()
+        self._spin_until(result, timeout_s)
         if not result.done():
             raise TimeoutError(f"no Explore result within {timeout_s:.0f} s")
         # let the last grid arrive
@@ -92,11 +114,19 @@ class ExploreClient:
         self.status = STATUS_NAMES.get(result.result().status, str(result.result().status))
         return result.result().result
 
-    def cancel(self) -> None:
+    def cancel(self, timeout_s: float = 5.0) -> str:
+        """Cancel the running exploration and wait for its result; returns its status name
+        ("" when no goal was sent or no result came within ``timeout_s``)."""
         handle = getattr(self, "_goal_handle", None)
-        if handle is not None:
-            future = handle.cancel_goal_async()
-            self._executor.spin_until_future_complete(future, timeout_sec=5.0)
+        if handle is None:
+            return ""
+        self._spin_until(handle.cancel_goal_async(), timeout_s, stoppable=False)
+        result = self._result
+        self._spin_until(result, timeout_s, stoppable=False)
+        if not result.done():
+            return ""
+        self.status = STATUS_NAMES.get(result.result().status, str(result.result().status))
+        return self.status
 
     def graph_report(self) -> dict[str, dict[str, list[list[str]]]]:
         """Every node of the graph with the topics it publishes and subscribes and the services it
@@ -202,8 +232,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--timeout", type=float, default=1800.0)
     parser.add_argument("--ready-timeout", type=float, default=120.0)
     args = parser.parse_args(argv)
-    rclpy.init()
+    rclpy.init(signal_handler_options=SignalHandlerOptions.NO)
     client = ExploreClient()
+    for signum in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(signum, lambda *_: client.stop_requested.set())
     try:
         print("[explore] waiting for the graph (first grid and the Explore server)...", flush=True)
         if not client.wait_ready(args.ready_timeout):
@@ -240,7 +272,8 @@ def main(argv: list[str] | None = None) -> int:
         return 0 if client.status == "succeeded" and result.views > 0 else 1
     except KeyboardInterrupt:
         print("[explore] interrupted: cancelling the exploration", flush=True)
-        client.cancel()
+        status = client.cancel()
+        print(f"[explore] exploration {status or 'not confirmed ended'}", flush=True)
         return 130
     except (RuntimeError, TimeoutError) as exc:
         print(f"[explore] {exc}", file=sys.stderr, flush=True)
