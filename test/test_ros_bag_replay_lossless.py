@@ -92,3 +92,47 @@ def test_replay_without_subscribers_fails_clearly(ros_domain, tmp_path: Path) ->
     text = log_text(tmp_path, "bag_replay")
     assert "fewer than 1 subscriber(s)" in text and "start the integrator first" in text, text
     assert "sent 0 frame(s)" in text or "published 0 message(s)" in text, text
+
+
+def test_reset_counts_the_images_waiting_for_their_pose(ros_domain, tmp_path: Path) -> None:
+    """An image still waiting for its pose when the grid is reset is counted under ``reset`` (it
+    used to vanish uncounted) and is no longer ``pending``."""
+    from sensor_msgs.msg import CameraInfo, Image
+
+    from nbv_prob_cnn.perception import Intrinsics
+    from nbv_prob_cnn.perception.bags import (
+        MSG_CAMERA_INFO,
+        MSG_IMAGE,
+        TOPIC_CAMERA_INFO,
+        TOPIC_IMAGE,
+        depth_to_image_msg,
+        intrinsics_to_camera_info,
+        typestore,
+    )
+
+    env = ros_domain(220 + os.getpid() % 4)
+    store = typestore()
+    intrinsics = Intrinsics.from_hfov(64, 48, 60.0)
+    stamp = 5_000_000_000
+    with NodeGraph(env, log_dir=tmp_path) as graph:
+        graph.start_node("integrator", "integrator", {"pose_source": "topic", "pose_timeout_s": 60.0})
+        with RosClient(int(env["ROS_DOMAIN_ID"])) as client:
+            image = client.node.create_publisher(Image, TOPIC_IMAGE, 10)
+            info = client.node.create_publisher(CameraInfo, TOPIC_CAMERA_INFO, 10)
+            assert client.spin_until(lambda: image.get_subscription_count() and info.get_subscription_count(), 40.0)
+            client.spin_until(lambda: False, 0.5)
+            diagnostics = client.node.create_client(Trigger, "/integrator/diagnostics")
+
+            def report() -> dict:
+                return json.loads(client.call(diagnostics, Trigger.Request()).message)
+
+            info.publish(bytes(store.serialize_cdr(intrinsics_to_camera_info(intrinsics, stamp), MSG_CAMERA_INFO)))
+            depth = depth_to_image_msg(np.full(intrinsics.shape, 0.6, np.float32), stamp, "16UC1")
+            image.publish(bytes(store.serialize_cdr(depth, MSG_IMAGE)))  # no pose: it waits
+            assert client.spin_until(lambda: report()["images"] == 1, 10.0), report()
+            assert report()["pending"] == 1 and report()["dropped"]["reset"] == 0
+            reply = client.call(client.node.create_client(Trigger, "/integrator/reset"), Trigger.Request())
+            assert reply.success and "1 waiting frame(s) discarded" in reply.message, reply.message
+            after = report()
+            assert after["pending"] == 0 and after["dropped"]["reset"] == 1 and after["integrated"] == 0, after
+        assert_clean_stop(graph)
