@@ -385,7 +385,8 @@ class SignalStop:
     """SIGINT and SIGTERM stop :func:`run_node`: the first one sets :attr:`received`, and raises
     ``KeyboardInterrupt`` in the main thread unless a :class:`NodeExecutor` is spinning there
     (that one ends its spin within :data:`SPIN_PERIOD_S`, outside any rclpy call). Later signals
-    only log: the shutdown that the first one started is not cut short. Installed instead of
+    only log, and once the shutdown is done they are ignored: the shutdown that the first one
+    started is not cut short. Installed instead of
     rclpy's handler, which shuts the context down from its own thread at once, while callbacks
     still use it and before they could be ended."""
 
@@ -405,9 +406,11 @@ class SignalStop:
             return
         rclpy.logging.get_logger("run_node").warning(f"{signal.Signals(signum).name}: already shutting down")
 
-    def restore(self) -> None:
-        for signum, handler in self._previous.items():
-            signal.signal(signum, handler)
+    def ignore_from_now(self) -> None:
+        """After the shutdown: the process is about to exit, and a late signal must not raise
+        ``KeyboardInterrupt`` during the interpreter's exit (a traceback, exit code 1)."""
+        for signum in self._previous:
+            signal.signal(signum, signal.SIG_IGN)
 
 
 class NodeExecutor:
@@ -550,7 +553,7 @@ def run_node(
         try:
             shut_down_node(node, executor, summary)
         finally:
-            signals.restore()
+            signals.ignore_from_now()
     return code
 
 
