@@ -194,6 +194,8 @@ def test_persisted_capability_map_loads_equal_and_is_rebuilt_for_another_key(rob
     assert again.build_seconds == 0  # loaded
     np.testing.assert_array_equal(again.reachable, first.reachable)
     np.testing.assert_array_equal(again.configurations, first.configurations)
+    float32 = GridGeometry(tuple(float(np.float32(v)) for v in SMALL.origin), float(np.float32(0.05)), SMALL.shape)
+    assert capability_key(robot, float32, STRIDE, MAP_IK, 2) == key  # a grid message's float32 sizes: the same map
     moved = GridGeometry((0.35, 0.4, 0.0), 0.05, (16, 16, 12))  # another grid placement: another key
     assert capability_key(robot, moved, STRIDE, MAP_IK, 2) != key
     rebuilt = load_or_build_capability_map(robot, moved, STRIDE, progress=False)

@@ -153,8 +153,13 @@ def chain_reach(chain: CameraChain) -> tuple[np.ndarray, float]:
 
 
 def capability_key(robot: RobotModel, geometry: GridGeometry, stride: int, settings: IkSettings, rounds: int) -> str:
+    """The cache key of a map: robot (URDF, base pose, camera mount), grid placement (to 1 µm)
+    and shape, stride, IK settings and rounds, the format version and the orientations."""
     digest = hashlib.sha256(robot.config.cache_key().encode())
-    digest.update(repr((geometry.origin, geometry.resolution, tuple(geometry.shape), stride)).encode())
+    # rounded to 1 µm: a grid message carries float32 sizes, so the nodes' grid and the core's
+    # grid of the same box differ in the last bits and would build a map each
+    placement = tuple(round(float(v), 6) for v in (*geometry.origin, geometry.resolution))
+    digest.update(repr((placement, tuple(int(n) for n in geometry.shape), int(stride))).encode())
     digest.update(repr((settings, rounds, MAP_VERSION)).encode())
     digest.update(np.round(orientations(3), 9).tobytes())
     return digest.hexdigest()[:20]
