@@ -431,28 +431,10 @@ class NodeExecutor:
             if signals is not None:
                 signals.spinning = False
 
-    def running(self) -> list:
-        """The callbacks (rclpy tasks) submitted to other threads and not finished."""
-        return []
-
     def drain(self, timeout_s: float) -> bool:
-        """Spin until the callbacks running now have ended, then until the tasks they left
-        (an Explore goal's result response, which rclpy sends from a task of its own) have
-        ended too; at most ``timeout_s``.
-
-        Returns:
-            True when everything ended in time.
-        """
-        deadline = time.monotonic() + timeout_s
-        for _ in range(3):  # what runs now, what it left, what that left
-            running = self.running()
-            while running and time.monotonic() < deadline and self.context.ok():  # type: ignore[attr-defined]
-                self.spin_once(timeout_sec=0.02)  # type: ignore[attr-defined]
-                running = [task for task in running if not task.done()]
-            if running:
-                return False
-            for _ in range(5):  # one callback per spin: let timers pass before the tasks they left
-                self.spin_once(timeout_sec=0.01)  # type: ignore[attr-defined]
+        """Callbacks run in the spinning (main) thread: none waits any more once spinning stopped,
+        so nothing is run here (a single-threaded node's next callback, a camera frame, would only
+        delay the exit)."""
         return True
 
     def join_callbacks(self, timeout_s: float) -> bool:
@@ -476,7 +458,30 @@ class MultiThreadedNodeExecutor(NodeExecutor, MultiThreadedExecutor):
     """
 
     def running(self) -> list:
+        """The callbacks (rclpy tasks) submitted to the worker threads and not finished."""
         return [task for task in list(getattr(self, "_futures", ())) if not task.done()]
+
+    def drain(self, timeout_s: float) -> bool:
+        """Spin until the callbacks running now have ended, then until the tasks they left (an
+        Explore goal's result response, which rclpy sends from a task of its own) have ended
+        too; at most ``timeout_s``. With nothing running it returns after one short round.
+
+        Returns:
+            True when everything ended in time.
+        """
+        deadline = time.monotonic() + timeout_s
+        for round_index in range(3):  # what runs now, what it left, what that left
+            running = self.running()
+            if not running and round_index > 0:
+                return True
+            while running and time.monotonic() < deadline and self.context.ok():
+                self.spin_once(timeout_sec=0.02)
+                running = [task for task in running if not task.done()]
+            if running:
+                return False
+            for _ in range(5):  # one callback per spin: let timers pass before the tasks they left
+                self.spin_once(timeout_sec=0.01)
+        return True
 
     def join_callbacks(self, timeout_s: float) -> bool:
         """Wait until every worker thread ended (call after spinning stopped).
