@@ -25,7 +25,7 @@ import numpy as np
 from scipy.ndimage import distance_transform_cdt
 
 from nbv_prob_cnn.basics.cl_device import cl_runtime
-from nbv_prob_cnn.gain.sampling import GainSensor, RaySamples, border_normal
+from nbv_prob_cnn.gain.sampling import GainSensor, RaySamples
 from nbv_prob_cnn.gain.variant import ORIGINAL_FOCAL, ORIGINAL_NEAR_HIT, check_variant
 
 KERNEL_SOURCE = Path(__file__).with_name("raycast.cl")
@@ -107,13 +107,16 @@ def march_normals(normals: np.ndarray, padded_shape: tuple[int, int, int]) -> np
     of the marched grid (:func:`march_grid`): ``(3, *padded_shape)`` float32, the padding cells
     with the border's normal (:func:`~nbv_prob_cnn.gain.sampling.border_normal`), 2D with a zero z."""
     dims = normals.shape[0]
+    sizes = padded_shape[:dims]
+    # per axis, -1 / +1 on the padding's low / high side, 0 inside: separable, so by broadcasting
+    side = [np.where(np.arange(n) == 0, 1.0, 0.0) - np.where(np.arange(n) == n - 1, 1.0, 0.0) for n in sizes]
+    faces = [side[a].reshape([-1 if b == a else 1 for b in range(dims)]) for a in range(dims)]
+    norm = np.sqrt(sum(f * f for f in faces))
+    norm = np.where(norm > 0, norm, 1.0)
     out = np.zeros((3, *padded_shape), dtype=np.float32)
-    shape = tuple(n - 2 for n in padded_shape[:dims])
-    grid = np.stack(np.meshgrid(*(np.arange(n) - 1 for n in padded_shape[:dims]), indexing="ij"), axis=-1)
-    border = np.moveaxis(border_normal(grid, shape), -1, 0).astype(np.float32)
     inner = tuple(slice(1, -1) for _ in range(dims))
     for axis in range(dims):
-        plane = border[axis].copy()
+        plane = np.broadcast_to(faces[axis] / norm, sizes).astype(np.float32)
         plane[inner] = normals[axis]
         out[axis] = plane.reshape(padded_shape)
     return out
@@ -298,6 +301,7 @@ class OpenCLRayCaster:
         self._kernels: dict[tuple[str, bool, bool], tuple] = {}
         self._ray_kernel, self._view_kernel = self.kernels("paper")
         self._cache: dict[tuple, object] = {}
+        self._last_options: tuple | None = None
 
     def kernels(self, variant: str, exact: bool = False, sensor: bool = False) -> tuple:
         """``(ray_gain, view_gain)`` of the program of gain ``variant`` (built on first use), with
@@ -315,9 +319,13 @@ class OpenCLRayCaster:
         return self._kernels[key]
 
     def _option_args(self, options: MarchOptions | None, padded_shape: tuple[int, int, int]) -> list:
-        """The extra kernel arguments of ``options`` (after the kernels' own; none for the paper's)."""
+        """The extra kernel arguments of ``options`` (after the kernels' own; none for the paper's);
+        the last ones are kept (a search launches many batches with the same options)."""
         if options is None:
             return []
+        last = self._last_options
+        if last is not None and last[0] is options and last[1] == padded_shape:
+            return last[2]
         args: list = []
         if options.exact:
             s = options.samples
@@ -332,6 +340,7 @@ class OpenCLRayCaster:
             directions[:, : d.shape[1]] = d
             args += [normal_buf, np.int32(int(np.prod(padded_shape))), self._constant(directions),
                      np.float32(options.sensor.cos_grazing), np.int32(options.samples.weighted)]  # fmt: skip
+        self._last_options = (options, padded_shape, args)  # holds options: its id is not reused
         return args
 
     def _constant(self, array: np.ndarray):
