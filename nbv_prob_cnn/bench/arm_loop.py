@@ -212,7 +212,8 @@ def node_loop(
             begin = time.perf_counter()
             while True:
                 reply = call_with_resend(plan_client, PlanNextBestView.Request(top_k=1), 300.0, resend_s=120.0)
-                if reply.success or "no grid" not in reply.message and "joint" not in reply.message:
+                not_ready = ("no grid", "joint", "not available")  # the graph is still starting
+                if reply.success or not any(text in reply.message for text in not_ready):
                     break
                 if time.perf_counter() - begin > 300:
                     raise RuntimeError(f"/nbv/plan: {reply.message}")

@@ -44,6 +44,9 @@ class CompletionServer(Node):
 
         self._device = resolve_device(None if self.device == "auto" else self.device)
         self._load_model, self._weights_error = load_model, WeightsError
+        # offered before the model loads: a client that finds it waits for the answer (served once
+        # the node spins) instead of giving up on a service that is not there yet
+        self.create_service(CompleteGrid, names.COMPLETE, self._complete)
         try:  # load now so the first request is fast; failures are reported per request
             model = self._model_for(self.dataset)
             warm = ""
@@ -56,7 +59,6 @@ class CompletionServer(Node):
             self.get_logger().info(f"completion_server ready: {self.dataset} weights on {self._device}{warm}")
         except WeightsError as exc:
             self.get_logger().error(str(exc))
-        self.create_service(CompleteGrid, names.COMPLETE, self._complete)
 
     def _model_for(self, dataset: str):
         path = self.weights_file if (self.weights_file and dataset == self.dataset) else None
