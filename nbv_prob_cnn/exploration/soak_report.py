@@ -378,7 +378,16 @@ def write_report(report: SoakReport, out_dir: Path, title: str, context: list[st
         )
     total = sum(t.sent for t in report.requests.values())
     errors = sum(t.error for t in report.requests.values())
-    lines += ["", f"{total} requests, {errors} answered with an error.", ""]
+    lines += [
+        "",
+        (
+            f"{total} requests, {errors} answered with an error. A valid request may be answered with an error for "
+            "a reason of the moment (e.g. a plan while the grid was just reset); `integrator_diagnostics` answers "
+            "`success: false` once any frame was dropped (its documented meaning: the drops are in the frames "
+            "section below); `explore_goal` errors are rejected goals."
+        ),
+        "",
+    ]
     statuses = Counter(e.get("status", "?") for e in report.explorations)
     views = [int(e.get("views", 0)) for e in report.explorations]
     lines += [
