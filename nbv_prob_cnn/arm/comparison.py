@@ -502,8 +502,9 @@ def save_paths_png(summaries: list[PathsSummary], path: Path, title: str) -> Non
         stages.bar(names, height, bottom=bottom, label=label)
         bottom += height
     stages.set_ylabel("planning time per view (s, mean)")
+    stages.set_ylim(0.0, 1.35 * max(float(bottom.max()), 1e-3))  # room for the legend above the bars
     stages.tick_params(axis="x", labelrotation=15)
-    stages.legend(fontsize=8)
+    stages.legend(fontsize=8, loc="upper left", ncols=2)
     fig.suptitle(title)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
