@@ -6,6 +6,7 @@ the next ranked view when the controller rejects a trajectory."""
 from __future__ import annotations
 
 import os
+import signal
 import threading
 import time
 
@@ -139,6 +140,20 @@ def test_arm_sim_is_a_robot_driver_with_a_trajectory_controller(ros):
     assert done.result.error_code == FollowJointTrajectory.Result.GOAL_TOLERANCE_VIOLATED
     assert "panda_joint1" in done.result.error_string
     assert graph.alive()["arm_sim"]
+    # SIGINT during a 20 s trajectory: the goal is aborted where the arm is and arm_sim exits at
+    # once (as a controller deactivated mid-goal), not after running the trajectory to its end
+    handle = wait(client.send_goal_async(goal_of(arm, [(20.0, list(start))])))
+    assert handle.accepted
+    time.sleep(0.5)
+    result_future = handle.get_result_async()
+    proc = graph.processes["arm_sim"]
+    sent = time.monotonic()
+    proc.send_signal(signal.SIGINT)
+    assert proc.wait(timeout=10.0) == 0
+    exit_s = time.monotonic() - sent
+    assert exit_s < 5.0, f"arm_sim took {exit_s:.2f} s to exit with a trajectory running"
+    done = wait(result_future, 5.0)
+    assert done.status == GoalStatus.STATUS_ABORTED and done.result.error_string == "arm_sim is shutting down"
 
 
 class FakeController:

@@ -71,7 +71,7 @@ from nbv_prob_cnn.arm.trajectory import (
 )
 from nbv_prob_cnn.basics.camera import quaternion_from_matrix
 from nbv_prob_cnn.ros import names
-from nbv_prob_cnn.ros.common import declare_config, param, run_node
+from nbv_prob_cnn.ros.common import declare_config, param, run_node, shutdown_interrupt
 from nbv_prob_cnn.ros.robot_params import (
     BUILTIN_PANDA,
     DESCRIPTION_QOS,
@@ -299,6 +299,7 @@ class ArmSim(Node):
         goal_time = goal.goal_time_tolerance.sec + goal.goal_time_tolerance.nanosec * 1e-9 or self.default_goal_time_s
         end = start_time + float(times[-1])
         feedback = FollowJointTrajectory.Feedback(joint_names=joint_names)
+        shutdown = shutdown_interrupt(self)
         while True:
             now = self._now()
             if not goal_handle.is_active:  # preempted by a newer goal
@@ -309,6 +310,12 @@ class ArmSim(Node):
                     self.motion.move_through([self.motion.position(now)], now)  # stop where it is
                 goal_handle.canceled()
                 result.error_string = "canceled"
+                return result
+            if shutdown.is_set():  # as a joint_trajectory_controller deactivated mid-goal: abort, hold
+                with self._lock:
+                    self.motion.move_through([self.motion.position(now)], now)
+                result.error_string = "arm_sim is shutting down"
+                goal_handle.abort()
                 return result
             desired = _desired(times, positions, start_q, now - start_time)
             with self._lock:
