@@ -4,8 +4,15 @@ the measuring ranges in cells of the grid, the grazing limit and the walls (docs
 import numpy as np
 import pytest
 
-from nbv_prob_cnn.planners import PlanningContext
-from nbv_prob_cnn.ros.camera_sensor import SensorParams
+rclpy = pytest.importorskip("rclpy")
+pytest.importorskip("nbv_prob_cnn_msgs")
+
+from test_ros_planning import ros_fixture  # noqa: E402
+
+from nbv_prob_cnn.planners import PlanningContext  # noqa: E402
+from nbv_prob_cnn.ros.camera_sensor import SensorParams  # noqa: E402
+
+ros = ros_fixture(240, 3)  # 240..242: no other test module uses these
 
 
 def test_parameters_set_the_returns_model_in_cells_of_the_grid():
@@ -27,3 +34,31 @@ def test_inverted_ranges_are_refused():
     params = SensorParams(sensor_model="returns", measure_min_range_m=3.0, measure_max_range_m=1.0)
     with pytest.raises(ValueError, match="max_range"):
         params.apply_sensor_model(context, 0.0116)
+
+
+@pytest.mark.slow  # a ROS graph
+def test_gain_server_ranks_with_the_returns_model(ros):
+    from nbv_prob_cnn_msgs.srv import RankViews
+    from test_ros_planning import GEOMETRY, call, random_grid
+
+    from nbv_prob_cnn.basics.camera import dataset_defaults
+    from nbv_prob_cnn.gain.sampling import GainSensor
+    from nbv_prob_cnn.planners import GainPlanner
+    from nbv_prob_cnn.planners.methods import GAIN_METHODS
+    from nbv_prob_cnn.ros.conversions import grid_to_msg
+
+    node, graph, context = ros
+    params = {"dataset": "3du", "backend": "opencl", "method": "prob_ig", "sensor_model": "returns",
+              "measure_min_range_m": 0.05, "measure_max_range_m": 0.5, "measure_walls": False}  # fmt: skip
+    graph.start_node("gain_server", "gain_server", params)
+    state = random_grid(4)
+    request = RankViews.Request(grid=grid_to_msg(state, GEOMETRY), method="prob_ig", top_k=5)
+    reply = call(node, context, RankViews, "/nbv/rank_views", request)
+    assert reply.success, reply.message
+    sensor = GainSensor(0.05 / GEOMETRY.resolution, 0.5 / GEOMETRY.resolution, 75.0, walls=False)
+    for model, gain_sensor in (("returns", sensor), ("paper", None)):
+        core_context = PlanningContext(dataset_defaults("3du"), backend="opencl", sensor_model=model,
+                                       gain_sensor=gain_sensor)  # fmt: skip
+        core = GainPlanner(GAIN_METHODS["prob_ig"]).rank(state, core_context, 5)
+        same = [v.gain for v in reply.ranked] == pytest.approx([c.gain for c in core], rel=1e-6)
+        assert same == (model == "returns")  # the node's ranking is the returns model's, not the paper's
