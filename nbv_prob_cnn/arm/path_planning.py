@@ -40,6 +40,10 @@ class PathPlanningError(ValueError):
         self.reason = reason
 
 
+#: The returned path is checked again at ``resolution_rad / VERIFY_DIVISOR``.
+VERIFY_DIVISOR = 10
+
+
 @dataclass(frozen=True)
 class PathPlannerSettings:
     """How :class:`JointPathPlanner` plans.
@@ -256,15 +260,33 @@ class JointPathPlanner:
             states_before = setup.getSolutionPath().getStateCount()
             mark = time.perf_counter()
             path = setup.getSolutionPath()
+            raw_points = np.array([[path.getState(i)[j] for j in range(n)] for i in range(path.getStateCount())])
             _simplify(setup.getPathSimplifier(), path, settings.simplify_s)
             stages["simplify"] = time.perf_counter() - mark
             chain_points = np.array([[path.getState(i)[j] for j in range(n)] for i in range(path.getStateCount())])
         finally:
             setup.clear()
             del setup, planner, info
-        waypoints = np.repeat(template[None], chain_points.shape[0], axis=0)
-        waypoints[:, chain] = chain_points
-        waypoints[0], waypoints[-1] = q_start, q_goal
+        # OMPL checks motions every resolution_rad: a link can cross a thin obstacle between two
+        # samples. The returned path is checked again VERIFY_DIVISOR times finer (the simplified
+        # one, else RRTConnect's own), and refused when neither is free at that resolution.
+        mark = time.perf_counter()
+        fine = settings.resolution_rad / VERIFY_DIVISOR
+        waypoints = None
+        for points in (chain_points, raw_points):
+            candidate = np.repeat(template[None], points.shape[0], axis=0)
+            candidate[:, chain] = points
+            candidate[0], candidate[-1] = q_start, q_goal
+            if path_is_free(checker, candidate, obstacles, fine):
+                waypoints = candidate
+                break
+        stages["verify"] = time.perf_counter() - mark
+        if waypoints is None:
+            raise PathPlanningError(
+                "not_free_between_samples",
+                f"path planning: the planned path collides between its motion-validation samples "
+                f"({settings.resolution_rad:g} rad apart; checked every {fine:g} rad): lower resolution_rad",
+            )
         seconds = time.perf_counter() - begin
         return JointPath(waypoints, path_length(waypoints, chain), True, seconds, int(states_before), stages)
 
