@@ -8,6 +8,7 @@ import csv
 import os
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import pytest
@@ -16,10 +17,12 @@ from nbv_prob_cnn.exploration.soak_report import (
     ALWAYS_INVALID,
     ALWAYS_VALID,
     KINDS,
+    EventLog,
     ProcessSample,
     RequestMix,
     build_report,
     growth,
+    read_events,
     sample_process,
     tally_requests,
 )
@@ -52,6 +55,23 @@ def test_sample_process_reads_this_process() -> None:
 
 def _request(kind: str, valid: bool, outcome: str) -> dict:
     return {"event": "request", "kind": kind, "valid": valid, "outcome": outcome, "wall": 0.0}
+
+
+def test_event_log_lines_read_back_with_their_wall_time(tmp_path: Path) -> None:
+    path = tmp_path / "events.jsonl"
+    log = EventLog(path)
+    before = time.time()
+    log.write(event="ready")
+    log.write(event="request", kind="plan", ok=False)
+    log.close()
+    with open(path, "a") as torn:  # a killed writer's half line is left out
+        torn.write('{"event": "requ')
+    events = read_events(path)
+    assert [{k: v for k, v in e.items() if k != "wall"} for e in events] == [
+        {"event": "ready"},
+        {"event": "request", "kind": "plan", "ok": False},
+    ]
+    assert all(before <= e["wall"] <= time.time() for e in events)
 
 
 def test_report_invariants_hand_worked() -> None:

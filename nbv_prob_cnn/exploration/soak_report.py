@@ -17,6 +17,7 @@ import json
 import math
 import os
 import random
+import time
 from collections import Counter, defaultdict
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -183,6 +184,22 @@ def sample_process(pid: int, proc: str = "/proc") -> tuple[int, int]:
     except FileNotFoundError as exc:
         raise ProcessLookupError(f"process {pid} is gone") from exc
     return rss, fds
+
+
+class EventLog:
+    """The writing side of :func:`read_events`: one JSON line per event, with its wall time
+    (``time.time()``) under ``wall``, flushed at once so that a killed writer loses at most the
+    line it was writing."""
+
+    def __init__(self, path: Path) -> None:
+        self._file = open(path, "a")  # noqa: SIM115 - closed by close()
+
+    def write(self, **event: Any) -> None:
+        self._file.write(json.dumps({"wall": time.time(), **event}) + "\n")
+        self._file.flush()
+
+    def close(self) -> None:
+        self._file.close()
 
 
 def read_events(path: Path) -> list[dict[str, Any]]:

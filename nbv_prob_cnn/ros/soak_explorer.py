@@ -20,6 +20,7 @@ from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from std_srvs.srv import Trigger
 
+from nbv_prob_cnn.exploration.soak_report import EventLog
 from nbv_prob_cnn.ros import names
 from nbv_prob_cnn.ros.common import GRID_QOS
 from nbv_prob_cnn.ros.graph import call_with_resend
@@ -33,7 +34,7 @@ class SoakExplorer(Node):
 
     def __init__(self, events: Path) -> None:
         super().__init__("soak_explorer")
-        self.events = open(events, "a")  # noqa: SIM115 - closed in destroy_node
+        self.events = EventLog(events)
         self.executor_ = SingleThreadedExecutor()
         self.executor_.add_node(self)
         self._action = ActionClient(self, Explore, names.EXPLORE)
@@ -60,8 +61,7 @@ class SoakExplorer(Node):
         return False
 
     def log_event(self, **event) -> None:
-        self.events.write(json.dumps({"wall": time.time(), **event}) + "\n")
-        self.events.flush()
+        self.events.write(**event)
 
     def wait_ready(self, timeout_s: float) -> bool:
         return self._action.wait_for_server(timeout_sec=timeout_s)

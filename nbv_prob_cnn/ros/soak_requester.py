@@ -24,7 +24,7 @@ from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from std_srvs.srv import Trigger
 
-from nbv_prob_cnn.exploration.soak_report import KINDS, RequestMix, RequestSpec
+from nbv_prob_cnn.exploration.soak_report import KINDS, EventLog, RequestMix, RequestSpec
 from nbv_prob_cnn.ros import names
 from nbv_prob_cnn.ros.common import GRID_QOS
 
@@ -55,7 +55,7 @@ class SoakRequester(Node):
 
     def __init__(self, events: Path, timeout_s: float) -> None:
         super().__init__("soak_requester")
-        self.events = open(events, "a")  # noqa: SIM115 - closed in destroy_node
+        self.events = EventLog(events)
         self.timeout_s = timeout_s
         self.executor_ = SingleThreadedExecutor()
         self.executor_.add_node(self)
@@ -70,8 +70,7 @@ class SoakRequester(Node):
             self._grid = msg
 
     def log_event(self, **event) -> None:
-        self.events.write(json.dumps({"wall": time.time(), **event}) + "\n")
-        self.events.flush()
+        self.events.write(**event)
 
     def wait_ready(self, timeout_s: float) -> list[str]:
         """Wait for every service, the action server and a first grid; returns what is missing."""
