@@ -306,14 +306,12 @@ class ArmSim(Node):
                 result.error_code, result.error_string = SUCCESSFUL, "preempted by a newer goal"
                 return result
             if goal_handle.is_cancel_requested:
-                with self._lock:
-                    self.motion.move_through([self.motion.position(now)], now)  # stop where it is
+                self._hold(now)  # stop where it is
                 goal_handle.canceled()
                 result.error_string = "canceled"
                 return result
             if shutdown.is_set():  # as a joint_trajectory_controller deactivated mid-goal: abort, hold
-                with self._lock:
-                    self.motion.move_through([self.motion.position(now)], now)
+                self._hold(now)
                 result.error_string = "arm_sim is shutting down"
                 goal_handle.abort()
                 return result
@@ -339,9 +337,13 @@ class ArmSim(Node):
                     return self._abort(goal_handle, result, GOAL_TOLERANCE_VIOLATED, violation, now)
             time.sleep(EXECUTION_PERIOD_S)
 
-    def _abort(self, goal_handle, result, code: int, reason: str, now: float):
+    def _hold(self, now: float) -> None:
+        """Stop the arm where it is at ``now`` and hold it there."""
         with self._lock:
-            self.motion.move_through([self.motion.position(now)], now)  # a controller holds position on abort
+            self.motion.move_through([self.motion.position(now)], now)
+
+    def _abort(self, goal_handle, result, code: int, reason: str, now: float):
+        self._hold(now)  # a controller holds position on abort
         result.error_code, result.error_string = code, reason
         self.get_logger().warning(f"follow_joint_trajectory: aborted (error code {code}): {reason}")
         goal_handle.abort()
