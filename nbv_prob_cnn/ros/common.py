@@ -22,6 +22,8 @@ from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.signals import SignalHandlerOptions
 
+from nbv_prob_cnn.basics.process_heap import limit_heap_retention
+
 ConfigT = TypeVar("ConfigT")
 
 #: The grid topic keeps its last message for late joiners and restarted nodes.
@@ -510,9 +512,10 @@ def run_node(
     startup_errors: tuple[type[BaseException], ...] = (ValueError, RuntimeError, ParameterException),
     startup_message: str = "cannot start",
 ) -> int:
-    """The ``main`` of every node: ``rclpy.init``, build the node, spin (or ``run(node,
-    executor)``) until SIGINT, SIGTERM or an external shutdown, then shut down in this order
-    (:func:`shut_down_node`):
+    """The ``main`` of every node: bound the heap's retention of freed memory
+    (:func:`~nbv_prob_cnn.basics.process_heap.limit_heap_retention`, logged), ``rclpy.init``,
+    build the node, spin (or ``run(node, executor)``) until SIGINT, SIGTERM or an external
+    shutdown, then shut down in this order (:func:`shut_down_node`):
 
     1. trigger the node's :func:`shutdown_interrupt`: every wait made through it ends at once
        (service calls, an exploration's waits);
@@ -529,6 +532,7 @@ def run_node(
         0, or 1 when building/running the node raised one of ``startup_errors`` (bad
         parameters, unreadable inputs), logged as fatal with ``startup_message``.
     """
+    heap = limit_heap_retention()  # before rclpy and the executor start their threads
     rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
     signals = SignalStop()
     node = None
@@ -536,6 +540,7 @@ def run_node(
     code = 0
     try:
         node = factory()
+        node.get_logger().info(heap)
         executor = MultiThreadedNodeExecutor(num_threads=threads) if threads > 1 else SingleThreadedNodeExecutor()
         executor.signals = signals
         executor.add_node(node)
