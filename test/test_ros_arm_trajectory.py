@@ -391,3 +391,68 @@ def test_the_camera_workspace_holds_in_explore_goals_and_parameters(ros):
 
 
 GEOMETRY_HALF_CELL = 0.02 + 1e-9  # half of test_ros_arm_planning's 4 cm cells
+
+
+def test_a_view_behind_a_pillar_is_reached_by_a_planned_path_over_follow_joint_trajectory(ros):
+    """The arm starts on one side of a pillar and the Explore goal's box puts every view on the
+    other: the straight joint path to the chosen view hits the pillar, so the trajectory sent over
+    FollowJointTrajectory is the OMPL path around it. Checked by the independent dense sampler
+    of test_arm_path_planning (0.005 rad, ten times finer than the planner's validation) on the
+    polyline of the trajectory's points, against the grid the planner got."""
+    from test_arm_path_planning import dense_free
+    from test_ros_arm_planning import GEOMETRY
+
+    from nbv_prob_cnn.arm.collision import CollisionChecker
+    from nbv_prob_cnn.basics.grid import OCCUPIED, UNKNOWN
+
+    node, graph = ros
+    robot = RobotModel()
+    q_start, halfway, q_far = (robot.reference_q.copy() for _ in range(3))
+    q_start[0], halfway[0], q_far[0] = -0.9, 0.0, 0.9  # the base turns 1.8 rad: camera at y 0.45 -> 1.04 m
+    bench = GraphBench(node)
+    state = np.zeros(GEOMETRY.shape, dtype=np.int8)
+    state[:, :, 0] = OCCUPIED  # the floor
+    pillar = GEOMETRY.containing_cell(robot.camera_pose(halfway)[:3, 3][None])[0][0]
+    state[pillar[0] - 3 : pillar[0] + 4, pillar[1] - 3 : pillar[1] + 4, : pillar[2] + 3] = OCCUPIED
+    far = GEOMETRY.containing_cell(robot.camera_pose(q_far)[:3, 3][None])[0][0]
+    state[max(far[0] - 4, 0) : far[0] + 5, far[1] - 4 : far[1] + 5, 1:8] = UNKNOWN  # what the views look at
+    bench.state = state.copy()
+    bench.joints = (robot.joint_names, q_start)
+    controller = FakeController(node, bench, robot, reject=0)
+    planner = {**ARM_PLANNER, "move_mode": "trajectory", "arm_path_timeout_s": 5.0,
+               "trajectory_action": "/fake_controller/follow_joint_trajectory"}  # fmt: skip
+    graph.start_node("nbv_planner", "nbv_planner", planner)
+    SeeingIntegrator(node, bench)
+    bench.publish_grid()
+    client = ActionClient(node, Explore, "/nbv/explore")
+    assert client.wait_for_server(timeout_sec=120.0)
+    goal = Explore.Goal(max_views=1, use_workspace=True)
+    box_min, box_max = robot.camera_pose(q_far)[:3, 3] - 0.12, robot.camera_pose(q_far)[:3, 3] + 0.12
+    goal.workspace_min.x, goal.workspace_min.y, goal.workspace_min.z = (float(v) for v in box_min)
+    goal.workspace_max.x, goal.workspace_max.y, goal.workspace_max.z = (float(v) for v in box_max)
+    feedback: list = []
+    handle = wait(client.send_goal_async(goal, feedback_callback=feedback.append))
+    done = wait(handle.get_result_async(), 300.0)
+    assert done.status == GoalStatus.STATUS_SUCCEEDED and done.result.views == 1, done.result.reason_stopped
+    assert len(controller.goals) == 1
+    trajectory = controller.goals[0].trajectory
+    assert list(trajectory.joint_names) == robot.joint_names[:7]
+    points = np.array([p.positions for p in trajectory.points])
+    fingers = np.tile(q_start[7:], (points.shape[0], 1))
+    polyline = np.vstack([q_start, np.hstack([points, fingers])])  # from where the arm stood
+    checker = CollisionChecker(robot, spacing=0.75 * GEOMETRY.resolution)
+    q_goal = polyline[-1]
+    assert not dense_free(robot, checker, GEOMETRY, state, np.array([q_start, q_goal]))  # straight: hits the pillar
+    assert dense_free(robot, checker, GEOMETRY, state, polyline)  # the path sent: free
+    fb = feedback[0].feedback
+    assert fb.executed and fb.execution_error == ""
+    assert_pose_close(robot.camera_pose(q_goal), *pose_to_arrays(fb.pose.pose))
+    length = float(np.linalg.norm(np.diff(polyline[:, :7], axis=0), axis=1).sum())
+    straight = float(np.linalg.norm(q_goal[:7] - q_start[:7]))
+    assert fb.joint_travel == pytest.approx(length, rel=1e-3)  # the motion is the path's length
+    assert fb.joint_travel > straight * 1.01  # around the pillar, not through it
+    t = np.array([p.time_from_start.sec + p.time_from_start.nanosec * 1e-9 for p in trajectory.points])
+    v = np.array([p.velocities for p in trajectory.points])
+    assert np.all(np.diff(t) > 0)
+    assert np.all(np.abs(v) <= np.asarray(robot.model.velocityLimit)[:7] * (1 + 1e-6))
+    np.testing.assert_allclose(v[-1], 0.0, atol=1e-9)
