@@ -37,7 +37,9 @@ def test_both_parts_run_and_summarise(tmp_path):
                        "--views", "3", "--rooms", "none"]) == 0  # fmt: skip
     with open(out / "returns_table.csv", newline="") as f:
         rows = list(csv.DictReader(f))
-    assert [(r["room"], r["sensor_model"], r["runs"]) for r in rows] == [("no_walls", "paper", "1"),
-                                                                         ("no_walls", "returns", "1")]  # fmt: skip
+    assert [(r["method"], r["sensor"], r["room"], r["sensor_model"], r["runs"]) for r in rows] == [
+        ("prob_ig", "kinect_v1", "no_walls", "paper", "1"),
+        ("prob_ig", "kinect_v1", "no_walls", "returns", "1"),
+    ]
     for r in rows:
         assert 0.0 < float(r["mean_after_3"]) <= 1.0 and np.isfinite(float(r["ruled_out_mean"]))

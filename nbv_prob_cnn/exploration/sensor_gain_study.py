@@ -2,8 +2,9 @@
 deliverables 3–4; docs/sensing.md).
 
 ``returns``: every combination of gain sensor model (``paper``, ``returns``) and room (walls
-``margin`` m outside the grid, or none) explores each environment with a noise preset and the
-view guard, as :mod:`~nbv_prob_cnn.exploration.noise_study` does; table ``returns_table.{md,csv}``.
+``margin`` m outside the grid, or none) explores each environment with each noise preset
+(``--noise``) and the view guard, as :mod:`~nbv_prob_cnn.exploration.noise_study` does; table
+``returns_table.{md,csv}`` (a row per method, preset, room and model).
 
 ``sampling``: the paper's plain loop (no guard) with the ideal sensor, the gain's rays sampled
 ``exact`` (voxel traversal), against the committed ``rounded`` runs of ``nbv evaluate`` (read
@@ -110,25 +111,33 @@ def _unknown_after(path: Path, views: int, at: int) -> float:
     return float(fractions[min(at, len(fractions)) - 1])
 
 
-def returns_table(out: Path, dataset: str, method: str, noise_name: str, rooms, seeds, views: int,
+def returns_table(out: Path, dataset: str, methods, noise_names, rooms, seeds, views: int,
                   committed: Path | None = None) -> str:  # fmt: skip
-    """Markdown (returned) and CSV (written) of the ``returns`` runs."""
+    """Markdown (returned) and CSV (written) of the ``returns`` runs: a row per method, noise
+    preset, room and gain sensor model whose runs exist."""
     at = sorted({a for a in AT_VIEWS if a <= views} | {views})
-    lines = ["| room | gain sensor model | runs | " + " | ".join(f"unknown after {a}" for a in at)
-             + " | views ruled out (mean) |", "|---|---|---|" + "---|" * len(at) + "---|"]  # fmt: skip
-    rows = ["room,sensor_model,runs," + ",".join(f"mean_after_{a},std_after_{a}" for a in at) + ",ruled_out_mean"]
-    for room_m in rooms:
-        for model in ("paper", "returns"):
-            paths = [returns_path(out, dataset, method, noise_name, room_m, model, s, committed, views) for s in seeds]
-            paths = [p for p in paths if _done(p, views)]
-            if not paths:
-                continue
-            values = {a: [_unknown_after(p, views, a) for p in paths] for a in at}
-            ruled = [int(read_csv_column(p, "ruled_out_views")[-1]) for p in paths]
-            lines.append(f"| {_room_name(room_m)} | {model} | {len(paths)} | "
-                         + " | ".join(_mean_std(values[a]) for a in at) + f" | {np.mean(ruled):.1f} |")  # fmt: skip
-            stats = ",".join(f"{np.mean(values[a]):.6f},{np.std(values[a]):.6f}" for a in at)
-            rows.append(f"{_room_name(room_m)},{model},{len(paths)},{stats},{np.mean(ruled):.2f}")
+    lines = ["| method | sensor | room | gain sensor model | runs | "
+             + " | ".join(f"unknown after {a}" for a in at) + " | views ruled out (mean) |",
+             "|---|---|---|---|---|" + "---|" * len(at) + "---|"]  # fmt: skip
+    rows = ["method,sensor,room,sensor_model,runs," + ",".join(f"mean_after_{a},std_after_{a}" for a in at)
+            + ",ruled_out_mean"]  # fmt: skip
+    for method in methods:
+        for noise_name in noise_names:
+            for room_m in rooms:
+                for model in ("paper", "returns"):
+                    paths = [returns_path(out, dataset, method, noise_name, room_m, model, s, committed, views)
+                             for s in seeds]  # fmt: skip
+                    paths = [p for p in paths if _done(p, views)]
+                    if not paths:
+                        continue
+                    values = {a: [_unknown_after(p, views, a) for p in paths] for a in at}
+                    ruled = [int(read_csv_column(p, "ruled_out_views")[-1]) for p in paths]
+                    room = _room_name(room_m)
+                    cells = " | ".join(_mean_std(values[a]) for a in at)
+                    lines.append(f"| {method} | {noise_name} | {room} | {model} | {len(paths)} | {cells} | "
+                                 f"{np.mean(ruled):.1f} |")  # fmt: skip
+                    stats = ",".join(f"{np.mean(values[a]):.6f},{np.std(values[a]):.6f}" for a in at)
+                    rows.append(f"{method},{noise_name},{room},{model},{len(paths)},{stats},{np.mean(ruled):.2f}")
     (out / "returns_table.csv").write_text("\n".join(rows) + "\n")
     (out / "returns_table.md").write_text("\n".join(lines) + "\n")
     return "\n".join(lines)
@@ -205,7 +214,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--methods", nargs="+", default=["cnn_prob"])
     parser.add_argument("--seeds", type=int, nargs="+", default=None, help="default: the first 3 evaluation seeds")
     parser.add_argument("--views", type=int, default=20)
-    parser.add_argument("--noise", default="kinect_v1", help="returns: the noise preset")
+    parser.add_argument("--noise", nargs="+", default=["kinect_v1"], help="returns: the noise presets")
     parser.add_argument("--rooms", nargs="+", default=["0.3", "none"], help="returns: wall margins [m] or none")
     parser.add_argument("--committed", type=Path, default=None,
                         help="the committed runs to read (never written): sampling, the rounded ones of nbv evaluate; "
@@ -216,16 +225,16 @@ def main(argv: list[str] | None = None) -> int:
     rooms = [None if r == "none" else float(r) for r in args.rooms]
     jobs: list[tuple[Path, Callable[[], None]]] = []
     if args.part == "returns":
-        for method in args.methods:
+        for method, noise_name in ((m, n) for m in args.methods for n in args.noise):
             for room_m in rooms:
                 for model in ("paper", "returns"):
                     for seed in seeds:
-                        path = returns_path(args.out, args.dataset, method, args.noise, room_m, model, seed,
+                        path = returns_path(args.out, args.dataset, method, noise_name, room_m, model, seed,
                                             args.committed, args.views)  # fmt: skip
                         if _done(path, args.views):
                             continue
-                        path = returns_path(args.out, args.dataset, method, args.noise, room_m, model, seed)
-                        job = partial(run_returns, args.dataset, method, args.noise, room_m, model, seed, args.views,
+                        path = returns_path(args.out, args.dataset, method, noise_name, room_m, model, seed)
+                        job = partial(run_returns, args.dataset, method, noise_name, room_m, model, seed, args.views,
                                       path)  # fmt: skip
                         jobs.append((path, job))
     else:
@@ -243,8 +252,7 @@ def main(argv: list[str] | None = None) -> int:
             job()
             tqdm.write(f"{path.name}: done")
     if args.part == "returns":
-        for method in args.methods:
-            print(returns_table(args.out, args.dataset, method, args.noise, rooms, seeds, args.views, args.committed))
+        print(returns_table(args.out, args.dataset, args.methods, args.noise, rooms, seeds, args.views, args.committed))
     else:
         print(sampling_table(args.out, args.committed, args.dataset, args.methods, seeds, args.views))
     return 0
