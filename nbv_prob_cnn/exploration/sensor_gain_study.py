@@ -138,6 +138,7 @@ def returns_table(out: Path, dataset: str, methods, noise_names, rooms, seeds, v
                                  f"{np.mean(ruled):.1f} |")  # fmt: skip
                     stats = ",".join(f"{np.mean(values[a]):.6f},{np.std(values[a]):.6f}" for a in at)
                     rows.append(f"{method},{noise_name},{room},{model},{len(paths)},{stats},{np.mean(ruled):.2f}")
+    out.mkdir(parents=True, exist_ok=True)
     (out / "returns_table.csv").write_text("\n".join(rows) + "\n")
     (out / "returns_table.md").write_text("\n".join(lines) + "\n")
     return "\n".join(lines)
