@@ -1,14 +1,21 @@
-"""Keep a long-running process's heap from holding on to memory it has freed (glibc ``mallopt``).
+"""Keep a long-running process's heap from holding on to memory it has freed (glibc).
 
 A node allocates and frees multi-megabyte arrays on every request (grids, ray buffers, the CNN's
 activations). With glibc's defaults, the threshold above which ``malloc`` maps a block on its own
 (and ``free`` returns it to the system) slides up after the first large free, up to 32 MiB; from
-then on such arrays are carved from the heaps of the executor's threads (one arena per thread, up
-to 8 per core), and the holes they leave stay resident. In the 8-minute soak of the simulated
-graph this made ``gain_server`` grow 25 % and ``nbv_planner`` 22 % after the first exploration.
-The same soak run side by side with fixed thresholds and two arenas (glibc's environment
-variables, no code change) grew 2.0 % and 4.3 %: the growth was the allocator's, not objects
-kept (docs/soak/README.md).
+then on such arrays are carved from the heaps of the executor's threads, and the holes they leave
+stay resident. In an 8-minute soak of the simulated graph this made ``gain_server`` grow 25 % and
+``nbv_planner`` 22 % after the first exploration (docs/soak/README.md).
+
+What is done about it, measured side by side in 8-minute soaks and on the CNN and the gain
+search of a 3DT grid (docs/ros.md#memory-of-long-running-nodes):
+
+- every ``HEAP_TRIM_PERIOD_S`` the node calls ``malloc_trim(0)``, which hands the free pages of
+  every arena back to the system (:func:`release_free_heap`);
+- at most ``ARENAS`` arenas (glibc's default: 8 per core).
+
+Fixing the mapping threshold at 1 MiB instead bounds the growth as well, but every multi-megabyte
+block is then mapped and faulted in afresh: the in-process plan took 1.22 s instead of 1.00 s.
 """
 
 from __future__ import annotations
@@ -17,51 +24,63 @@ import ctypes
 import ctypes.util
 import os
 
-#: ``mallopt`` parameters (glibc's ``malloc.h``).
-M_TRIM_THRESHOLD = -1
-M_MMAP_THRESHOLD = -3
+#: ``mallopt`` parameter (glibc's ``malloc.h``).
 M_ARENA_MAX = -8
-
-#: Blocks of at least this size are mapped on their own and returned to the system when freed;
-#: the free top of a heap is trimmed beyond it. Setting either fixes it (no sliding threshold).
-THRESHOLD_BYTES = 1 << 20
-#: Arenas at most (glibc's default: 8 per core); Python threads take turns on the GIL anyway.
+#: Arenas at most; Python threads take turns on the GIL anyway.
 ARENAS = 2
-#: Set to ``0`` to leave glibc's defaults (e.g. to compare).
+#: Seconds between two :func:`release_free_heap` calls of a node.
+HEAP_TRIM_PERIOD_S = 1.0
+#: Set to ``0`` to leave glibc's defaults and never trim (e.g. to compare).
 ENV_SWITCH = "NBV_HEAP_TUNING"
 
 
-def limit_heap_retention(
-    threshold_bytes: int = THRESHOLD_BYTES, arenas: int = ARENAS, environ: dict | None = None
-) -> str:
-    """Apply the settings above with ``mallopt`` and say what was done.
+def _libc():
+    try:
+        return ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6")
+    except OSError:
+        return None
 
-    Call it early in a process's ``main`` (before it starts its own threads). Settings given by
-    glibc's own environment variables (``MALLOC_MMAP_THRESHOLD_``, ``MALLOC_TRIM_THRESHOLD_``,
-    ``MALLOC_ARENA_MAX``) are left as the user set them.
+
+_LIBC = _libc()
+
+
+def heap_tuning_enabled(environ: dict | None = None) -> bool:
+    """False when ``NBV_HEAP_TUNING=0`` or the C library is not glibc (no ``malloc_trim``)."""
+    env = os.environ if environ is None else environ
+    return env.get(ENV_SWITCH, "1") != "0" and _LIBC is not None and hasattr(_LIBC, "malloc_trim")
+
+
+def limit_heap_retention(arenas: int = ARENAS, environ: dict | None = None) -> str:
+    """Bound the number of arenas with ``mallopt`` and say what the process will do.
+
+    Call it early in a process's ``main`` (before it starts its own threads); the process then
+    calls :func:`release_free_heap` every :data:`HEAP_TRIM_PERIOD_S`. ``MALLOC_ARENA_MAX``, when
+    set, is left as the user set it.
 
     Returns:
         A line for the log: the settings applied, or why none were (not glibc, switched off).
     """
     env = os.environ if environ is None else environ
     if env.get(ENV_SWITCH, "1") == "0":
-        return f"heap: glibc defaults ({ENV_SWITCH}=0)"
-    name = ctypes.util.find_library("c")
-    try:
-        libc = ctypes.CDLL(name or "libc.so.6")
-        mallopt = libc.mallopt
-    except (OSError, AttributeError):
-        return "heap: no mallopt (not glibc), defaults kept"
-    mallopt.argtypes, mallopt.restype = [ctypes.c_int, ctypes.c_int], ctypes.c_int
-    settings = (
-        ("MALLOC_MMAP_THRESHOLD_", M_MMAP_THRESHOLD, threshold_bytes),
-        ("MALLOC_TRIM_THRESHOLD_", M_TRIM_THRESHOLD, threshold_bytes),
-        ("MALLOC_ARENA_MAX", M_ARENA_MAX, arenas),
-    )
-    applied, refused = [], []
-    for variable, parameter, value in settings:
-        if variable in env:
-            continue
-        (applied if mallopt(parameter, value) == 1 else refused).append(f"{variable.rstrip('_').lower()}={value}")
-    line = "heap: " + (", ".join(applied) if applied else "settings from the environment kept")
-    return line + (f" (refused: {', '.join(refused)})" if refused else "")
+        return f"heap: glibc defaults, no trimming ({ENV_SWITCH}=0)"
+    if not heap_tuning_enabled(env):
+        return "heap: not glibc, defaults kept"
+    if "MALLOC_ARENA_MAX" in env:
+        arena_line = f"malloc_arena_max={env['MALLOC_ARENA_MAX']} from the environment"
+    else:
+        mallopt = _LIBC.mallopt
+        mallopt.argtypes, mallopt.restype = [ctypes.c_int, ctypes.c_int], ctypes.c_int
+        arena_line = f"malloc_arena_max={arenas}" if mallopt(M_ARENA_MAX, arenas) == 1 else "arenas: refused"
+    return f"heap: {arena_line}, freed pages returned every {HEAP_TRIM_PERIOD_S:g} s (malloc_trim)"
+
+
+def release_free_heap() -> bool:
+    """``malloc_trim(0)``: return the free pages of every arena to the system.
+
+    Returns:
+        True when some memory was released.
+    """
+    if _LIBC is None or not hasattr(_LIBC, "malloc_trim"):
+        return False
+    _LIBC.malloc_trim.argtypes, _LIBC.malloc_trim.restype = [ctypes.c_size_t], ctypes.c_int
+    return bool(_LIBC.malloc_trim(0))

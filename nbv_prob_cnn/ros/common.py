@@ -22,7 +22,12 @@ from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.signals import SignalHandlerOptions
 
-from nbv_prob_cnn.basics.process_heap import limit_heap_retention
+from nbv_prob_cnn.basics.process_heap import (
+    HEAP_TRIM_PERIOD_S,
+    heap_tuning_enabled,
+    limit_heap_retention,
+    release_free_heap,
+)
 
 ConfigT = TypeVar("ConfigT")
 
@@ -513,7 +518,8 @@ def run_node(
     startup_message: str = "cannot start",
 ) -> int:
     """The ``main`` of every node: bound the heap's retention of freed memory
-    (:func:`~nbv_prob_cnn.basics.process_heap.limit_heap_retention`, logged), ``rclpy.init``,
+    (:func:`~nbv_prob_cnn.basics.process_heap.limit_heap_retention`, logged, and a timer that
+    returns the free heap pages every second), ``rclpy.init``,
     build the node, spin (or ``run(node, executor)``) until SIGINT, SIGTERM or an external
     shutdown, then shut down in this order (:func:`shut_down_node`):
 
@@ -541,6 +547,8 @@ def run_node(
     try:
         node = factory()
         node.get_logger().info(heap)
+        if heap_tuning_enabled():
+            node.create_timer(HEAP_TRIM_PERIOD_S, release_free_heap)
         executor = MultiThreadedNodeExecutor(num_threads=threads) if threads > 1 else SingleThreadedNodeExecutor()
         executor.signals = signals
         executor.add_node(node)
