@@ -23,6 +23,7 @@ from __future__ import annotations
 import ctypes
 import ctypes.util
 import os
+from collections.abc import Mapping
 
 #: ``mallopt`` parameter (glibc's ``malloc.h``).
 M_ARENA_MAX = -8
@@ -44,13 +45,13 @@ def _libc():
 _LIBC = _libc()
 
 
-def heap_tuning_enabled(environ: dict | None = None) -> bool:
+def heap_tuning_enabled(environ: Mapping[str, str] | None = None) -> bool:
     """False when ``NBV_HEAP_TUNING=0`` or the C library is not glibc (no ``malloc_trim``)."""
     env = os.environ if environ is None else environ
     return env.get(ENV_SWITCH, "1") != "0" and _LIBC is not None and hasattr(_LIBC, "malloc_trim")
 
 
-def limit_heap_retention(arenas: int = ARENAS, environ: dict | None = None) -> str:
+def limit_heap_retention(arenas: int = ARENAS, environ: Mapping[str, str] | None = None) -> str:
     """Bound the number of arenas with ``mallopt`` and say what the process will do.
 
     Call it early in a process's ``main`` (before it starts its own threads); the process then
