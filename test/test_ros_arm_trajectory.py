@@ -205,19 +205,36 @@ def pose_msg(pose: np.ndarray, node):
     return msg
 
 
-def test_a_rejected_trajectory_makes_the_exploration_take_the_next_ranked_view(ros):
-    node, graph = ros
-    robot = RobotModel()
-    bench = GraphBench(node)
-    bench.joints = (robot.joint_names, robot.reference_q)
-    controller = FakeController(node, bench, robot, reject=1)
-    planner = {**ARM_PLANNER, "move_mode": "trajectory", "max_joint_acceleration": 2.0, "max_joint_jerk": 20.0,
-               "trajectory_action": "/fake_controller/follow_joint_trajectory"}  # fmt: skip
+def start_trajectory_graph(node, graph, bench: GraphBench, robot: RobotModel, reject: int, **planner_params):
+    """The test's FakeController, ``nbv_planner`` (``move_mode:=trajectory``, ``planner_params``
+    over :data:`ARM_PLANNER`) sending to it, a SeeingIntegrator and the bench's grid; returns the
+    controller and an Explore client whose server is up."""
+    controller = FakeController(node, bench, robot, reject=reject)
+    planner = {**ARM_PLANNER, "move_mode": "trajectory",
+               "trajectory_action": "/fake_controller/follow_joint_trajectory", **planner_params}  # fmt: skip
     graph.start_node("nbv_planner", "nbv_planner", planner)
     SeeingIntegrator(node, bench)
     bench.publish_grid()
     client = ActionClient(node, Explore, "/nbv/explore")
     assert client.wait_for_server(timeout_sec=120.0), "the Explore server did not come up"
+    return controller, client
+
+
+def workspace_goal(max_views: int, low, high, **fields) -> Explore.Goal:
+    """An Explore goal whose camera positions stay in the box ``low``..``high`` (m, grid frame)."""
+    goal = Explore.Goal(max_views=max_views, use_workspace=True, **fields)
+    goal.workspace_min.x, goal.workspace_min.y, goal.workspace_min.z = (float(v) for v in low)
+    goal.workspace_max.x, goal.workspace_max.y, goal.workspace_max.z = (float(v) for v in high)
+    return goal
+
+
+def test_a_rejected_trajectory_makes_the_exploration_take_the_next_ranked_view(ros):
+    node, graph = ros
+    robot = RobotModel()
+    bench = GraphBench(node)
+    bench.joints = (robot.joint_names, robot.reference_q)
+    controller, client = start_trajectory_graph(node, graph, bench, robot, reject=1, max_joint_acceleration=2.0,
+                                                max_joint_jerk=20.0)  # fmt: skip
     feedback: list = []
     handle = wait(client.send_goal_async(Explore.Goal(max_views=2), feedback_callback=feedback.append))
     assert handle.accepted
@@ -353,17 +370,8 @@ def test_the_camera_workspace_holds_in_explore_goals_and_parameters(ros):
     robot = RobotModel()
     bench = GraphBench(node)
     bench.joints = (robot.joint_names, robot.reference_q)
-    FakeController(node, bench, robot, reject=0)
-    planner = {**ARM_PLANNER, "move_mode": "trajectory", "min_camera_height_m": 0.3,
-               "trajectory_action": "/fake_controller/follow_joint_trajectory"}  # fmt: skip
-    graph.start_node("nbv_planner", "nbv_planner", planner)
-    SeeingIntegrator(node, bench)
-    bench.publish_grid()
-    client = ActionClient(node, Explore, "/nbv/explore")
-    assert client.wait_for_server(timeout_sec=120.0)
-    goal = Explore.Goal(max_views=3, use_workspace=True, max_camera_height=0.6)
-    goal.workspace_min.x, goal.workspace_min.y, goal.workspace_min.z = 0.3, 0.2, 0.0
-    goal.workspace_max.x, goal.workspace_max.y, goal.workspace_max.z = 0.8, 1.3, 1.0
+    _, client = start_trajectory_graph(node, graph, bench, robot, reject=0, min_camera_height_m=0.3)
+    goal = workspace_goal(3, (0.3, 0.2, 0.0), (0.8, 1.3, 1.0), max_camera_height=0.6)
     feedback: list = []
     handle = wait(client.send_goal_async(goal, feedback_callback=feedback.append))
     done = wait(handle.get_result_async(), 300.0)
@@ -418,18 +426,9 @@ def test_a_view_behind_a_pillar_is_reached_by_a_planned_path_over_follow_joint_t
     state[max(far[0] - 4, 0) : far[0] + 5, far[1] - 4 : far[1] + 5, 1:8] = UNKNOWN  # what the views look at
     bench.state = state.copy()
     bench.joints = (robot.joint_names, q_start)
-    controller = FakeController(node, bench, robot, reject=0)
-    planner = {**ARM_PLANNER, "move_mode": "trajectory", "arm_path_timeout_s": 5.0,
-               "trajectory_action": "/fake_controller/follow_joint_trajectory"}  # fmt: skip
-    graph.start_node("nbv_planner", "nbv_planner", planner)
-    SeeingIntegrator(node, bench)
-    bench.publish_grid()
-    client = ActionClient(node, Explore, "/nbv/explore")
-    assert client.wait_for_server(timeout_sec=120.0)
-    goal = Explore.Goal(max_views=1, use_workspace=True)
-    box_min, box_max = robot.camera_pose(q_far)[:3, 3] - 0.12, robot.camera_pose(q_far)[:3, 3] + 0.12
-    goal.workspace_min.x, goal.workspace_min.y, goal.workspace_min.z = (float(v) for v in box_min)
-    goal.workspace_max.x, goal.workspace_max.y, goal.workspace_max.z = (float(v) for v in box_max)
+    controller, client = start_trajectory_graph(node, graph, bench, robot, reject=0, arm_path_timeout_s=5.0)
+    far_camera = robot.camera_pose(q_far)[:3, 3]
+    goal = workspace_goal(1, far_camera - 0.12, far_camera + 0.12)
     feedback: list = []
     handle = wait(client.send_goal_async(goal, feedback_callback=feedback.append))
     done = wait(handle.get_result_async(), 300.0)
