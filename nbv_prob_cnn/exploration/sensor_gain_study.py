@@ -26,6 +26,7 @@ import csv
 import json
 from collections.abc import Callable
 from functools import partial
+from itertools import product
 from pathlib import Path
 
 import numpy as np
@@ -121,23 +122,18 @@ def returns_table(out: Path, dataset: str, methods, noise_names, rooms, seeds, v
              "|---|---|---|---|---|" + "---|" * len(at) + "---|"]  # fmt: skip
     rows = ["method,sensor,room,sensor_model,runs," + ",".join(f"mean_after_{a},std_after_{a}" for a in at)
             + ",ruled_out_mean"]  # fmt: skip
-    for method in methods:
-        for noise_name in noise_names:
-            for room_m in rooms:
-                for model in ("paper", "returns"):
-                    paths = [returns_path(out, dataset, method, noise_name, room_m, model, s, committed, views)
-                             for s in seeds]  # fmt: skip
-                    paths = [p for p in paths if _done(p, views)]
-                    if not paths:
-                        continue
-                    values = {a: [_unknown_after(p, views, a) for p in paths] for a in at}
-                    ruled = [int(read_csv_column(p, "ruled_out_views")[-1]) for p in paths]
-                    room = _room_name(room_m)
-                    cells = " | ".join(_mean_std(values[a]) for a in at)
-                    lines.append(f"| {method} | {noise_name} | {room} | {model} | {len(paths)} | {cells} | "
-                                 f"{np.mean(ruled):.1f} |")  # fmt: skip
-                    stats = ",".join(f"{np.mean(values[a]):.6f},{np.std(values[a]):.6f}" for a in at)
-                    rows.append(f"{method},{noise_name},{room},{model},{len(paths)},{stats},{np.mean(ruled):.2f}")
+    for method, noise_name, room_m, model in product(methods, noise_names, rooms, ("paper", "returns")):
+        paths = [returns_path(out, dataset, method, noise_name, room_m, model, s, committed, views) for s in seeds]
+        paths = [p for p in paths if _done(p, views)]
+        if not paths:
+            continue
+        values = {a: [_unknown_after(p, views, a) for p in paths] for a in at}
+        ruled = [int(read_csv_column(p, "ruled_out_views")[-1]) for p in paths]
+        room = _room_name(room_m)
+        cells = " | ".join(_mean_std(values[a]) for a in at)
+        lines.append(f"| {method} | {noise_name} | {room} | {model} | {len(paths)} | {cells} | {np.mean(ruled):.1f} |")
+        stats = ",".join(f"{np.mean(values[a]):.6f},{np.std(values[a]):.6f}" for a in at)
+        rows.append(f"{method},{noise_name},{room},{model},{len(paths)},{stats},{np.mean(ruled):.2f}")
     out.mkdir(parents=True, exist_ok=True)
     (out / "returns_table.csv").write_text("\n".join(rows) + "\n")
     (out / "returns_table.md").write_text("\n".join(lines) + "\n")
@@ -226,18 +222,15 @@ def main(argv: list[str] | None = None) -> int:
     rooms = [None if r == "none" else float(r) for r in args.rooms]
     jobs: list[tuple[Path, Callable[[], None]]] = []
     if args.part == "returns":
-        for method, noise_name in ((m, n) for m in args.methods for n in args.noise):
-            for room_m in rooms:
-                for model in ("paper", "returns"):
-                    for seed in seeds:
-                        path = returns_path(args.out, args.dataset, method, noise_name, room_m, model, seed,
-                                            args.committed, args.views)  # fmt: skip
-                        if _done(path, args.views):
-                            continue
-                        path = returns_path(args.out, args.dataset, method, noise_name, room_m, model, seed)
-                        job = partial(run_returns, args.dataset, method, noise_name, room_m, model, seed, args.views,
-                                      path)  # fmt: skip
-                        jobs.append((path, job))
+        for method, noise_name, room_m, model, seed in product(args.methods, args.noise, rooms, ("paper", "returns"),
+                                                               seeds):  # fmt: skip
+            path = returns_path(args.out, args.dataset, method, noise_name, room_m, model, seed, args.committed,
+                                args.views)  # fmt: skip
+            if _done(path, args.views):
+                continue
+            path = returns_path(args.out, args.dataset, method, noise_name, room_m, model, seed)
+            job = partial(run_returns, args.dataset, method, noise_name, room_m, model, seed, args.views, path)
+            jobs.append((path, job))
     else:
         for method in args.methods:
             for sampling in ("rounded", "exact"):
