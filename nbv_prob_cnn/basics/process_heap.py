@@ -36,10 +36,16 @@ ENV_SWITCH = "NBV_HEAP_TUNING"
 
 
 def _libc():
+    """The C library with ``mallopt`` and ``malloc_trim`` typed; None when it is not glibc."""
     try:
-        return ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6")
+        libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6")
     except OSError:
         return None
+    if not (hasattr(libc, "mallopt") and hasattr(libc, "malloc_trim")):
+        return None
+    libc.mallopt.argtypes, libc.mallopt.restype = [ctypes.c_int, ctypes.c_int], ctypes.c_int
+    libc.malloc_trim.argtypes, libc.malloc_trim.restype = [ctypes.c_size_t], ctypes.c_int
+    return libc
 
 
 _LIBC = _libc()
@@ -48,7 +54,7 @@ _LIBC = _libc()
 def heap_tuning_enabled(environ: Mapping[str, str] | None = None) -> bool:
     """False when ``NBV_HEAP_TUNING=0`` or the C library is not glibc (no ``malloc_trim``)."""
     env = os.environ if environ is None else environ
-    return env.get(ENV_SWITCH, "1") != "0" and _LIBC is not None and hasattr(_LIBC, "malloc_trim")
+    return env.get(ENV_SWITCH, "1") != "0" and _LIBC is not None
 
 
 def limit_heap_retention(arenas: int = ARENAS, environ: Mapping[str, str] | None = None) -> str:
@@ -69,9 +75,7 @@ def limit_heap_retention(arenas: int = ARENAS, environ: Mapping[str, str] | None
     if "MALLOC_ARENA_MAX" in env:
         arena_line = f"malloc_arena_max={env['MALLOC_ARENA_MAX']} from the environment"
     else:
-        mallopt = _LIBC.mallopt
-        mallopt.argtypes, mallopt.restype = [ctypes.c_int, ctypes.c_int], ctypes.c_int
-        arena_line = f"malloc_arena_max={arenas}" if mallopt(M_ARENA_MAX, arenas) == 1 else "arenas: refused"
+        arena_line = f"malloc_arena_max={arenas}" if _LIBC.mallopt(M_ARENA_MAX, arenas) == 1 else "arenas: refused"
     return f"heap: {arena_line}, freed pages returned every {HEAP_TRIM_PERIOD_S:g} s (malloc_trim)"
 
 
@@ -81,7 +85,4 @@ def release_free_heap() -> bool:
     Returns:
         True when some memory was released.
     """
-    if _LIBC is None or not hasattr(_LIBC, "malloc_trim"):
-        return False
-    _LIBC.malloc_trim.argtypes, _LIBC.malloc_trim.restype = [ctypes.c_size_t], ctypes.c_int
-    return bool(_LIBC.malloc_trim(0))
+    return _LIBC is not None and bool(_LIBC.malloc_trim(0))
