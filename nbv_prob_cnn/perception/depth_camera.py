@@ -204,6 +204,8 @@ class DepthCamera:
         self.depth_max = float(depth_max)
         self.scene = meshes if isinstance(meshes, MeshScene) else MeshScene(meshes)
         self._rays_optical = self.intrinsics.pixel_rays()
+        self._last: tuple | None = None  # (pose and occluder key, occluders, exact depth, cos incidence)
+        self.renders = 0  # ray casts done (a still camera re-uses the last)
 
     @property
     def n_meshes(self) -> int:
@@ -214,11 +216,30 @@ class DepthCamera:
 
         ``occluders`` are further scenes (e.g. a robot arm at its current joint state) seen
         together with the camera's own: each pixel returns the nearest surface of all of them,
-        before the depth range and the noise are applied.
+        before the depth range and the noise are applied. The exact image of the last call is
+        kept: called again from the same pose with the same occluder objects, only the noise is
+        drawn anew (a camera that stands still costs no ray casting; :attr:`renders` counts the
+        casts).
         """
+        pose = check_pose(pose_world_from_optical, "pose_world_from_optical")
+        key = (pose.tobytes(), tuple(id(o) for o in occluders))
+        if self._last is not None and self._last[0] == key:
+            depth, cos_incidence = self._last[2], self._last[3]
+        else:
+            depth, cos_incidence = self._cast(pose, occluders)
+            self._last = (key, tuple(occluders), depth, cos_incidence)  # the occluders kept: their ids stay theirs
+        if isinstance(self.noise, SensorNoise):
+            return self.noise.apply_image(depth, self._noise_rng, cos_incidence)
+        if self.noise is not None:
+            return self.noise.apply(depth)
+        return depth.copy()
+
+    def _cast(self, pose: np.ndarray, occluders: Sequence[MeshScene]) -> tuple[np.ndarray, np.ndarray | None]:
+        """The exact depth (range applied) and, for a ``SensorNoise``, the cosine of each ray's
+        incidence on the surface it hits."""
         import open3d as o3d
 
-        pose = check_pose(pose_world_from_optical, "pose_world_from_optical")
+        self.renders += 1
         directions = self._rays_optical @ pose[:3, :3].T
         origins = np.broadcast_to(pose[:3, 3], directions.shape)
         rays = o3d.core.Tensor(np.concatenate([origins, directions], axis=-1).astype(np.float32))  # type: ignore[call-overload]
@@ -232,13 +253,10 @@ class DepthCamera:
                 normals = np.where(nearer[..., None], occluder_result["primitive_normals"].numpy(), normals)
         depth = np.where(np.isfinite(hit), hit, 0.0).astype(np.float32)
         depth[(depth < self.depth_min) | (depth > self.depth_max)] = 0.0
-        if isinstance(self.noise, SensorNoise):
-            unit = directions / np.linalg.norm(directions, axis=-1, keepdims=True)
-            cos_incidence = np.abs(np.sum(normals * unit, axis=-1))
-            depth = self.noise.apply_image(depth, self._noise_rng, cos_incidence)
-        elif self.noise is not None:
-            depth = self.noise.apply(depth)
-        return depth
+        if normals is None:
+            return depth, None
+        unit = directions / np.linalg.norm(directions, axis=-1, keepdims=True)
+        return depth, np.abs(np.sum(normals * unit, axis=-1))
 
 
 def _mesh_arrays(mesh: object) -> tuple[np.ndarray, np.ndarray]:

@@ -21,6 +21,7 @@ class ReplayDelta:
     pending: int  # received, neither integrated nor dropped yet (at the later report)
     dropped: dict[str, int] = field(default_factory=dict)  # reason -> frames (only reasons that grew)
     lost_in_transport: dict[str, int] = field(default_factory=dict)  # topic -> messages DDS reported lost
+    skipped_still: int = 0  # frames of a still camera the integrator did not fuse (still_frames_fused)
 
     @property
     def dropped_total(self) -> int:
@@ -59,6 +60,7 @@ def replay_delta(before: dict[str, Any], after: dict[str, Any]) -> ReplayDelta:
         pending=int(after.get("pending", 0)),
         dropped={reason: n for reason, n in dropped.items() if n},
         lost_in_transport={topic: n for topic, n in lost.items() if n},
+        skipped_still=grew("skipped_still", before.get("skipped_still", 0), after.get("skipped_still", 0)),
     )
 
 
@@ -72,6 +74,8 @@ def replay_line(sent: int, delta: ReplayDelta | None) -> str:
         f"sent {sent}, integrated {delta.integrated}, dropped {delta.dropped_total} by reason ({reasons}); "
         f"received {delta.received}"
     )
+    if delta.skipped_still:
+        line += f", {delta.skipped_still} skipped from a still camera (still_frames_fused)"
     if delta.pending:
         line += f", {delta.pending} still pending"
     unseen = sent - delta.received

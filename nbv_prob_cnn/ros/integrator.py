@@ -56,6 +56,16 @@ same grid as ``nbv integrate`` on the bag, provided the subscriptions lose nothi
 reliable QoS keeps only the newest ``queue_size`` messages per topic that the node has not taken
 yet, so a replay much faster than real time needs ``queue_size`` at least the burst).
 
+With ``still_frames_fused:=N`` (N > 0; default 0, every frame) a camera that stands still (an
+arm waiting for its next view) costs little: of the frames taken from one pose (within
+``still_translation_m`` and ``still_rotation_deg`` of the first, and with the self-filter the same
+joint positions within ``still_joint_rad``) the first N are fused and the rest skipped
+(:class:`~nbv_prob_cnn.perception.still_frames.StillFrameFilter`), counted as ``skipped_still``
+(not a drop), in a static scene they would not change the grid. A skipped frame still advances
+the grid's stamp (the grid is published again, unchanged, with the newer stamp), so a client
+waiting for a grid that includes frame ``T`` is not kept waiting. Leave it at 0 for scenes that
+move and for replays that must give ``nbv integrate``'s grid.
+
 Messages are taken as serialized CDR (raw subscriptions) and decoded and paired by
 :mod:`nbv_prob_cnn.perception.messages` (no rclpy), the same code that reads bags offline
 (and ~50x faster than rclpy's conversion of a 640x480 image).
@@ -72,6 +82,7 @@ from __future__ import annotations
 
 import bisect
 import json
+import math
 import threading
 import time
 from collections import deque
@@ -112,6 +123,7 @@ from nbv_prob_cnn.perception.messages import (
     stamp_of,
     typestore,
 )
+from nbv_prob_cnn.perception.still_frames import StillFrameFilter
 from nbv_prob_cnn.perception.tf_buffer import TransformError
 from nbv_prob_cnn.perception.tsdf import (
     DEFAULT_EMPTY_MARGIN_VOXELS,
@@ -227,6 +239,23 @@ class IntegratorConfig(RobotParams):
         0.02, "self-filter: a return this much in front of the rendered arm still counts as the arm [m]",
         min_value=0.0, max_value=1.0,
     )  # fmt: skip
+    still_frames_fused: int = param(
+        0, "frames fused per still camera pose (static scene): later frames from the same pose (and joint "
+        "positions with the self-filter) are skipped, counted as skipped_still, and advance the grid's stamp; "
+        "0 = fuse every frame", min_value=0, max_value=1000000,
+    )  # fmt: skip
+    still_translation_m: float = param(
+        5e-4, "still camera: largest camera displacement from the pose's first frame [m]", min_value=0.0,
+        max_value=1.0,
+    )  # fmt: skip
+    still_rotation_deg: float = param(
+        0.1, "still camera: largest camera rotation from the pose's first frame [deg]", min_value=0.0,
+        max_value=180.0,
+    )  # fmt: skip
+    still_joint_rad: float = param(
+        1e-3, "still camera with the self-filter: largest joint difference from the pose's first frame [rad]",
+        min_value=0.0, max_value=10.0,
+    )  # fmt: skip
 
 
 class Integrator(Node):
@@ -264,6 +293,10 @@ class Integrator(Node):
             robot = RobotModel(cfg.robot_config(self))
             self._self_filter = RobotSelfFilter(robot, cfg.self_filter_bodies, cfg.self_filter_tolerance_m)
             self._joint_merger = JointStateMerger(robot.joint_names)  # arm and gripper may come separately
+        self._still = StillFrameFilter(
+            cfg.still_frames_fused, cfg.still_translation_m, math.radians(cfg.still_rotation_deg), cfg.still_joint_rad
+        )
+        self._ternary: np.ndarray | None = None  # the grid as last published, while nothing was fused since
         self._queue: deque[PairedFrame] = deque()
         self._integrating = 0  # frames the worker took from the queue and has not finished (0 or 1)
         self._image_times: deque[float] = deque()  # arrival times (monotonic) of the last images
@@ -273,7 +306,7 @@ class Integrator(Node):
         self._dirty = False
         self._newest_stamp_ns = 0
         self._next_publish = 0.0
-        self.counts = dict.fromkeys(("images", "integrated", "grids", "grids_republished"), 0)
+        self.counts = dict.fromkeys(("images", "integrated", "skipped_still", "grids", "grids_republished"), 0)
         if cfg.self_filter:
             self.counts["self_filtered_pixels"] = 0
         self.drops = DropCounts()  # every frame not integrated is counted here under its reason
@@ -535,6 +568,8 @@ class Integrator(Node):
     def _on_reset(self, request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
         with self._tsdf_lock:
             self._tsdf.reset()
+            self._still.reset()
+            self._ternary = None
             with self._cv:
                 discarded = len(self._queue) + len(self._sync.images)  # queued, or waiting for their pose
                 self._queue.clear()
@@ -611,6 +646,14 @@ class Integrator(Node):
     def _integrate(self, frame: PairedFrame) -> None:
         try:
             depth, intrinsics, pose = decode_frame(frame)
+            joints = None if frame.joints is None else list(frame.joints.position)
+            with self._tsdf_lock:
+                fuse = frame.generation != self._generation or self._still.should_fuse(pose, joints)
+                if not fuse:  # the camera stood still: the grid is as current as this frame
+                    self._newest_stamp_ns = max(self._newest_stamp_ns, frame.stamp_ns)
+                    self._dirty = True
+                    self.counts["skipped_still"] += 1
+                    return
             if self._self_filter is not None:
                 depth = self._filter_arm(frame, depth, intrinsics, pose)
             with self._tsdf_lock:
@@ -618,6 +661,7 @@ class Integrator(Node):
                     self.drops.add(DropReason.RESET)  # queued before a reset
                     return
                 self._tsdf.integrate(depth, intrinsics, pose, depth_max=self.depth_max)
+                self._ternary = None
                 self._newest_stamp_ns = max(self._newest_stamp_ns, frame.stamp_ns)
                 self._dirty = True
         except FrameRejectedError as exc:
@@ -649,7 +693,9 @@ class Integrator(Node):
         if not self.context.ok():
             return  # shutting down (SIGINT): the publisher is no longer usable
         with self._tsdf_lock:
-            grid = self._tsdf.ternary()
+            if self._ternary is None:  # else only the stamp is new (frames of a still camera skipped)
+                self._ternary = self._tsdf.ternary()
+            grid = self._ternary
             stamp_ns = self._newest_stamp_ns
             self._dirty = False
             self._next_publish = time.monotonic() + (1.0 / self.publish_rate if self.publish_rate > 0 else 0.0)
