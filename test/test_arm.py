@@ -22,7 +22,7 @@ from nbv_prob_cnn.arm.capability import (  # noqa: E402
 )
 from nbv_prob_cnn.arm.collision import CollisionChecker, GridObstacles, body_mesh  # noqa: E402
 from nbv_prob_cnn.arm.feasibility import ArmFeasibility  # noqa: E402
-from nbv_prob_cnn.arm.ik import DEFAULT_IK, rotation_error, solve_camera_pose  # noqa: E402
+from nbv_prob_cnn.arm.ik import DEFAULT_IK, ROLL_HALF_TURN, rotation_error, solve_camera_pose, solve_camera_poses  # noqa: E402,E501
 from nbv_prob_cnn.arm.robot import RobotConfig, RobotModel, translation  # noqa: E402
 from nbv_prob_cnn.basics.camera import DATASETS, look_rotation  # noqa: E402
 from nbv_prob_cnn.basics.geometry import GridGeometry  # noqa: E402
@@ -168,6 +168,30 @@ def test_ik_prefers_the_current_configuration(robot, chain):
     assert result.q is not None
     assert result.distance < 0.3  # the nearby branch, not a random restart's
     assert result.distance == pytest.approx(np.linalg.norm(result.q[:7] - current[:7]))
+
+
+def test_roll_symmetric_ik_takes_the_view_turned_about_its_axis_when_nearer(robot, chain):
+    """A target whose half-turn about the optical axis is 0.05 rad from the current
+    configuration: with ``roll_symmetric`` that pose is solved (flagged) near the current
+    configuration; without, the target itself needs the wrist turned by about π."""
+    rng = np.random.default_rng(4)
+    current = robot.configuration({"panda_joint1": 0.3, "panda_joint4": -1.9, "panda_joint7": 0.2})
+    near = current.copy()
+    near[:7] += rng.uniform(-0.05, 0.05, size=7)
+    target = robot.camera_pose(near) @ ROLL_HALF_TURN  # the half-turn of what `near` sees
+    flipped = solve_camera_poses(chain, target[None], current, rng, roll_symmetric=True)[0]
+    assert flipped.q is not None and flipped.roll_flipped and flipped.distance < 0.3
+    position_error, angle_error = pose_errors(robot.camera_pose(flipped.q), target @ ROLL_HALF_TURN)
+    assert position_error < DEFAULT_IK.position_tol and angle_error < DEFAULT_IK.rotation_tol
+    plain = solve_camera_poses(chain, target[None], current, rng)[0]
+    assert not plain.roll_flipped
+    if plain.q is not None:  # reached as asked: the camera's own pose, far from the current joints
+        position_error, angle_error = pose_errors(robot.camera_pose(plain.q), target)
+        assert position_error < DEFAULT_IK.position_tol and angle_error < DEFAULT_IK.rotation_tol
+        assert plain.distance > 1.0
+    # a target that is nearer as it is stays unflipped
+    direct = solve_camera_poses(chain, robot.camera_pose(near)[None], current, rng, roll_symmetric=True)[0]
+    assert direct.q is not None and not direct.roll_flipped and direct.distance < 0.3
 
 
 def test_ik_reports_unreachable_poses(robot, chain):

@@ -32,6 +32,7 @@ from nbv_prob_cnn.arm.capability import CapabilityMap
 from nbv_prob_cnn.arm.collision import CollisionChecker, GridObstacles
 from nbv_prob_cnn.arm.ik import (
     DEFAULT_IK,
+    ROLL_HALF_TURN,
     IkResult,
     IkSettings,
     alternative_solutions,
@@ -41,7 +42,7 @@ from nbv_prob_cnn.arm.ik import (
 from nbv_prob_cnn.arm.kinematics import CameraChain
 from nbv_prob_cnn.arm.path_planning import JointPathPlanner, PathPlanningError, path_length
 from nbv_prob_cnn.arm.robot import RobotModel
-from nbv_prob_cnn.basics.camera import matrix_from_quaternion
+from nbv_prob_cnn.basics.camera import matrix_from_quaternion, quaternion_from_matrix
 from nbv_prob_cnn.basics.geometry import GridGeometry
 from nbv_prob_cnn.planners import GainPlanner, PlanningContext, ViewChoice
 from nbv_prob_cnn.planners.requests import view_pose
@@ -61,6 +62,15 @@ class ArmView:
     path_length: float
     utility: float
     waypoints: np.ndarray | None = None
+    roll_flipped: bool = False  # q takes the view turned 180° about the optical axis (same gain)
+
+
+def reached_quaternion(view: ArmView, quaternion: np.ndarray) -> np.ndarray:
+    """The optical frame's orientation (xyzw) the arm reaches for ``view`` planned with
+    ``quaternion``: turned 180° about the optical axis when IK took the flipped pose."""
+    if not view.roll_flipped:
+        return np.asarray(quaternion, dtype=np.float64)
+    return quaternion_from_matrix(matrix_from_quaternion(quaternion) @ ROLL_HALF_TURN[:3, :3])
 
 
 @dataclass
@@ -107,6 +117,10 @@ class ArmFeasibility:
         path_planner: when the straight path to a collision-free goal is blocked, plan one
             (:class:`JointPathPlanner`, at most ``settings.max_attempts`` per :meth:`select`);
             the motion cost is then the planned path's length. None: straight paths only.
+        roll_symmetric: a view turned 180° about its optical axis counts as the view itself (the
+            frustum covers the same cells, so the gain is the same): IK also solves that pose
+            from the current configuration and the nearer solution wins (wrist turns of up to
+            π saved); the chosen view's ``roll_flipped`` says which.
     """
 
     def __init__(
@@ -124,6 +138,7 @@ class ArmFeasibility:
         ik_alternatives: int = 0,
         strict_capability: bool = False,
         path_planner: JointPathPlanner | None = None,
+        roll_symmetric: bool = False,
     ) -> None:
         if not (np.isfinite(motion_weight) and motion_weight >= 0):
             raise ValueError(f"motion_weight: expected a finite value >= 0, got {motion_weight}")
@@ -146,6 +161,7 @@ class ArmFeasibility:
         self.ik_alternatives = int(ik_alternatives)
         self.strict_capability = bool(strict_capability)
         self.path_planner = path_planner
+        self.roll_symmetric = bool(roll_symmetric)
         self.rng = rng if rng is not None else np.random.default_rng()
 
     def origin_filter(self) -> Callable[[np.ndarray], np.ndarray] | None:
@@ -280,7 +296,7 @@ class ArmFeasibility:
                 length = path_length(waypoints, self.chain.q_index)
             utility = choice.gain - self.motion_weight * length
             if best is None or utility > best.utility:
-                best = ArmView(choice, goal, length, utility, waypoints)
+                best = ArmView(choice, goal, length, utility, waypoints, solution.roll_flipped and goal is solution.q)
         report.view = best
         report.times["ik_collision"] = time.perf_counter() - start
         return report
@@ -332,7 +348,9 @@ class _IkAhead:
                 views = np.array([self.candidates[i].view_index for i in block])
                 warm = arm.capability.seed_configurations(cells, views)
             targets = np.stack([self.targets[i] for i in block])
-            results = solve_camera_poses(arm.chain, targets, self.current_q, arm.rng, arm.ik_settings, warm)
+            results = solve_camera_poses(
+                arm.chain, targets, self.current_q, arm.rng, arm.ik_settings, warm, arm.roll_symmetric
+            )
             self._solved.update(zip(block, results, strict=True))
         return self._solved[index]
 

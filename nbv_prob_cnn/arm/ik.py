@@ -37,6 +37,8 @@ class IkSettings:
 
 #: The default solver settings.
 DEFAULT_IK = IkSettings()
+#: A half turn about the optical (z) axis, applied on the right of a ``world_from_optical`` pose.
+ROLL_HALF_TURN = np.diag([-1.0, -1.0, 1.0, 1.0])
 
 
 def rotation_error(target: np.ndarray, current: np.ndarray) -> np.ndarray:
@@ -65,11 +67,14 @@ def solve_batch(
     settings: IkSettings = DEFAULT_IK,
     stop_at_first: bool = False,
     groups: np.ndarray | None = None,
+    persistent: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Solve ``targets (N, 4, 4)`` from ``seeds (N, n)``; with ``stop_at_first`` the iteration
     ends as soon as one row has converged (restarts of one target), or, with ``groups`` (a
     group id per row, e.g. the target's index), each group's rows stop as soon as one of
-    them has converged (the rows converged at that iteration count as converged).
+    them has converged (the rows converged at that iteration count as converged), except the
+    rows where ``persistent (N,) bool`` is set: they run on until they converge or stall (e.g.
+    the row seeded at the current configuration, whose solution is usually the nearest).
 
     Returns:
         ``(q (N, n), converged (N,) bool)``; unconverged rows hold their last iterate.
@@ -107,7 +112,10 @@ def solve_batch(
         stalled[active] = np.where(improved, 0, stalled[active] + 1)
         keep = ~done & (stalled[active] < settings.patience)
         if grouped:
-            keep &= ~group_done[group_ids[active]]
+            stop = group_done[group_ids[active]]
+            if persistent is not None:
+                stop &= ~persistent[active]
+            keep &= ~stop
         active, jac, error = active[keep], jac[keep], error[keep]
         if active.size == 0:
             break
@@ -126,6 +134,7 @@ class IkResult:
 
     q: np.ndarray | None
     distance: float = float("inf")
+    roll_flipped: bool = False  # q reaches the target turned 180° about its optical axis (roll_symmetric)
 
 
 def solve_camera_pose(
@@ -159,12 +168,18 @@ def solve_camera_poses(
     rng: np.random.Generator,
     settings: IkSettings = DEFAULT_IK,
     warm_seeds: np.ndarray | None = None,
+    roll_symmetric: bool = False,
 ) -> list[IkResult]:
     """:func:`solve_camera_pose` of many ``world_from_optical`` targets ``(M, 4, 4)`` in one
     batch: per target the seed ``current_q``, its warm seed (``warm_seeds (M, n)`` chain
     configurations, e.g. the capability map's solution near the target; rows with NaN have
-    none) and ``settings.restarts`` random seeds; each target's rows stop at their first
-    convergence, and of its rows converged then the closest (chain joints) to ``current_q`` wins.
+    none) and ``settings.restarts`` random seeds; each target's other rows stop at its first
+    convergence, the row seeded at ``current_q`` runs until it converges or stalls, and of the
+    rows converged the closest (chain joints) to ``current_q`` wins.
+
+    With ``roll_symmetric`` the target turned 180° about its optical axis counts as the same
+    view (a frustum symmetric about its axis covers the same cells: the gain is the same): a
+    further row from ``current_q`` solves it, and a solution of it is marked ``roll_flipped``.
     """
     current_q = np.asarray(current_q, dtype=np.float64)
     targets = np.asarray(targets, dtype=np.float64).reshape(-1, 4, 4)
@@ -177,19 +192,29 @@ def solve_camera_poses(
         warm = np.asarray(warm_seeds, dtype=np.float64).reshape(count, chain.n)
         per_target.append(np.where(np.isfinite(warm), warm, start))  # no warm seed: the start again (harmless)
     per_target += [rng.uniform(chain.lower, chain.upper, size=(count, chain.n)) for _ in range(settings.restarts)]
+    row_targets = [targets] * len(per_target)
+    persistent_rows = [True] + [False] * (len(per_target) - 1)  # the current_q row runs on
+    if roll_symmetric:
+        per_target.append(np.broadcast_to(start, (count, chain.n)))
+        row_targets.append(targets @ ROLL_HALF_TURN)
+        persistent_rows.append(True)
+    rows = len(per_target)
     seeds = np.stack(per_target, axis=1).reshape(-1, chain.n)  # target-major: rows of a target together
-    groups = np.repeat(np.arange(count), len(per_target))
-    q, ok = solve_batch(chain, np.repeat(targets, len(per_target), axis=0), seeds, settings, True, groups)
-    q, ok = q.reshape(count, len(per_target), chain.n), ok.reshape(count, len(per_target))
+    goals = np.stack(row_targets, axis=1).reshape(-1, 4, 4)
+    groups = np.repeat(np.arange(count), rows)
+    persistent = np.tile(np.array(persistent_rows), count)
+    q, ok = solve_batch(chain, goals, seeds, settings, True, groups, persistent)
+    q, ok = q.reshape(count, rows, chain.n), ok.reshape(count, rows)
+    flipped = np.arange(rows) == rows - 1 if roll_symmetric else np.zeros(rows, dtype=bool)
     results = []
     for m in range(count):
         if not np.any(ok[m]):
             results.append(IkResult(None))
             continue
-        found = q[m][ok[m]]
-        distances = np.linalg.norm(found - start, axis=1)
+        distances = np.where(ok[m], np.linalg.norm(q[m] - start, axis=1), np.inf)
         best = int(np.argmin(distances))
-        results.append(IkResult(chain.full_configuration(found[best], current_q), float(distances[best])))
+        results.append(IkResult(chain.full_configuration(q[m][best], current_q), float(distances[best]),
+                                bool(flipped[best])))  # fmt: skip
     return results
 
 

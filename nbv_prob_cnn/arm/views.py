@@ -37,6 +37,7 @@ class ArmPlanningSetup:
         strict_capability: the capability lookup ANDs the lattice nodes around a cell (:class:`ArmFeasibility`).
         path_planning: where the straight joint path to a view collides, plan one with these
             settings (:class:`JointPathPlanner`); None: straight paths only.
+        roll_symmetric: a view turned 180° about its optical axis counts as the view (:class:`ArmFeasibility`).
     """
 
     config: RobotConfig
@@ -48,6 +49,7 @@ class ArmPlanningSetup:
     ik_alternatives: int = 0
     strict_capability: bool = False
     path_planning: PathPlannerSettings | None = None
+    roll_symmetric: bool = False
     robot: RobotModel = field(init=False)
     _cache: dict = field(init=False, default_factory=dict)
 
@@ -72,6 +74,7 @@ class ArmPlanningSetup:
                 max_checks=self.max_checks, rng=np.random.default_rng(self.seed),
                 ik_alternatives=self.ik_alternatives, strict_capability=self.strict_capability,
                 path_planner=None if self.path_planning is None else JointPathPlanner(checker, self.path_planning),
+                roll_symmetric=self.roll_symmetric,
             )  # fmt: skip
         return self._cache[key]
 

@@ -58,7 +58,7 @@ from sensor_msgs.msg import JointState
 from trajectory_msgs.msg import JointTrajectoryPoint
 from visualization_msgs.msg import MarkerArray
 
-from nbv_prob_cnn.arm.feasibility import ArmView, FeasibilityReport, takes_view_mask
+from nbv_prob_cnn.arm.feasibility import ArmView, FeasibilityReport, reached_quaternion, takes_view_mask
 from nbv_prob_cnn.arm.path_planning import PathPlannerSettings
 from nbv_prob_cnn.arm.selection import ArmViewSelector
 from nbv_prob_cnn.arm.swept import SweptVolume
@@ -232,6 +232,10 @@ class PlannerConfig(SensorParams, ArmViewParams):
     arm_ik_alternatives: int = param(4, "use_arm: other IK solutions tried when the first collides", min_value=0,
                                      max_value=64)  # fmt: skip
     arm_strict_capability: bool = param(True, "use_arm: capability lookup ANDs the lattice nodes around a cell")
+    arm_roll_symmetric: bool = param(
+        True, "use_arm: a view turned 180 deg about the optical axis counts as the view (same frustum, same gain): "
+        "IK takes whichever is nearer (the image may come upside down; best_pose says which)",
+    )  # fmt: skip
     arm_fallback_radius_m: float = param(
         0.25, "use_arm: no ranked view feasible: rank again within this distance (m) of the camera (0 = off)",
         min_value=0.0, max_value=10.0,
@@ -281,6 +285,7 @@ class NbvPlanner(Node):
                 ik_alternatives=cfg.arm_ik_alternatives, strict_capability=cfg.arm_strict_capability,
                 path_planning=PathPlannerSettings(timeout_s=cfg.arm_path_timeout_s)
                 if self.move_mode == "trajectory" and cfg.arm_path_timeout_s > 0 else None,
+                roll_symmetric=cfg.arm_roll_symmetric,
             )  # fmt: skip
             self._joints = JointStateTracker(self._arm.robot)
             self.create_subscription(JointState, names.JOINT_STATES, self._on_joint_state, 10, callback_group=group)
@@ -494,7 +499,9 @@ class NbvPlanner(Node):
                 if report.view is None:
                     raise ValueError(unreachable_message(report))
                 chosen = report.view.choice
-                pose = arrays_to_pose_stamped(*view_pose(chosen, context, geometry), frame, grid.header.stamp)
+                position, quaternion = view_pose(chosen, context, geometry)
+                quaternion = reached_quaternion(report.view, quaternion)  # the arm may take it turned about its axis
+                pose = arrays_to_pose_stamped(position, quaternion, frame, grid.header.stamp)
                 response.best_pose, response.best_gain = pose, float(chosen.gain)
                 response.reachable = True
                 response.joint_goal = joint_state_msg(self._arm.robot, report.view.q)
