@@ -33,6 +33,7 @@ def test_listed_interfaces_are_what_the_running_integrator_offers(ros_domain):
     from rclpy.node import Node
 
     from nbv_prob_cnn.ros.graph import NodeGraph
+    from nbv_prob_cnn.ros.stream_node import STREAMS_SUFFIX
 
     env = ros_domain(200 + os.getpid() % 10)
     defaults = {row.name: row.default for row in parameters("integrator")}
@@ -63,10 +64,14 @@ def test_listed_interfaces_are_what_the_running_integrator_offers(ros_domain):
             deadline = time.monotonic() + 60.0
             while time.monotonic() < deadline:
                 try:
+                    # the node and its side node for /tf (nbv_prob_cnn.ros.stream_node)
                     found = {
-                        "publishes": {n for n, _ in probe.get_publisher_names_and_types_by_node("integrator", "/")},
-                        "subscribes": {n for n, _ in probe.get_subscriber_names_and_types_by_node("integrator", "/")},
-                        "serves": {n for n, _ in probe.get_service_names_and_types_by_node("integrator", "/")},
+                        kind: {n for node in ("integrator", "integrator" + STREAMS_SUFFIX) for n, _ in query(node, "/")}
+                        for kind, query in (
+                            ("publishes", probe.get_publisher_names_and_types_by_node),
+                            ("subscribes", probe.get_subscriber_names_and_types_by_node),
+                            ("serves", probe.get_service_names_and_types_by_node),
+                        )
                     }
                 except Exception:  # the node is not discovered yet
                     found = {}

@@ -92,6 +92,23 @@ class FeasibilityReport:
     paths_planned: int = 0  # straight path blocked, a planned path found (``path_planner``)
     paths_not_found: int = 0  # straight path blocked, path planning failed too
     times: dict[str, float] = field(default_factory=lambda: {"capability": 0.0, "ik_collision": 0.0})
+    #: parts of ``times["ik_collision"]`` (s): ``ik`` (first solutions), ``alternatives`` (other
+    #: solutions of views whose first collides), ``collision`` (goal and straight-path checks)
+    parts: dict[str, float] = field(default_factory=dict)
+
+    def add_time(self, stage: str, since: float) -> None:
+        """Add the time from ``since`` (``time.perf_counter()``) until now to ``parts[stage]``."""
+        self.parts[stage] = self.parts.get(stage, 0.0) + time.perf_counter() - since
+
+    def summary(self) -> str:
+        """One log line: the counters and the parts of the IK + collision time."""
+        seconds = {**self.parts, **{k: v for k, v in self.times.items() if k == "path_planning"}}
+        parts = ", ".join(f"{k} {v:.2f}" for k, v in seconds.items())
+        return (
+            f"{self.checked} checked of {self.candidates} candidates ({self.camera_blocked} camera-blocked skipped, "
+            f"{self.unreachable} unreachable, {self.in_collision} in collision, {self.path_blocked} path blocked; "
+            f"paths planned {self.paths_planned}, not found {self.paths_not_found}); s: {parts or 'none'}"
+        )
 
 
 class ArmFeasibility:
@@ -217,13 +234,25 @@ class ArmFeasibility:
         ``"path"``)."""
         failure = ""
         blocked: np.ndarray | None = None  # the first collision-free goal whose straight path is blocked
-        for goal in self._goals(first, target, current_q, alternatives):
+        goals = self._goals(first, target, current_q, alternatives)
+        while True:
+            begin = time.perf_counter()
+            goal = next(goals, None)  # the alternatives are solved when first asked for
+            if report is not None and goal is not first:
+                report.add_time("alternatives", begin)
+            if goal is None:
+                break
+            begin = time.perf_counter()
             if not self.checker.is_free(goal, obstacles):
                 failure = "collision"
             elif not self.checker.path_is_free(current_q, goal, obstacles, self.path_step):
                 failure = "path"
                 blocked = goal if blocked is None else blocked
             else:
+                failure = ""
+            if report is not None:
+                report.add_time("collision", begin)
+            if not failure:
                 return goal, "", None
         planner = self.path_planner
         if blocked is not None and planner is not None and report is not None:
@@ -277,7 +306,9 @@ class ArmFeasibility:
                 break
             report.checked += 1
             remaining = self.max_checks - report.checked + 1 if self.max_checks else len(candidates)
+            begin = time.perf_counter()
             solution = ahead.solution(index, remaining)
+            report.add_time("ik", begin)
             target = ahead.targets[index]
             if solution.q is None:
                 report.unreachable += 1

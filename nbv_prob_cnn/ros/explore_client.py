@@ -28,6 +28,7 @@ from nbv_prob_cnn.basics.grid import unknown_fraction_all
 from nbv_prob_cnn.ros import names
 from nbv_prob_cnn.ros.common import GRID_QOS, SPIN_PERIOD_S
 from nbv_prob_cnn.ros.conversions import msg_to_grid, pose_to_arrays
+from nbv_prob_cnn.ros.stream_node import STREAMS_SUFFIX
 
 #: Terminal states of a goal, by ``action_msgs/GoalStatus`` value.
 STATUS_NAMES = {GoalStatus.STATUS_SUCCEEDED: "succeeded", GoalStatus.STATUS_CANCELED: "canceled",
@@ -150,11 +151,26 @@ class ExploreClient:
                 }
             except Exception as exc:  # a node that left meanwhile (rclpy raises NodeNameNonExistentError)
                 report[full] = {"error": [[str(exc), ""]]}
-        return report
+        return merge_stream_nodes(report)
 
     def destroy(self) -> None:
         self._executor.shutdown()
         self.node.destroy_node()
+
+
+def merge_stream_nodes(report: dict[str, dict[str, list[list[str]]]]) -> dict[str, dict[str, list[list[str]]]]:
+    """``report`` with each node's side node (``<node>_streams``, :mod:`~nbv_prob_cnn.ros.stream_node`:
+    its joint_states and /tf subscriptions) listed under the node itself."""
+    merged = {name: dict(entry) for name, entry in report.items()}
+    for name in [n for n in merged if n.endswith(STREAMS_SUFFIX)]:
+        owner = name[: -len(STREAMS_SUFFIX)]
+        if owner not in merged or "error" in merged[owner] or "error" in merged[name]:
+            continue
+        side = merged.pop(name)
+        for kind, pairs in side.items():
+            merged[owner][kind] = sorted({tuple(p) for p in merged[owner].get(kind, []) + pairs})
+            merged[owner][kind] = [list(p) for p in merged[owner][kind]]
+    return merged
 
 
 def write_outputs(client: ExploreClient, result: Explore.Result, out_dir: Path, title: str) -> list[Path]:

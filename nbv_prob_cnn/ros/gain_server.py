@@ -59,6 +59,7 @@ from nbv_prob_cnn.ros.conversions import (
     msg_to_probability,
 )
 from nbv_prob_cnn.ros.robot_params import ArmViewParams, JointStateTracker, joint_state_msg
+from nbv_prob_cnn.ros.stream_node import StreamNode
 from nbv_prob_cnn.ros.tf_listener import TfListener
 
 MAX_POSES = 100_000
@@ -105,9 +106,12 @@ class GainServer(Node):
             self._arm = ArmPlanningSetup(self.config.robot_config(self), free_above_m=self.config.free_above(),
                                          capability_stride=0)  # fmt: skip
             self._joints = JointStateTracker(self._arm.robot)
-            self.create_subscription(JointState, names.JOINT_STATES, self._on_joint_state, 10, callback_group=group)
+        # joint_states and /tf come at the robot's rate: on a side node with its own thread (stream_node)
+        self._streams = StreamNode(self)
+        if self.use_arm:
+            self._streams.node.create_subscription(JointState, names.JOINT_STATES, self._on_joint_state, 10)
         self.create_subscription(VoxelGrid, names.GRID, self._on_grid, GRID_QOS, callback_group=group)
-        self._tf = TfListener(self, callback_group=group)
+        self._tf = TfListener(self._streams.node)
         self._sensor = CameraInfoSensor(self, self.config, self.dataset, callback_group=group)
         self._complete_client = self.create_client(CompleteGrid, names.COMPLETE, callback_group=group)
         self.create_service(EvaluateViews, names.EVALUATE_VIEWS, self._evaluate_views, callback_group=group)
@@ -310,6 +314,10 @@ class GainServer(Node):
             self.get_logger().warning(f"rank_views: {exc}")
         response.time_total_s = time.perf_counter() - start
         return response
+
+    def destroy_node(self) -> None:
+        self._streams.destroy()
+        super().destroy_node()
 
 
 def main(args: list[str] | None = None) -> int:

@@ -137,6 +137,7 @@ from nbv_prob_cnn.ros import names
 from nbv_prob_cnn.ros.common import GRID_QOS, RELIABILITY, declare_config, param, run_node, subscription_qos
 from nbv_prob_cnn.ros.conversions import grid_to_msg, time_msg
 from nbv_prob_cnn.ros.robot_params import RobotParams, merged_joint_state
+from nbv_prob_cnn.ros.stream_node import StreamNode
 from nbv_prob_cnn.ros.tf_listener import POSE_SOURCES, TfListener
 
 NODE_NAME = "integrator"
@@ -326,12 +327,13 @@ class Integrator(Node):
             CameraInfo, names.CAMERA_INFO, self._on_info, camera_qos, callback_group=inputs, raw=True,
             event_callbacks=self._lost_counter(names.CAMERA_INFO),
         )  # fmt: skip
+        self._streams = StreamNode(self)  # /tf and joint_states at the robot's rate: a side node, its own thread
         self._tf: TfListener | None = None
         self._tf_errors: dict[int, TransformError] = {}  # image stamp -> why its last TF lookup failed
         if cfg.pose_source == "tf":
             if not cfg.fixed_frame:
                 raise ValueError("fixed_frame must not be empty")
-            self._tf = TfListener(self, callback_group=inputs)
+            self._tf = TfListener(self._streams.node)
             self.create_timer(TF_RETRY_PERIOD_S, self._on_tf_retry_timer, callback_group=inputs)
         else:
             self.create_subscription(
@@ -341,8 +343,8 @@ class Integrator(Node):
         if cfg.self_filter:
             # the filter needs the joint state of each frame's stamp: keep a few seconds of them (they are small)
             joints_qos = subscription_qos(max(cfg.queue_size, JOINT_STATES_QUEUE), cfg.qos_reliability)
-            self.create_subscription(
-                JointState, names.JOINT_STATES, self._on_joints, joints_qos, callback_group=inputs, raw=True
+            self._streams.node.create_subscription(
+                JointState, names.JOINT_STATES, self._on_joints, joints_qos, raw=True
             )
         self.create_timer(0.1, self._on_expire_timer, callback_group=inputs)
         self.create_service(Trigger, SERVICE_RESET, self._on_reset, callback_group=services)
@@ -724,6 +726,7 @@ class Integrator(Node):
             self._stop = True
             self._cv.notify_all()
         self._worker.join(timeout=10.0)
+        self._streams.destroy()
         super().destroy_node()
 
     def summary(self) -> str:

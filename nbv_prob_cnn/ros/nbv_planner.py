@@ -98,6 +98,7 @@ from nbv_prob_cnn.ros.conversions import (
 )
 from nbv_prob_cnn.ros.markers import planning_markers
 from nbv_prob_cnn.ros.robot_params import ArmViewParams, JointStateTracker, joint_state_msg
+from nbv_prob_cnn.ros.stream_node import StreamNode
 from nbv_prob_cnn.ros.tf_listener import POSE_SOURCES, TfListener
 
 #: Joint-space step (rad) between the configurations whose bodies are carved free (joint_states
@@ -288,9 +289,12 @@ class NbvPlanner(Node):
                 roll_symmetric=cfg.arm_roll_symmetric,
             )  # fmt: skip
             self._joints = JointStateTracker(self._arm.robot)
-            self.create_subscription(JointState, names.JOINT_STATES, self._on_joint_state, 10, callback_group=group)
+        # joint_states and /tf come at the robot's rate: on a side node with its own thread (stream_node)
+        self._streams = StreamNode(self)
+        if self.use_arm:
+            self._streams.node.create_subscription(JointState, names.JOINT_STATES, self._on_joint_state, 10)
         self.create_subscription(VoxelGrid, names.GRID, self._on_grid, GRID_QOS, callback_group=group)
-        self._tf = TfListener(self, callback_group=group) if self.pose_source == "tf" else None
+        self._tf = TfListener(self._streams.node) if self.pose_source == "tf" else None
         if self._tf is None:
             self.create_subscription(TransformStamped, names.CAMERA_POSE, self._on_camera_pose, 10,
                                      callback_group=group)  # fmt: skip
@@ -429,6 +433,10 @@ class NbvPlanner(Node):
                 raise ValueError("no grid received yet on /nbv/grid")
             return self._grid
 
+    def destroy_node(self) -> None:
+        self._streams.destroy()
+        super().destroy_node()
+
     def _wait_for_grid(self, min_stamp_ns: int, timeout_s: float, interrupt: Interrupt) -> VoxelGrid:
         with self._grid_lock:
             ok = interrupt.wait_for(
@@ -477,6 +485,7 @@ class NbvPlanner(Node):
                     selector = self._selector(geometry)
                     report = selector.select(planner, state, context, current_q, max(top_k, self.arm_top_k))
                     self._last_arm_plan = None if report.view is None else (selector, current_q, report.view)
+                self.get_logger().info(f"arm check: {report.summary()}")
             ranked = planner.ranked
             # messages only for the views the response and the markers show (arm_top_k may rank 20 000)
             views = [(*view_pose(c, context, geometry), c.gain) for c in ranked[: max(top_k, 1)]]

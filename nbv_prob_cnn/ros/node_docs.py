@@ -190,7 +190,10 @@ def _condition(node: ast.AST, parents: dict[ast.AST, ast.AST], optional: dict[st
 def _helper_class(call: ast.Call, module: ModuleType) -> type | None:
     """The class of a call ``Helper(self, ...)`` when ``Helper`` is a class of another module of
     :mod:`nbv_prob_cnn.ros` (it creates interfaces on the node it is given, e.g. ``TfListener``)."""
-    if not (isinstance(call.func, ast.Name) and call.args and ast.unparse(call.args[0]) == "self"):
+    # the node itself, or its side node for high-rate streams (nbv_prob_cnn.ros.stream_node)
+    if not (
+        isinstance(call.func, ast.Name) and call.args and ast.unparse(call.args[0]) in ("self", "self._streams.node")
+    ):
         return None
     obj = vars(module).get(call.func.id)
     if inspect.isclass(obj) and obj.__module__.startswith("nbv_prob_cnn.ros.") and obj.__module__ != module.__name__:

@@ -69,6 +69,7 @@ from nbv_prob_cnn.ros import names
 from nbv_prob_cnn.ros.common import declare_config, param, run_node
 from nbv_prob_cnn.ros.conversions import pose_to_arrays, time_msg, transform_stamped_msg
 from nbv_prob_cnn.ros.robot_params import RobotParams
+from nbv_prob_cnn.ros.stream_node import StreamNode
 from nbv_prob_cnn.ros.tf_listener import POSE_SOURCES, TF_QOS, TOPIC_TF, TfListener
 from nbv_prob_cnn.sensing.sensor_noise import PRESETS, SensorNoise, sensor_noise
 
@@ -263,6 +264,7 @@ class SimCamera(Node):
         self._arm_stamp_ns = 0
         self._arm_qs: dict[int, np.ndarray] = {}  # recent joint states by stamp (follow_arm pairs them with poses)
         self._arm = None
+        self._streams = StreamNode(self)  # joint_states and /tf at the robot's rate: a side node, its own thread
         if cfg.render_arm:
             from nbv_prob_cnn.arm.robot import RobotModel
             from nbv_prob_cnn.arm.robot_scene import RobotScene
@@ -272,7 +274,7 @@ class SimCamera(Node):
             # without follow_arm only the newest joint state matters (a backlog would render the arm
             # where it was); with it every one is kept by stamp, to pair with the arm pose of that stamp
             depth = ARM_STATES_KEPT if cfg.follow_arm else 10  # room for the arm's and the gripper's messages
-            self.create_subscription(JointState, names.JOINT_STATES, self._on_joint_states, depth)
+            self._streams.node.create_subscription(JointState, names.JOINT_STATES, self._on_joint_states, depth)
 
         qos = QoSProfile(
             history=HistoryPolicy.KEEP_LAST,
@@ -296,7 +298,7 @@ class SimCamera(Node):
         self.create_service(MoveCamera, SERVICE_MOVE_TO, self._on_move_to)
         self.create_subscription(PoseStamped, TOPIC_GOAL_POSE, self._on_goal_pose, 10)
         if self.follow_arm and self.pose_source == "tf":
-            self._tf = TfListener(self)
+            self._tf = TfListener(self._streams.node)
         elif self.follow_arm:
             self.create_subscription(PoseStamped, names.ARM_CAMERA_POSE, self._on_arm_pose, 10)
         self._timer = self.create_timer(1.0 / rate, self._on_timer) if rate > 0 else None
@@ -457,6 +459,10 @@ class SimCamera(Node):
             self._move(msg)
         except ValueError as exc:
             self.get_logger().warning(f"goal_pose rejected: {exc}", throttle_duration_sec=2.0)
+
+    def destroy_node(self) -> None:
+        self._streams.destroy()
+        super().destroy_node()
 
 
 def main(args: list[str] | None = None) -> int:
