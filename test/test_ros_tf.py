@@ -265,6 +265,8 @@ def test_the_arm_graph_needs_only_tf(ros_domain, tmp_path: Path) -> None:
 
         # frames that came before the integrator had matched arm_sim's /tf_static may be dropped
         # (counted by reason, as on a real robot); once TF flows, none is
+        # those early frames are counted once their pose_timeout_s (1 s) has passed: wait it out
+        client.spin_until(lambda: False, 1.5)
         first = json.loads(client.call(diagnostics, Trigger.Request()).message)
         client.spin_until(lambda: False, 3.0)  # sim_camera at 5 Hz: about 15 more frames
         later = json.loads(client.call(diagnostics, Trigger.Request()).message)

@@ -334,7 +334,9 @@ class Integrator(Node):
             if not cfg.fixed_frame:
                 raise ValueError("fixed_frame must not be empty")
             self._tf = TfListener(self._streams.node)
-            self.create_timer(TF_RETRY_PERIOD_S, self._on_tf_retry_timer, callback_group=inputs)
+            # runs only while an image waits for its transform (a 50 Hz timer wakes the executor for nothing)
+            self._tf_retry = self.create_timer(TF_RETRY_PERIOD_S, self._on_tf_retry_timer, callback_group=inputs)
+            self._tf_retry.cancel()
         else:
             self.create_subscription(
                 TransformStamped, names.CAMERA_POSE, self._on_pose, camera_qos, callback_group=inputs, raw=True,
@@ -464,6 +466,8 @@ class Integrator(Node):
             matrix, _ = self._tf.lookup(self.fixed_frame, frame, stamp)
         except TransformError as exc:
             self._tf_errors[stamp] = exc
+            if self._tf_retry.is_canceled():
+                self._tf_retry.reset()
             return []
         self._tf_errors.pop(stamp, None)
         return self._sync.add_pose(stamp, pose_to_transform_msg(matrix, stamp, self.fixed_frame, frame))
@@ -477,6 +481,8 @@ class Integrator(Node):
                     del self._tf_errors[stamp]  # paired, expired or reset
             for stamp in sorted(stamp for stamp in waiting if stamp in self._tf_errors):
                 self._enqueue(self._pose_by_tf(stamp, waiting[stamp].header.frame_id))
+            if not self._tf_errors:
+                self._tf_retry.cancel()  # nothing waits: until the next lookup that fails
 
     def _on_joints(self, raw: bytes) -> None:
         msg = self._decode(raw, MSG_JOINT_STATE, names.JOINT_STATES)

@@ -298,8 +298,8 @@ class NbvPlanner(Node):
         if self._tf is None:
             self.create_subscription(TransformStamped, names.CAMERA_POSE, self._on_camera_pose, 10,
                                      callback_group=group)  # fmt: skip
-        else:  # the arrival wait re-checks TF as /camera/pose messages would wake it
-            self.create_timer(0.02, self._on_camera_pose, callback_group=group)
+        elif self.move_mode not in ("arm", "trajectory"):  # the camera's arrival wait re-checks TF as
+            self.create_timer(0.02, self._on_camera_pose, callback_group=group)  # /camera/pose would wake it
         self._sensor = CameraInfoSensor(self, self.config, self.dataset, callback_group=group)
         self._nbv_pub = self.create_publisher(PoseStamped, names.NEXT_BEST_VIEW, 10)
         self._marker_pub = self.create_publisher(MarkerArray, names.MARKERS, 10)
