@@ -10,11 +10,12 @@ from nbv_prob_cnn.bench.planning import DEFAULT_CASES, format_table, run_case
 NAME = "bench"
 HELP = (
     "Benchmarks: planning iterations on half-explored grids (OpenCL vs numpy), CNN inference, TSDF "
-    "integration, the transport overhead of the ROS node split, the arm (capability map, IK, added cost) and "
+    "integration, the transport overhead of the ROS node split, the CPU cost of a high-rate stream (ros_streams), "
+    "the arm (capability map, IK, added cost) and "
     "the cost of rendering the arm into depth frames and filtering it out, and the arm's planning step through the ROS "
     "nodes against the in-process core (arm_loop)."
 )
-SUITES = ("planning", "sweep", "cnn", "integrator", "ros", "arm", "arm_render", "arm_loop")
+SUITES = ("planning", "sweep", "cnn", "integrator", "ros", "ros_streams", "arm", "arm_render", "arm_loop")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -48,6 +49,7 @@ def run(args: argparse.Namespace) -> int:
             "cnn": run_cnn,
             "integrator": run_integrator,
             "ros": run_ros,
+            "ros_streams": run_ros_streams,
             "arm": run_arm,
             "arm_render": run_arm_render,
             "arm_loop": run_arm_loop,
@@ -55,6 +57,12 @@ def run(args: argparse.Namespace) -> int:
         runners[suite](args)
         print(flush=True)
     return 0
+
+
+def run_ros_streams(args: argparse.Namespace) -> None:
+    from nbv_prob_cnn.bench.ros_streams import ros_streams_benchmark
+
+    print(ros_streams_benchmark(), flush=True)
 
 
 def run_sweep(args: argparse.Namespace) -> None:
