@@ -194,10 +194,12 @@ def solve_camera_poses(
     per_target += [rng.uniform(chain.lower, chain.upper, size=(count, chain.n)) for _ in range(settings.restarts)]
     row_targets = [targets] * len(per_target)
     persistent_rows = [True] + [False] * (len(per_target) - 1)  # the current_q row runs on
+    flipped_rows = [False] * len(per_target)
     if roll_symmetric:
         per_target.append(np.broadcast_to(start, (count, chain.n)))
         row_targets.append(targets @ ROLL_HALF_TURN)
         persistent_rows.append(True)
+        flipped_rows.append(True)
     rows = len(per_target)
     seeds = np.stack(per_target, axis=1).reshape(-1, chain.n)  # target-major: rows of a target together
     goals = np.stack(row_targets, axis=1).reshape(-1, 4, 4)
@@ -205,7 +207,6 @@ def solve_camera_poses(
     persistent = np.tile(np.array(persistent_rows), count)
     q, ok = solve_batch(chain, goals, seeds, settings, True, groups, persistent)
     q, ok = q.reshape(count, rows, chain.n), ok.reshape(count, rows)
-    flipped = np.arange(rows) == rows - 1 if roll_symmetric else np.zeros(rows, dtype=bool)
     results = []
     for m in range(count):
         if not np.any(ok[m]):
@@ -214,7 +215,7 @@ def solve_camera_poses(
         distances = np.where(ok[m], np.linalg.norm(q[m] - start, axis=1), np.inf)
         best = int(np.argmin(distances))
         results.append(IkResult(chain.full_configuration(q[m][best], current_q), float(distances[best]),
-                                bool(flipped[best])))  # fmt: skip
+                                flipped_rows[best]))  # fmt: skip
     return results
 
 

@@ -284,6 +284,15 @@ def padded(values: list[np.ndarray], length: int) -> np.ndarray:
     )
 
 
+def paired_difference(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per view, the mean of ``a − b`` over paired runs ``(runs, views)`` (same environment, same
+    first view) and its standard error (NaN with a single pair)."""
+    diff = a - b
+    if diff.shape[0] < 2:
+        return diff.mean(axis=0), np.full(diff.shape[1], np.nan)
+    return diff.mean(axis=0), diff.std(axis=0, ddof=1) / np.sqrt(diff.shape[0])
+
+
 def summary_table(logs: dict[str, list[RunLog]], at_views: list[int]) -> str:
     """Markdown: mean ± std of the unknown fraction after each of ``at_views`` views."""
     header = "| method | runs | " + " | ".join(f"after {v} views" for v in at_views) + " | mean planning time (s) |"

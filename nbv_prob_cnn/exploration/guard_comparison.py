@@ -14,10 +14,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-import numpy as np
-
 from nbv_prob_cnn.basics.datasets import EVALUATION_SEEDS
-from nbv_prob_cnn.exploration.evaluation import padded, read_run, run_path
+from nbv_prob_cnn.exploration.evaluation import padded, paired_difference, read_run, run_path
 
 METHODS = ("random", "ig", "prob_ig", "cnn_prob", "cnn_prob_d", "omniscient", "flat_city_cnn", "b_city_cnn",
            "d_city_cnn")  # fmt: skip
@@ -49,8 +47,7 @@ def compare(dataset: str, out: Path, methods=METHODS, views: int = 100, at=(20, 
         logs = {g: [read_run(run_path(out, dataset, method, s, g), views) for s in seeds] for g in (False, True)}
         curves = {g: padded([r.unknown_fraction for r in logs[g]], views) for g in logs}
         stopped = sum(len(r.unknown_fraction) < views for r in logs[True])
-        diff = curves[True] - curves[False]
-        error = diff.std(axis=0, ddof=1) / np.sqrt(len(seeds)) if len(seeds) > 1 else np.full(views, np.nan)
+        mean, error = paired_difference(curves[True], curves[False])
         for label, c in (("plain", curves[False]), ("guarded", curves[True])):
             means = [c[:, a - 1].mean() for a in at]
             early = str(stopped) if label == "guarded" else ""
@@ -59,11 +56,11 @@ def compare(dataset: str, out: Path, methods=METHODS, views: int = 100, at=(20, 
                 + " | ".join(f"{m:.4f}" for m in means)
                 + (f" | {early} |" if early else " | |")
             )
-            rows.append(",".join([method, label, str(len(seeds)), *(f"{m:.5f}," for m in means)]) + "," + early)
-        means, errors = [diff[:, a - 1].mean() for a in at], [error[a - 1] for a in at]
-        cells = " | ".join(f"{m:+.4f} ± {e:.4f}" for m, e in zip(means, errors, strict=True))
+            fields = [f for m in means for f in (f"{m:.5f}", "")]  # no error column for one loop
+            rows.append(",".join([method, label, str(len(seeds)), *fields, early]))
+        cells = " | ".join(f"{mean[a - 1]:+.4f} ± {error[a - 1]:.4f}" for a in at)
         lines.append(f"| {method} | guarded − plain | {cells} | |")
-        values = ",".join(f"{m:.5f},{e:.5f}" for m, e in zip(means, errors, strict=True))
+        values = ",".join(f"{mean[a - 1]:.5f},{error[a - 1]:.5f}" for a in at)
         rows.append(f"{method},guarded-plain,{len(seeds)},{values},")
     return "\n".join(lines) + "\n", "\n".join(rows) + "\n"
 

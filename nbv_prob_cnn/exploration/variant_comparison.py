@@ -20,7 +20,7 @@ import numpy as np
 from matplotlib.figure import Figure
 
 from nbv_prob_cnn.basics.datasets import EVALUATION_SEEDS
-from nbv_prob_cnn.exploration.evaluation import padded, read_run, run_path, run_status
+from nbv_prob_cnn.exploration.evaluation import padded, paired_difference, read_run, run_path, run_status
 
 METHODS = ("prob_ig", "cnn_prob", "omniscient")
 VARIANTS = ("paper", "original")
@@ -66,12 +66,11 @@ def compare(
             lines.append(f"| {method} | {variant} | {len(seeds)} | {cells} | {times[(variant, method)].mean():.3f} |")
             stats = ",".join(f"{c[:, a - 1].mean():.5f},{c[:, a - 1].std():.5f}" for a in at)
             rows.append(f"{method},{variant},{len(seeds)},{stats}")
-        diff = curves[("original", method)] - curves[("paper", method)]
-        error = diff.std(axis=0, ddof=1) / np.sqrt(len(seeds)) if len(seeds) > 1 else np.full(views, np.nan)
-        cells = " | ".join(f"{diff[:, a - 1].mean():+.4f} ± {error[a - 1]:.4f}" for a in at)
+        mean, error = paired_difference(curves[("original", method)], curves[("paper", method)])
+        cells = " | ".join(f"{mean[a - 1]:+.4f} ± {error[a - 1]:.4f}" for a in at)
         lines.append(f"| {method} | original − paper | {len(seeds)} | {cells} | |")
         rows.append(f"{method},original-paper,{len(seeds)}," + ",".join(
-            f"{diff[:, a - 1].mean():.5f},{error[a - 1]:.5f}" for a in at))  # fmt: skip
+            f"{mean[a - 1]:.5f},{error[a - 1]:.5f}" for a in at))  # fmt: skip
     return "\n".join(lines) + "\n", "\n".join(rows) + "\n", curves, seeds
 
 

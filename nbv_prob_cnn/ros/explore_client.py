@@ -168,8 +168,7 @@ def merge_stream_nodes(report: dict[str, dict[str, list[list[str]]]]) -> dict[st
             continue
         side = merged.pop(name)
         for kind, pairs in side.items():
-            merged[owner][kind] = sorted({tuple(p) for p in merged[owner].get(kind, []) + pairs})
-            merged[owner][kind] = [list(p) for p in merged[owner][kind]]
+            merged[owner][kind] = [list(p) for p in sorted({tuple(p) for p in merged[owner].get(kind, []) + pairs})]
     return merged
 
 
