@@ -327,7 +327,8 @@ class Integrator(Node):
             CameraInfo, names.CAMERA_INFO, self._on_info, camera_qos, callback_group=inputs, raw=True,
             event_callbacks=self._lost_counter(names.CAMERA_INFO),
         )  # fmt: skip
-        self._streams = StreamNode(self)  # /tf and joint_states at the robot's rate: a side node, its own thread
+        # /tf and joint_states come at the robot's rate: a side node with its own thread, where they are used
+        self._streams = StreamNode(self) if cfg.pose_source == "tf" or cfg.self_filter else None
         self._tf: TfListener | None = None
         self._tf_errors: dict[int, TransformError] = {}  # image stamp -> why its last TF lookup failed
         if cfg.pose_source == "tf":
@@ -732,7 +733,8 @@ class Integrator(Node):
             self._stop = True
             self._cv.notify_all()
         self._worker.join(timeout=10.0)
-        self._streams.destroy()
+        if self._streams is not None:
+            self._streams.destroy()
         super().destroy_node()
 
     def summary(self) -> str:

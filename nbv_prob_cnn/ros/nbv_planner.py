@@ -290,7 +290,7 @@ class NbvPlanner(Node):
             )  # fmt: skip
             self._joints = JointStateTracker(self._arm.robot)
         # joint_states and /tf come at the robot's rate: on a side node with its own thread (stream_node)
-        self._streams = StreamNode(self)
+        self._streams = StreamNode(self) if self.use_arm or self.pose_source == "tf" else None
         if self.use_arm:
             self._streams.node.create_subscription(JointState, names.JOINT_STATES, self._on_joint_state, 10)
         self.create_subscription(VoxelGrid, names.GRID, self._on_grid, GRID_QOS, callback_group=group)
@@ -434,7 +434,8 @@ class NbvPlanner(Node):
             return self._grid
 
     def destroy_node(self) -> None:
-        self._streams.destroy()
+        if self._streams is not None:
+            self._streams.destroy()
         super().destroy_node()
 
     def _wait_for_grid(self, min_stamp_ns: int, timeout_s: float, interrupt: Interrupt) -> VoxelGrid:

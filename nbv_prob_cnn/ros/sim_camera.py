@@ -264,7 +264,9 @@ class SimCamera(Node):
         self._arm_stamp_ns = 0
         self._arm_qs: dict[int, np.ndarray] = {}  # recent joint states by stamp (follow_arm pairs them with poses)
         self._arm = None
-        self._streams = StreamNode(self)  # joint_states and /tf at the robot's rate: a side node, its own thread
+        # joint_states and /tf come at the robot's rate: a side node with its own thread, where they are used
+        uses_streams = cfg.render_arm or (cfg.follow_arm and cfg.pose_source == "tf")
+        self._streams = StreamNode(self) if uses_streams else None
         if cfg.render_arm:
             from nbv_prob_cnn.arm.robot import RobotModel
             from nbv_prob_cnn.arm.robot_scene import RobotScene
@@ -461,7 +463,8 @@ class SimCamera(Node):
             self.get_logger().warning(f"goal_pose rejected: {exc}", throttle_duration_sec=2.0)
 
     def destroy_node(self) -> None:
-        self._streams.destroy()
+        if self._streams is not None:
+            self._streams.destroy()
         super().destroy_node()
 
 
