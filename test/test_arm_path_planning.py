@@ -23,7 +23,12 @@ from scipy import ndimage  # noqa: E402
 
 from nbv_prob_cnn.arm.collision import CollisionChecker, GridObstacles  # noqa: E402
 from nbv_prob_cnn.arm.feasibility import ArmFeasibility, FeasibilityReport  # noqa: E402
-from nbv_prob_cnn.arm.path_planning import JointPathPlanner, PathPlannerSettings, PathPlanningError  # noqa: E402
+from nbv_prob_cnn.arm.path_planning import (  # noqa: E402
+    JointPathPlanner,
+    PathPlannerSettings,
+    PathPlanningError,
+    path_length,
+)
 from nbv_prob_cnn.arm.robot import RobotModel  # noqa: E402
 from nbv_prob_cnn.arm.trajectory import time_parameterise_path  # noqa: E402
 from nbv_prob_cnn.basics.geometry import GridGeometry  # noqa: E402
@@ -182,6 +187,10 @@ def test_feasibility_takes_the_planned_path_where_the_straight_one_is_blocked(sc
     assert failure == "" and np.array_equal(goal, q_goal) and report.paths_planned == 1
     assert dense_free(robot, checker, geometry, state, waypoints)
     assert report.times["path_planning"] > 0
+    # the arm-check line names the path's stages and its joint length (as path_length computes it)
+    assert set(report.path_stages) >= {"solve", "simplify", "verify", "length_rad"}
+    assert report.path_stages["length_rad"] == pytest.approx(path_length(waypoints, with_paths.chain.q_index))
+    assert "(path: " in report.summary() and "verify" in report.summary()
     goal, failure, _ = with_paths._free_goal(q_goal, target, q_start, obstacles, report)  # budget spent
     assert goal is None and failure == "path" and report.paths_planned == 1
 

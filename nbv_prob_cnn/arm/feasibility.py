@@ -95,6 +95,9 @@ class FeasibilityReport:
     #: parts of ``times["ik_collision"]`` (s): ``ik`` (first solutions), ``alternatives`` (other
     #: solutions of views whose first collides), ``collision`` (goal and straight-path checks)
     parts: dict[str, float] = field(default_factory=dict)
+    #: stages of the planned paths' time (s, summed over paths: ``endpoints``, ``solve``,
+    #: ``simplify``, ``verify``, see :meth:`JointPathPlanner.plan`) and their joint length (rad)
+    path_stages: dict[str, float] = field(default_factory=dict)
 
     def add_time(self, stage: str, since: float) -> None:
         """Add the time from ``since`` (``time.perf_counter()``) until now to ``parts[stage]``."""
@@ -108,6 +111,7 @@ class FeasibilityReport:
             f"{self.checked} checked of {self.candidates} candidates ({self.camera_blocked} camera-blocked skipped, "
             f"{self.unreachable} unreachable, {self.in_collision} in collision, {self.path_blocked} path blocked; "
             f"paths planned {self.paths_planned}, not found {self.paths_not_found}); s: {parts or 'none'}"
+            + (f" (path: {', '.join(f'{k} {v:.2f}' for k, v in self.path_stages.items())})" if self.path_stages else "")
         )
 
 
@@ -264,6 +268,8 @@ class ArmFeasibility:
                     report.paths_not_found += 1
                 else:
                     report.paths_planned += 1
+                    for stage, seconds in {**path.stages, "length_rad": path.length}.items():
+                        report.path_stages[stage] = report.path_stages.get(stage, 0.0) + seconds
                     return blocked, "", path.waypoints
                 finally:
                     report.times["path_planning"] = report.times.get("path_planning", 0.0) + time.perf_counter() - begin
