@@ -188,9 +188,10 @@ def test_feasibility_takes_the_planned_path_where_the_straight_one_is_blocked(sc
     assert dense_free(robot, checker, geometry, state, waypoints)
     assert report.times["path_planning"] > 0
     # the arm-check line names the path's stages and its joint length (as path_length computes it)
-    assert set(report.path_stages) >= {"solve", "simplify", "verify", "length_rad"}
-    assert report.path_stages["length_rad"] == pytest.approx(path_length(waypoints, with_paths.chain.q_index))
+    assert set(report.path_stages) >= {"solve", "simplify", "verify"}
+    assert report.path_length_rad == pytest.approx(path_length(waypoints, with_paths.chain.q_index))
     assert "(path: " in report.summary() and "verify" in report.summary()
+    assert f"length {report.path_length_rad:.2f} rad" in report.summary()
     goal, failure, _ = with_paths._free_goal(q_goal, target, q_start, obstacles, report)  # budget spent
     assert goal is None and failure == "path" and report.paths_planned == 1
 

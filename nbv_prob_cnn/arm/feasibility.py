@@ -73,6 +73,11 @@ def reached_quaternion(view: ArmView, quaternion: np.ndarray) -> np.ndarray:
     return quaternion_from_matrix(matrix_from_quaternion(quaternion) @ ROLL_HALF_TURN[:3, :3])
 
 
+def _seconds_text(seconds: dict[str, float]) -> str:
+    """``"name 0.12, name 3.40"``: times (s) of named stages, for the log."""
+    return ", ".join(f"{name} {value:.2f}" for name, value in seconds.items())
+
+
 @dataclass
 class FeasibilityReport:
     """Outcome of :meth:`ArmFeasibility.select`: the chosen view (None if none is feasible),
@@ -96,8 +101,9 @@ class FeasibilityReport:
     #: solutions of views whose first collides), ``collision`` (goal and straight-path checks)
     parts: dict[str, float] = field(default_factory=dict)
     #: stages of the planned paths' time (s, summed over paths: ``endpoints``, ``solve``,
-    #: ``simplify``, ``verify``, see :meth:`JointPathPlanner.plan`) and their joint length (rad)
+    #: ``simplify``, ``verify``, see :meth:`JointPathPlanner.plan`)
     path_stages: dict[str, float] = field(default_factory=dict)
+    path_length_rad: float = 0.0  # joint length of the planned paths, summed
 
     def add_time(self, stage: str, since: float) -> None:
         """Add the time from ``since`` (``time.perf_counter()``) until now to ``parts[stage]``."""
@@ -106,12 +112,13 @@ class FeasibilityReport:
     def summary(self) -> str:
         """One log line: the counters and the parts of the IK + collision time."""
         seconds = {**self.parts, **{k: v for k, v in self.times.items() if k == "path_planning"}}
-        parts = ", ".join(f"{k} {v:.2f}" for k, v in seconds.items())
+        parts = _seconds_text(seconds)
+        paths = f" (path: {_seconds_text(self.path_stages)}; length {self.path_length_rad:.2f} rad)"
         return (
             f"{self.checked} checked of {self.candidates} candidates ({self.camera_blocked} camera-blocked skipped, "
             f"{self.unreachable} unreachable, {self.in_collision} in collision, {self.path_blocked} path blocked; "
             f"paths planned {self.paths_planned}, not found {self.paths_not_found}); s: {parts or 'none'}"
-            + (f" (path: {', '.join(f'{k} {v:.2f}' for k, v in self.path_stages.items())})" if self.path_stages else "")
+            + (paths if self.paths_planned else "")
         )
 
 
@@ -268,8 +275,9 @@ class ArmFeasibility:
                     report.paths_not_found += 1
                 else:
                     report.paths_planned += 1
-                    for stage, seconds in {**path.stages, "length_rad": path.length}.items():
+                    for stage, seconds in path.stages.items():
                         report.path_stages[stage] = report.path_stages.get(stage, 0.0) + seconds
+                    report.path_length_rad += path.length
                     return blocked, "", path.waypoints
                 finally:
                     report.times["path_planning"] = report.times.get("path_planning", 0.0) + time.perf_counter() - begin
