@@ -16,7 +16,7 @@ from nbv_prob_cnn.gain import (
     ray_gains,
     view_membership,
 )
-from nbv_prob_cnn.gain.opencl import OpenCLRayCaster
+from nbv_prob_cnn.gain.opencl import LANE_WIDTHS, SENSOR_MAX_LANES, OpenCLRayCaster
 from nbv_prob_cnn.gain.sampling import ray_samples, traversal_table
 from nbv_prob_cnn.planners import PlanningContext
 from nbv_prob_cnn.planners.base import search_best_view
@@ -175,10 +175,13 @@ def test_kernel_matches_reference(dims, shape, n_rays, sampling):
             np.testing.assert_allclose(rays @ member, ref, rtol=2e-5, atol=2e-6)
 
 
-def test_one_lane_per_work_item_matches_the_reference(monkeypatch):
+@pytest.mark.parametrize("lanes", LANE_WIDTHS)
+def test_every_lane_width_matches_the_reference(monkeypatch, lanes):
     import nbv_prob_cnn.gain.opencl as opencl
 
-    caster = OpenCLRayCaster(lanes=1)
+    caster = OpenCLRayCaster(lanes=lanes)
+    # the sensor program marches at most SENSOR_MAX_LANES (a pocl build crash at 16 lanes)
+    assert caster.program_lanes(sensor=True) == min(lanes, SENSOR_MAX_LANES) and caster.program_lanes() == lanes
     monkeypatch.setattr(opencl, "get_ray_caster", lambda: caster)
     rng = np.random.default_rng(3)
     state, prob = _random_grid(rng, (16, 14, 12))

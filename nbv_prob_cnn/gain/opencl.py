@@ -47,6 +47,10 @@ VIEW_GAIN_LOCAL_SIZE = 16
 #: Origins per work-item (vector lanes of the ray march) on a CPU device; 1 on a GPU.
 CPU_LANES = 16
 LANE_WIDTHS = (1, 2, 4, 8, 16)
+#: Most origins per work-item of the ``GAIN_SENSOR`` program: pocl's LLVM aborts the process
+#: (SIGABRT) building its 16-lane work-group function on some AVX-512 CPUs (seen on an AMD EPYC
+#: CI machine; 8 and fewer lanes build on the same machine).
+SENSOR_MAX_LANES = 8
 #: Origins per ``view_gain`` launch (bounds the device output buffer).
 VIEW_GAIN_ORIGINS_PER_LAUNCH = 1 << 17
 #: Origins in the first exactly evaluated batch of ``best_view`` (then doubling).
@@ -303,12 +307,18 @@ class OpenCLRayCaster:
         self._cache: dict[tuple, object] = {}
         self._last_options: tuple | None = None
 
+    def program_lanes(self, sensor: bool = False) -> int:
+        """Origins per work-item of a program: :attr:`lanes`, at most :data:`SENSOR_MAX_LANES` for
+        the ``"returns"`` sensor model's."""
+        return min(self.lanes, SENSOR_MAX_LANES) if sensor else self.lanes
+
     def kernels(self, variant: str, exact: bool = False, sensor: bool = False) -> tuple:
         """``(ray_gain, view_gain)`` of the program of gain ``variant`` (built on first use), with
-        the exact-traversal and ``"returns"`` options (:class:`MarchOptions`)."""
+        the exact-traversal and ``"returns"`` options (:class:`MarchOptions`), marching
+        :meth:`program_lanes` origins per work-item."""
         key = (variant, bool(exact), bool(sensor))
         if key not in self._kernels:
-            options = [f"-DLANES={self.lanes}"]
+            options = [f"-DLANES={self.program_lanes(sensor)}"]
             if check_variant(variant) == "original":
                 options += ["-DGAIN_ORIGINAL=1", f"-DORIGINAL_FOCAL={ORIGINAL_FOCAL!r}f",
                             f"-DORIGINAL_NEAR_HIT={ORIGINAL_NEAR_HIT!r}f"]  # fmt: skip
@@ -381,7 +391,8 @@ class OpenCLRayCaster:
         :mod:`nbv_prob_cnn.gain.variant`; ``offsets`` and ``total_weight`` must be its;
         ``options``: the optional modes, :class:`MarchOptions`)."""
         cl, mf = self._cl, self._cl.mem_flags
-        n, r, lanes = origins.shape[0], offsets.shape[0], self.lanes
+        n, r = origins.shape[0], offsets.shape[0]
+        lanes = self.program_lanes(options is not None and options.sensor is not None)
         if n == 0:
             return np.empty((n, r), dtype=np.float32)
         code_buf, padded, origin_index, offset_buf = self._common(code, origins, offsets,
@@ -444,7 +455,8 @@ class OpenCLRayCaster:
         start, rays = view_table(membership)
         # local references keep every buffer alive until the queue has finished with it
         start_buf, rays_buf = self._constant(start), self._constant(rays)
-        lanes, device = self.lanes, self.device  # local_size: origins per work-group, a multiple of lanes
+        device = self.device  # local_size: origins per work-group, a multiple of lanes
+        lanes = self.program_lanes(options is not None and options.sensor is not None)
         words = (2 * r if variant == "original" else r) + v  # local floats per origin: rays (+ totals), views
         local_size = int(min(local_size, device.max_work_group_size * lanes, device.local_mem_size // (4 * words)))
         local_size = max(lanes, local_size // lanes * lanes)
