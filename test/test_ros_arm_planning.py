@@ -16,6 +16,7 @@ pytest.importorskip("nbv_prob_cnn_msgs")
 pytest.importorskip("pinocchio")
 
 from action_msgs.msg import GoalStatus  # noqa: E402
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus  # noqa: E402
 from geometry_msgs.msg import PoseStamped  # noqa: E402
 from nbv_prob_cnn_msgs.action import Explore  # noqa: E402
 from nbv_prob_cnn_msgs.msg import VoxelGrid  # noqa: E402
@@ -37,6 +38,7 @@ from nbv_prob_cnn.planners.requests import planning_context  # noqa: E402
 from nbv_prob_cnn.ros.common import GRID_QOS  # noqa: E402
 from nbv_prob_cnn.ros.conversions import grid_to_msg, pose_to_arrays  # noqa: E402
 from nbv_prob_cnn.ros.graph import NodeGraph, call_with_resend  # noqa: E402
+from nbv_prob_cnn.ros.readiness import planner_readiness  # noqa: E402
 
 pytestmark = pytest.mark.slow  # multi-process ROS graphs
 
@@ -139,7 +141,15 @@ def assert_pose_close(actual: np.ndarray, position, quaternion, atol_m: float = 
 def test_plan_with_arm_answers_a_reachable_view_with_its_joint_goal(ros):
     node, bench, graph = ros
     robot = RobotModel()
+    readiness: list[tuple[bytes, str]] = []  # the planner's states on /diagnostics, in order of arrival
+    node.create_subscription(DiagnosticArray, "/diagnostics",
+                             lambda msg: readiness.append(planner_readiness(msg) or (b"", "")), 10)  # fmt: skip
     graph.start_node("nbv_planner", "nbv_planner", ARM_PLANNER)
+    deadline = time.monotonic() + 60.0
+    while not readiness and time.monotonic() < deadline:
+        time.sleep(0.1)
+    # before any grid the arm set-up has not started: not ready, and saying why
+    assert readiness and readiness[0] == (DiagnosticStatus.WARN, "waiting for the first grid")
     bench.publish_grid()
     request = PlanNextBestView.Request(top_k=5)
     client, reply = call_when_ready(node, PlanNextBestView, "/nbv/plan", request, "no grid received yet")
@@ -186,6 +196,10 @@ def test_plan_with_arm_answers_a_reachable_view_with_its_joint_goal(ros):
     assert_pose_close(robot.camera_pose(core.q), position, quaternion)
     np.testing.assert_allclose(core.q, goal, atol=1e-6)  # the same IK solution (the base pose via parameters)
     assert graph.alive()["nbv_planner"]
+    # the grid started the arm set-up (WARN while it ran: at least the status sent at its start)
+    # and it ended ready
+    assert (DiagnosticStatus.WARN, "arm set-up for the grid running") in readiness
+    assert readiness[-1] == (DiagnosticStatus.OK, "ready")
 
 
 def test_evaluate_views_reports_reachability_and_ik_solutions(ros):

@@ -18,6 +18,7 @@ from pathlib import Path
 import numpy as np
 import rclpy
 from action_msgs.msg import GoalStatus
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from nbv_prob_cnn_msgs.action import Explore
 from nbv_prob_cnn_msgs.msg import VoxelGrid
 from rclpy.action import ActionClient
@@ -28,6 +29,7 @@ from nbv_prob_cnn.basics.grid import unknown_fraction_all
 from nbv_prob_cnn.ros import names
 from nbv_prob_cnn.ros.common import GRID_QOS, SPIN_PERIOD_S
 from nbv_prob_cnn.ros.conversions import msg_to_grid, pose_to_arrays
+from nbv_prob_cnn.ros.readiness import TOPIC_DIAGNOSTICS, planner_readiness
 from nbv_prob_cnn.ros.stream_node import STREAMS_SUFFIX
 
 #: Terminal states of a goal, by ``action_msgs/GoalStatus`` value.
@@ -44,6 +46,8 @@ class ExploreClient:
         self._grid: VoxelGrid | None = None
         self._grid_lock = threading.Lock()
         self.node.create_subscription(VoxelGrid, names.GRID, self._on_grid, GRID_QOS)
+        self.planner_state: tuple[bytes, str] | None = None  # (level, message) on /diagnostics
+        self.node.create_subscription(DiagnosticArray, TOPIC_DIAGNOSTICS, self._on_diagnostics, 10)
         self.feedback: list[tuple[float, Explore.Feedback]] = []
         self.status = ""  # of the last exploration: succeeded, canceled or aborted
         self.stop_requested = threading.Event()  # set by SIGINT / SIGTERM (see main)
@@ -71,14 +75,33 @@ class ExploreClient:
         with self._grid_lock:
             return self._grid
 
+    def _on_diagnostics(self, msg: DiagnosticArray) -> None:
+        readiness = planner_readiness(msg)
+        if readiness is not None:
+            self.planner_state = readiness
+
+    def not_ready(self) -> str:
+        """What the graph still lacks before a goal is sent ("" when nothing): the Explore server,
+        a first grid, the planner's readiness (``/diagnostics`` OK, :mod:`~nbv_prob_cnn.ros.readiness`:
+        e.g. its arm set-up; an ERROR state counts as ready, the exploration then reports it)."""
+        if not self._action.server_is_ready():
+            return "the Explore action server"
+        if self.latest_grid() is None:
+            return "a first grid on " + names.GRID
+        if self.planner_state is None:
+            return "the planner's state on " + TOPIC_DIAGNOSTICS
+        level, message = self.planner_state
+        return f"the planner ({message})" if level == DiagnosticStatus.WARN else ""
+
     def wait_ready(self, timeout_s: float) -> bool:
-        """Wait for the action server and a first grid."""
+        """Wait for the action server, a first grid and a planner that can plan at once (see
+        :meth:`not_ready`)."""
         deadline = time.monotonic() + timeout_s
         while time.monotonic() < deadline:
             if self.stop_requested.is_set():
                 raise KeyboardInterrupt
             self._executor.spin_once(timeout_sec=SPIN_PERIOD_S)
-            if self._action.server_is_ready() and self.latest_grid() is not None:
+            if not self.not_ready():
                 return True
         return False
 
@@ -245,17 +268,25 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--out", default="out/explore")
     parser.add_argument("--title", default="exploration")
     parser.add_argument("--timeout", type=float, default=1800.0)
-    parser.add_argument("--ready-timeout", type=float, default=120.0)
+    parser.add_argument(
+        "--ready-timeout",
+        type=float,
+        default=300.0,
+        help="seconds to wait for the Explore server, a first grid and the planner's set-up",
+    )
     args = parser.parse_args(argv)
     rclpy.init(signal_handler_options=SignalHandlerOptions.NO)
     client = ExploreClient()
     for signum in (signal.SIGINT, signal.SIGTERM):
         signal.signal(signum, lambda *_: client.stop_requested.set())
     try:
-        print("[explore] waiting for the graph (first grid and the Explore server)...", flush=True)
+        print("[explore] waiting for the graph (the Explore server, a first grid, the planner's set-up)...", flush=True)
+        waited = time.monotonic()
         if not client.wait_ready(args.ready_timeout):
-            print(f"[explore] graph not ready after {args.ready_timeout:.0f} s", file=sys.stderr, flush=True)
+            print(f"[explore] graph not ready after {args.ready_timeout:.0f} s: still waiting for {client.not_ready()}",
+                  file=sys.stderr, flush=True)  # fmt: skip
             return 1
+        print(f"[explore] graph ready after {time.monotonic() - waited:.1f} s", flush=True)
         goal = Explore.Goal(method=args.method, max_views=args.views, stop_unknown_fraction=args.stop_unknown)
 
         def progress(fb, elapsed):

@@ -47,6 +47,7 @@ from action_msgs.msg import GoalStatus
 from builtin_interfaces.msg import Duration
 from control_msgs.action import FollowJointTrajectory
 from control_msgs.msg import JointTolerance
+from diagnostic_msgs.msg import DiagnosticStatus
 from geometry_msgs.msg import Point, PoseStamped, TransformStamped
 from nbv_prob_cnn_msgs.action import Explore
 from nbv_prob_cnn_msgs.msg import ViewScore, VoxelGrid
@@ -97,6 +98,7 @@ from nbv_prob_cnn.ros.conversions import (
     probability_to_msg,
 )
 from nbv_prob_cnn.ros.markers import planning_markers
+from nbv_prob_cnn.ros.readiness import READY, SETTING_UP, ReadinessPublisher
 from nbv_prob_cnn.ros.robot_params import ArmViewParams, JointStateTracker, joint_state_msg
 from nbv_prob_cnn.ros.stream_node import StreamNode
 from nbv_prob_cnn.ros.tf_listener import POSE_SOURCES, TfListener
@@ -320,6 +322,7 @@ class NbvPlanner(Node):
             if self.move_mode == "trajectory"
             else None
         )
+        self._readiness = ReadinessPublisher(self, ready=not self.use_arm, callback_group=group)
         self.create_service(PlanNextBestView, names.PLAN, self._plan_service, callback_group=group)
         self._action = ActionServer(
             self, Explore, names.EXPLORE, execute_callback=self._explore,
@@ -358,10 +361,13 @@ class NbvPlanner(Node):
                     self._selector(geometry)
             except ValueError as exc:  # e.g. an arm that reaches nothing of this grid: the plan says so
                 self.get_logger().warning(f"arm set-up for the grid failed: {exc}")
+                self._readiness.set(DiagnosticStatus.ERROR, f"arm set-up for the grid failed: {exc}")
                 return
             self.get_logger().info(f"arm set-up for the grid (capability map, collision model): "
                                    f"{time.perf_counter() - start:.1f} s")  # fmt: skip
+            self._readiness.set(DiagnosticStatus.OK, READY)
 
+        self._readiness.set(DiagnosticStatus.WARN, SETTING_UP)
         threading.Thread(target=prepare, name="arm_setup", daemon=True).start()
 
     def _on_camera_pose(self, msg: TransformStamped | None = None) -> None:
