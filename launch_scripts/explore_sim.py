@@ -41,9 +41,10 @@ from nbv_prob_cnn.sensing.sensor_noise import PRESETS
 SIM_CAMERA_WITH_ARM = {"follow_arm": True, "render_arm": True, "encoding": "16UC1"}
 INTEGRATOR_WITH_ARM = {"self_filter": True}
 #: The simulated scene is static: of the frames the camera streams while it stands still (the arm
-#: waits for the next view) the integrator fuses the first 3 and skips the rest (counted), which
-#: leaves the CPU to the planner.
-INTEGRATOR_STILL_FRAMES = {"still_frames_fused": 3}
+#: waits for the next view) the integrator fuses the first few and skips the rest (counted), which
+#: leaves the CPU to the planner: 1 with exact depth (a second exact frame from the same pose
+#: changes no cell), 3 with a noise preset (repeated noisy frames average the noise out).
+STILL_FRAMES_FUSED = {"exact": 1, "noisy": 3}
 #: The arm's start: the Panda's camera 0.90 m above the floor at x = 0.25 m, y = 0.742 m, looking at
 #: the table centre (0.74, 0.742, 0) (solved with ``arm.ik.solve_camera_pose`` from the ready pose).
 #: From the ready pose the camera looks straight down from 0.54 m and sees too little empty space
@@ -107,7 +108,8 @@ def main(argv=None) -> int:
             camera["noise_preset"] = args.noise
         graph.start_node("sim_camera", "sim_camera", camera)
         box = {"origin": [0.0, 0.0, 0.0], "shape": list(defaults.shape), "voxel_size": defaults.resolution_m}
-        integrator = {**box, **INTEGRATOR_STILL_FRAMES, **(INTEGRATOR_WITH_ARM if arm else {})}
+        still = {"still_frames_fused": STILL_FRAMES_FUSED["noisy" if args.noise else "exact"]}
+        integrator = {**box, **still, **(INTEGRATOR_WITH_ARM if arm else {})}
         graph.start_node("integrator", "integrator", integrator)
         graph.start_node("completion_server", "completion_server", common)
         arm_prior = {"use_arm": True, "free_above_m": args.free_above} if arm else {}

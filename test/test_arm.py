@@ -256,6 +256,40 @@ def test_grid_collision_with_hand_built_grids(robot, checker, value):
     assert "panda_hand_0" in checker.grid_collisions(lowered, GridObstacles.from_state(table, GEOMETRY_3DT))
 
 
+def test_grid_look_ups_match_a_cell_by_cell_reference(robot, checker):
+    rng = np.random.default_rng(7)
+    grid = empty_grid()
+    region = grid[30:110, 20:120, :50]
+    region[rng.random(region.shape) < 0.004] = OCCUPIED  # sparse blocked cells around the arm's reach
+    obstacles = GridObstacles.from_state(grid, GEOMETRY_3DT)
+    origin, size, shape = np.asarray(GEOMETRY_3DT.origin), GEOMETRY_3DT.resolution, GEOMETRY_3DT.shape
+    # points inside and around the grid: the cell (i, j, k) holds origin + [i, i + 1) * size per axis
+    points = origin + rng.uniform(-0.2, 1.0, size=(3000, 3)) * np.asarray(shape) * size
+    blocked_cells = np.argwhere(obstacles.blocked)[rng.choice(int(obstacles.blocked.sum()), 300)]
+    near = blocked_cells + rng.uniform(-0.5, 1.5, size=(300, 3))  # in the blocked cell or a neighbour
+    points = np.vstack([points, origin + near * size])
+    expected = []
+    for p in points:
+        cell = [math.floor((p[a] - origin[a]) / size) for a in range(3)]
+        inside = all(0 <= cell[a] < shape[a] for a in range(3))
+        expected.append(inside and bool(obstacles.blocked[tuple(cell)]))
+    np.testing.assert_array_equal(obstacles.hits(points), expected)
+    assert sum(expected) > 0
+    # box queries (summed-volume table) against slicing, boxes partly or wholly outside included
+    for _ in range(300):
+        lo = rng.integers(-20, 140, size=3)
+        hi = lo + rng.integers(-3, 40, size=3)
+        a, b = np.clip(lo, 0, shape), np.clip(hi + 1, 0, shape)
+        box = obstacles.blocked[a[0] : b[0], a[1] : b[1], a[2] : b[2]]
+        assert obstacles.any_blocked_between(lo, hi) == bool(box.any())
+    # the bounded body test gives the answer of looking up every sample point
+    qs = np.clip(robot.reference_q + rng.normal(0.0, 0.5, size=(120, robot.reference_q.size)), robot.lower, robot.upper)
+    bounded = [checker.grid_collision(q, obstacles) for q in qs]
+    every_point = [bool(np.any(obstacles.hits(checker.body_points(q)))) for q in qs]
+    assert bounded == every_point
+    assert 0 < sum(bounded) < len(qs)
+
+
 def test_margin_and_path_checks(robot, checker):
     q_a = robot.reference_q
     q_b = robot.configuration({"panda_joint1": 0.8})

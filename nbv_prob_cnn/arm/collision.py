@@ -16,6 +16,7 @@ rest), the usual "adjacent / always in contact" rule of arm set-ups.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 from scipy import ndimage
@@ -104,13 +105,63 @@ class GridObstacles:
         blocked[c[:, 0], c[:, 1], c[:, 2]] = False
         return GridObstacles(blocked, self.geometry)
 
+    @cached_property
+    def _padded(self) -> np.ndarray:
+        """``blocked`` with one free cell around it, flattened: a point outside the grid looks up
+        the border (outside the grid nothing blocks) without an inside mask."""
+        return np.pad(self.blocked, 1).ravel()
+
     def hits(self, points: np.ndarray) -> np.ndarray:
-        """Which world points ``(N, 3)`` lie in a blocked cell."""
-        cell, inside = self.geometry.containing_cell(points)
-        hit = np.zeros(points.shape[0], dtype=bool)
-        c = cell[inside]
-        hit[inside] = self.blocked[c[:, 0], c[:, 1], c[:, 2]]
-        return hit
+        """Which world points ``(N, 3)`` lie in a blocked cell (the cell of
+        :meth:`~nbv_prob_cnn.basics.geometry.GridGeometry.containing_cell`; outside the grid: no)."""
+        return self._look_up(np.floor(self.geometry.to_index(points) + 0.5))
+
+    @cached_property
+    def _box_counts(self) -> np.ndarray:
+        """Summed-volume table of ``blocked``: entry ``[i, j, k]`` counts the blocked cells below
+        ``(i, j, k)`` on every axis (one more entry per axis than cells)."""
+        counts = np.zeros(tuple(n + 1 for n in self.blocked.shape), dtype=np.int32)
+        counts[1:, 1:, 1:] = self.blocked.cumsum(0, dtype=np.int32).cumsum(1).cumsum(2)
+        return counts
+
+    def any_blocked_between(self, lo: np.ndarray, hi: np.ndarray) -> bool:
+        """Whether a blocked cell lies in the box of cells ``lo .. hi`` (inclusive, clipped to the grid)."""
+        shape = np.asarray(self.blocked.shape)
+        a = np.clip(np.asarray(lo, dtype=np.int64), 0, shape)
+        b = np.clip(np.asarray(hi, dtype=np.int64) + 1, 0, shape)
+        if np.any(b <= a):
+            return False
+        c = self._box_counts
+        total = (c[b[0], b[1], b[2]] - c[a[0], b[1], b[2]] - c[b[0], a[1], b[2]] - c[b[0], b[1], a[2]]
+                 + c[a[0], a[1], b[2]] + c[a[0], b[1], a[2]] + c[b[0], a[1], a[2]] - c[a[0], a[1], a[2]])  # fmt: skip
+        return bool(total > 0)
+
+    def posed_hits(
+        self, points: np.ndarray, pose: np.ndarray, bounds: tuple[np.ndarray, np.ndarray] | None = None
+    ) -> bool:
+        """Whether any of a body's points ``(N, 3)`` (its own frame) lies in a blocked cell when the
+        body stands at ``pose`` (4×4, world): :meth:`hits` of the world points, with the pose and
+        the cell scaling applied in one product. ``bounds``: the points' box in the body frame
+        ``(lo, hi)``; when no blocked cell lies in the cells of its posed box (a conservative
+        test), the points are not looked up."""
+        g = self.geometry
+        if bounds is not None:
+            centre, half = (bounds[0] + bounds[1]) / 2.0, (bounds[1] - bounds[0]) / 2.0
+            world_centre = pose[:3, :3] @ centre + pose[:3, 3]
+            world_half = np.abs(pose[:3, :3]) @ half
+            lo = np.floor(g.to_index(world_centre - world_half) + 0.5)
+            hi = np.floor(g.to_index(world_centre + world_half) + 0.5)
+            if not self.any_blocked_between(lo, hi):
+                return False
+        scale = pose[:3, :3].T / g.resolution
+        offset = (pose[:3, 3] - np.asarray(g.origin)) / g.resolution
+        return bool(self._look_up(np.floor(points @ scale + offset)).any())
+
+    def _look_up(self, cell: np.ndarray) -> np.ndarray:
+        shape = np.asarray(self.geometry.shape)
+        c = (np.clip(cell, -1, shape) + 1).astype(np.intp)  # index into the padded grid
+        flat = (c[:, 0] * (shape[1] + 2) + c[:, 1]) * (shape[2] + 2) + c[:, 2]
+        return self._padded[flat]
 
 
 class CollisionChecker:
@@ -153,6 +204,8 @@ class CollisionChecker:
         self.data = data
         self.moving = [i for i, obj in enumerate(objects) if obj.parentJoint > 0]
         self.points = {i: hull_points(body_mesh(objects[i]), spacing) for i in self.moving}
+        #: Per moving body the box ``(lo, hi)`` of its sample points in its own frame.
+        self.bounds = {i: (p.min(axis=0), p.max(axis=0)) for i, p in self.points.items()}
         camera_joint = model.frames[robot.camera_frame].parentJoint
         #: Bodies that move rigidly with the camera while only the chain joints move (the camera's
         #: own joint and the joints below it, e.g. the hand and the fingers).
@@ -203,8 +256,8 @@ class CollisionChecker:
         return names
 
     def grid_collision(self, q: np.ndarray, obstacles: GridObstacles) -> bool:
-        """True when any moving body enters a blocked cell at ``q``."""
-        return bool(np.any(obstacles.hits(self.body_points(q))))
+        """True when any moving body enters a blocked cell at ``q`` (stops at the first that does)."""
+        return any(obstacles.posed_hits(self.points[i], pose, self.bounds[i]) for i, pose in self.body_poses(q).items())
 
     def is_free(self, q: np.ndarray, obstacles: GridObstacles) -> bool:
         """Neither self-collision nor grid collision at ``q``."""
