@@ -264,10 +264,3 @@ def test_colcon_builds_both_packages_and_runs_a_node(ros, tmp_path):
         env=run_env, cwd=tmp_path, capture_output=True, text=True, check=True,
     )  # fmt: skip
     assert probe.stdout.count(str(install)) == 2  # both packages come from the workspace
-
-
-def test_cpu_inference_leaves_one_core_to_the_rest_of_the_graph():
-    from nbv_prob_cnn.ros.completion_server import inference_threads
-
-    assert [inference_threads(0, cores) for cores in (1, 2, 8)] == [1, 1, 7]
-    assert inference_threads(3, 2) == 3  # asked for: taken as given

@@ -10,7 +10,6 @@ them); the node keeps serving. ``time_total_s`` of a response is the request's t
 
 from __future__ import annotations
 
-import os
 import time
 from dataclasses import dataclass
 
@@ -34,18 +33,9 @@ class CompletionConfig:
     device: str = param("auto", "torch device: auto (CUDA if present), cpu, cuda, cuda:N")
     warm_up: bool = param(True, "run one inference at start-up (the first request is then as fast as the next)")
     torch_threads: int = param(
-        0, "CPU inference threads; 0 = all cores but one, which the robot's streams and the other nodes keep",
+        0, "CPU inference threads; 0 = torch's default (one per core)",
         min_value=0, max_value=1024,
     )  # fmt: skip
-
-
-def inference_threads(requested: int, cores: int) -> int:
-    """Torch threads of CPU inference: ``requested``, or with 0 all ``cores`` but one (at least 1).
-
-    Measured on 2 cores with one core busy elsewhere (a robot graph's camera, TF and joint-state
-    streams take about that in the main job): 2 threads 1.52 s per 3DT grid, 1 thread 1.02 s (idle:
-    0.73 s and 0.86 s); a thread that waits for a busy core stalls every parallel region."""
-    return requested if requested > 0 else max(1, cores - 1)
 
 
 def torch_threads_text() -> str:
@@ -63,10 +53,12 @@ class CompletionServer(Node):
         from nbv_prob_cnn.completion.inference import WeightsError, load_model, resolve_device
 
         self._device = resolve_device(None if self.device == "auto" else self.device)
-        if self._device.type == "cpu":
+        if self._device.type == "cpu" and self.torch_threads > 0:
+            # one thread per core by default: in the main job on 2 cores (camera, TF and joint-state
+            # streams beside it) 1 thread gave a median CNN stage of 1.82 s against 1.21-1.44 s
             import torch
 
-            torch.set_num_threads(inference_threads(self.torch_threads, len(os.sched_getaffinity(0))))
+            torch.set_num_threads(self.torch_threads)
         self._load_model, self._weights_error = load_model, WeightsError
         # offered before the model loads: a client that finds it waits for the answer (served once
         # the node spins) instead of giving up on a service that is not there yet
