@@ -189,6 +189,43 @@ def test_cached_training_never_ray_casts_and_matches_the_on_the_fly_run(tiny_wor
     assert "mean training target" in card and "Spearman" in card and "cached v" in card
 
 
+def test_warm_start_takes_over_weights_and_history_of_an_earlier_run(tiny_worlds):
+    """A run that starts from another run's weights file (a new machine without its checkpoint):
+    its history begins with the earlier run's epochs up to those weights, and with a negligible learning
+    rate its weights stay the earlier ones exactly; a file of another architecture is refused."""
+    import csv
+
+    from nbv_prob_cnn.completion.train import train
+
+    kwargs = {
+        "n_train_envs": 2, "n_val_envs": 1, "n_test_envs": 1, "crop": 16, "test_crop": None, "progress": False,
+        "threads": 1, "device": "cpu", "first_channels": 2, "backend": "numpy", "batch_size": 2,
+    }  # fmt: skip
+    first = tiny_worlds / "first" / "w.pt"
+    train("3dt", 2, first, method="flat_city_cnn", **kwargs)
+    payload = torch.load(first, weights_only=True)
+    best_epoch = payload["card"]["best_epoch"]
+    with open(first.with_suffix(".csv"), newline="") as fh:
+        earlier = list(csv.DictReader(fh))[:best_epoch]
+    second = tiny_worlds / "second" / "w.pt"
+    train("3dt", best_epoch + 1, second, method="flat_city_cnn", warm_start=first, lr=1e-30, **kwargs)
+    with open(second.with_suffix(".csv"), newline="") as fh:
+        rows = list(csv.DictReader(fh))
+    assert len(rows) == best_epoch + 1
+    for old, new in zip(earlier, rows, strict=False):
+        assert int(new["epoch"]) == int(old["epoch"])
+        assert float(new["validation_mse"]) == pytest.approx(float(old["validation_mse"]), rel=1e-12)
+    state = torch.load(second.with_name("w.last.ckpt"), weights_only=True)["model"]
+    for key, value in payload["state_dict"].items():
+        torch.testing.assert_close(state[key], value, rtol=0, atol=1e-12, msg=key)
+    # the new epoch scored the same weights: the same validation MSE as the earlier run's best
+    assert float(rows[-1]["validation_mse"]) == pytest.approx(float(earlier[-1]["validation_mse"]), rel=1e-5)
+    assert f"Warm start at epoch {best_epoch} from w.pt" in second.with_suffix(".md").read_text()
+    with pytest.raises(ValueError, match="architecture"):
+        train("3dt", 3, tiny_worlds / "third" / "w.pt", method="flat_city_cnn", warm_start=first,
+              **{**kwargs, "first_channels": 3})  # fmt: skip
+
+
 def test_mean_target_and_spearman_by_hand():
     from nbv_prob_cnn.completion.city_scores import mean_target_per_channel, spearman
 

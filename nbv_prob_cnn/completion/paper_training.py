@@ -17,6 +17,12 @@ first epoch past ``M``) so that all of them progress; without it each one runs t
 the next starts. Every call resumes from the ``.last.ckpt`` checkpoints, and a finished
 network (``<stem>.done.json``) is skipped, so the same command continues the job after an
 interruption or in a later session.
+
+A machine without the checkpoints (a new session's machine keeps nothing outside git) starts each
+network from its shipped weights when an earlier run of this job made them (:func:`shipped_run`:
+the card's note is :data:`NOTE`): a warm start at the epoch of those weights, with their history
+and a new optimizer state (``train(warm_start=...)``); a shipped run that finished (its card has
+test scores) counts as done.
 """
 
 from __future__ import annotations
@@ -61,6 +67,23 @@ def done_path(dataset: str, method: str) -> Path:
 GPU_ONLY: tuple[tuple[str, str], ...] = (("3du", "d_city_cnn"),)
 
 
+#: The model-card note of this job's runs (how :func:`shipped_run` recognises their weights).
+NOTE = "Paper-scale run of issue #21 (nbv_prob_cnn.completion.paper_training, 1 torch thread)."
+
+
+def shipped_run(dataset: str, method: str) -> tuple[Path, dict] | None:
+    """``(path, card)`` of the shipped weights of ``dataset``/``method`` when a run of this job
+    made them (the card's note starts with :data:`NOTE`), else None."""
+    from nbv_prob_cnn.completion.inference import WeightsError, default_weights_path, read_weights
+
+    path = default_weights_path(dataset, method)
+    try:
+        card = read_weights(path, dataset, method).get("card", {})
+    except WeightsError:
+        return None
+    return (path, card) if str(card.get("note", "")).startswith(NOTE) else None
+
+
 def _parse_only(items: list[str] | None) -> list[tuple[str, str]]:
     if not items:
         import torch
@@ -100,6 +123,23 @@ def main(argv: list[str] | None = None) -> int:
             print("all networks finished", flush=True)
             return 0
         for dataset, method in pending:
+            warm_start = None
+            shipped = (
+                None
+                if weights_path(dataset, method).with_suffix(".last.ckpt").is_file()
+                else shipped_run(dataset, method)
+            )
+            if shipped is not None and "test_mse" in shipped[1]:
+                print(f"== {dataset} {method}: the shipped weights come from a finished run of this job", flush=True)
+                keys = ("validation_mse", "validation_zero_mse", "validation_mean_mse", "validation_rho",
+                        "test_mse", "test_zero_mse", "test_mean_mse", "test_rho")  # fmt: skip
+                summary = {"epochs": shipped[1].get("epochs"), **{k: shipped[1].get(k) for k in keys}}
+                done_path(dataset, method).write_text(json.dumps(summary, indent=1) + "\n")
+                continue
+            if shipped is not None:
+                warm_start = shipped[0]
+                print(f"== {dataset} {method}: no checkpoint here; warm start from {warm_start} "
+                      f"(epoch {shipped[1].get('best_epoch')})", flush=True)  # fmt: skip
             print(f"== {dataset} {method}: turn starts", flush=True)
             result = train(
                 dataset,
@@ -110,7 +150,8 @@ def main(argv: list[str] | None = None) -> int:
                 threads=args.threads,
                 patience=CITY_PATIENCE,
                 time_budget_s=budget,
-                note="Paper-scale run of issue #21 (nbv_prob_cnn.completion.paper_training, 1 torch thread).",
+                note=NOTE,
+                warm_start=warm_start,
             )
             state = "finished" if result.finished else "paused"
             print(

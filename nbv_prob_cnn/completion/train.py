@@ -372,6 +372,7 @@ def train(
     cache: bool = True,
     patience: int | None = None,
     time_budget_s: float | None = None,
+    warm_start: str | Path | None = None,
 ) -> TrainResult:
     """Train the network ``method`` of ``dataset`` and write the weights to ``out``.
 
@@ -407,6 +408,10 @@ def train(
         time_budget_s: end this call after the first epoch that ends past this many seconds
             (checkpoint written; no test scoring; ``finished`` is False): to share a CPU between
             several runs that each resume later.
+        warm_start: a weights file of the same architecture (e.g. the shipped weights of an
+            earlier run of this command, with its loss-curve CSV beside it) to start from when
+            there is no checkpoint to resume: the weights, and the history up to their epoch, are
+            taken over; the optimizer state starts anew (:func:`warm_start_state`).
     """
     # imported here: `python -m nbv_prob_cnn.completion.city_scores` runs that module as a script
     from nbv_prob_cnn.completion.city_scores import mean_target_per_channel, score_city
@@ -496,6 +501,7 @@ def train(
     best: dict[str, Any] = {"validation_mse": float("inf"), "epoch": 0}
     best_state: dict[str, torch.Tensor] | None = None  # the kept epoch's weights (also in the checkpoint)
     elapsed = 0.0
+    warm = False  # started from warm_start's weights (no checkpoint to resume)
     if resume and paths["last"].is_file():
         ckpt = torch.load(paths["last"], map_location="cpu", weights_only=True)
         if ckpt.get("run_config") != run_config or ckpt.get("model_config") != model.config():
@@ -507,11 +513,21 @@ def train(
         optimizer.load_state_dict(ckpt["optimizer"])
         history, best, elapsed = ckpt["history"], ckpt["best"], float(ckpt["elapsed_s"])
         best_state = ckpt.get("best_model")  # None in checkpoints written before it was stored
+    elif warm_start is not None:
+        warm = True
+        history, best, elapsed = warm_start_state(Path(warm_start), model)
+        best_state = {k: v.detach().to("cpu", copy=True) for k, v in model.state_dict().items()}
+        note = (note + " " if note else "") + (
+            f"Warm start at epoch {best['epoch']} from {Path(warm_start).name} (its weights and history; "
+            "the optimizer state started anew)."
+        )
 
     net = model if world == 1 else torch.nn.parallel.DistributedDataParallel(model)
     generator_versions = source.generator_versions()
     card_config = {**run_config, **({"patience": patience} if patience is not None else {})}
     card_args = (dataset, method, model, card_config, generator_versions, rots, dev, command, note, zero)
+    if warm and rank == 0:  # the output holds the starting weights until an epoch beats them
+        save_weights(model, out, dataset, _card(*card_args, history, best, elapsed), name=method)
     start_epoch = len(history)
     call_start = time.perf_counter()
     items_per_epoch = len(train_seeds) * len(rots)
@@ -835,6 +851,40 @@ def _seed_ranges(seeds: Sequence[int]) -> str:
     if seeds == list(range(seeds[0], seeds[-1] + 1)):
         return f"{seeds[0]}..{seeds[-1]} ({len(seeds)})"
     return ", ".join(map(str, seeds))
+
+
+def warm_start_state(path: Path, model: CompletionNet) -> tuple[list[dict], dict, float]:
+    """Load the weights file ``path`` into ``model``; return the history of its run up to the
+    epoch of those weights (``<stem>.csv`` beside it), the best entry and the elapsed seconds.
+
+    Raises:
+        ValueError: missing or unreadable file or CSV, another architecture, or a file without
+            the epoch of its weights (not written by :func:`train`).
+    """
+    try:
+        payload = torch.load(path, map_location="cpu", weights_only=True)
+    except (OSError, RuntimeError, EOFError) as exc:
+        raise ValueError(f"warm start: cannot read {path}: {exc}") from exc
+    config = {k: v for k, v in payload.get("config", {}).items() if k not in ("dataset", "model")}
+    if config != model.config():
+        raise ValueError(f"warm start: {path} holds {config}, not this run's architecture {model.config()}")
+    card = payload.get("card", {})
+    epoch = int(card.get("best_epoch", 0))
+    csv_path = path.with_suffix(".csv")
+    if epoch < 1 or not csv_path.is_file():
+        raise ValueError(f"warm start: {path} needs the epoch of its weights and its loss curve {csv_path}")
+    with open(csv_path, newline="") as fh:
+        rows = [
+            {k: (int(v) if k == "epoch" else float(v)) for k, v in row.items() if v != ""} for row in csv.DictReader(fh)
+        ]
+    history = [row for row in rows if row["epoch"] <= epoch]
+    if len(history) != epoch:
+        raise ValueError(f"warm start: {csv_path} lacks epochs 1..{epoch}")
+    model.load_state_dict(payload["state_dict"])
+    best: dict[str, Any] = {"validation_mse": float(history[-1]["validation_mse"]), "epoch": epoch}
+    if "validation_rho" in history[-1]:
+        best["validation_rho"] = float(history[-1]["validation_rho"])
+    return history, best, float(history[-1].get("elapsed_seconds", 0.0))
 
 
 def _save_last(
