@@ -47,9 +47,9 @@ VIEW_GAIN_LOCAL_SIZE = 16
 #: Origins per work-item (vector lanes of the ray march) on a CPU device; 1 on a GPU.
 CPU_LANES = 16
 LANE_WIDTHS = (1, 2, 4, 8, 16)
-#: Most origins per work-item of the ``GAIN_SENSOR`` program: pocl's LLVM aborts the process
-#: (SIGABRT) building its 16-lane work-group function on some AVX-512 CPUs (seen on an AMD EPYC
-#: CI machine; 8 and fewer lanes build on the same machine).
+#: Most origins per work-item of the ``GAIN_SENSOR`` program: pocl's LLVM aborted the process
+#: (SIGABRT) building its 16-lane work-group function on AVX-512 machines (CI, exit 134, and one
+#: development machine, where 8 and fewer lanes built); another AVX-512 machine (AMD EPYC) built it.
 SENSOR_MAX_LANES = 8
 #: Origins per ``view_gain`` launch (bounds the device output buffer).
 VIEW_GAIN_ORIGINS_PER_LAUNCH = 1 << 17
