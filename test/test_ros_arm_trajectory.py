@@ -302,8 +302,10 @@ def test_base_and_camera_mount_come_from_tf_when_the_description_lacks_them(ros,
     from nbv_prob_cnn_msgs.srv import PlanNextBestView
     from test_ros_arm_planning import call_when_ready
 
+    # the joint states are published from the start, but under load the planner's reader may
+    # match them after the grid's: wait for both
     _, reply = call_when_ready(node, PlanNextBestView, "/nbv/plan", PlanNextBestView.Request(top_k=5),
-                               "no grid received yet", 240.0)  # fmt: skip
+                               ("no grid received yet", "no joint state received yet"), 240.0)  # fmt: skip
     assert reply.success and reply.reachable, reply.message
     assert_pose_close(robot.camera_pose(np.array(reply.joint_goal.position)), *pose_to_arrays(reply.best_pose.pose))
     log = (tmp_path / "logs" / "nbv_planner.log").read_text()
