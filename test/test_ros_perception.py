@@ -210,10 +210,11 @@ def test_sim_camera_to_integrator(ros_env: dict, tmp_path: Path) -> None:
     assert "published" in log_text(tmp_path, "sim_camera")  # shutdown summary: it exited through main()
     assert "integrated" in log_text(tmp_path, "integrator")
     # bag_record closed its bag on SIGINT: complete, readable, with the frames taken at the targets
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", BagWarning)  # a frame cut in half by the shutdown is skipped
+    with warnings.catch_warnings(record=True) as skipped:
+        warnings.simplefilter("always", BagWarning)  # a frame cut in half by the shutdown is skipped
         recorded = {frame.stamp_ns: frame for frame in read_frames(tmp_path / "recorded")}
-    assert set(moved) <= set(recorded)
+    missing = sorted(set(moved) - set(recorded))
+    assert not missing, (missing, [str(w.message) for w in skipped], log_text(tmp_path, "bag_record")[-2000:])
     assert recorded[moved[-1]].depth_m.shape == (480, 640)
     assert "integrated" in log_text(tmp_path, "integrator")
     domain = int(ros_env["ROS_DOMAIN_ID"])
