@@ -67,6 +67,11 @@ def done_path(dataset: str, method: str) -> Path:
 GPU_ONLY: tuple[tuple[str, str], ...] = (("3du", "d_city_cnn"),)
 
 
+#: The scores of a finished network in its ``done.json`` (besides ``epochs``): fields of a
+#: ``TrainResult``, keys of a model card.
+SCORE_KEYS = ("validation_mse", "validation_zero_mse", "validation_mean_mse", "validation_rho",
+              "test_mse", "test_zero_mse", "test_mean_mse", "test_rho")  # fmt: skip
+
 #: The model-card note of this job's runs (how :func:`shipped_run` recognises their weights).
 NOTE = "Paper-scale run of issue #21 (nbv_prob_cnn.completion.paper_training, 1 torch thread)."
 
@@ -112,7 +117,7 @@ def main(argv: list[str] | None = None) -> int:
 
     from nbv_prob_cnn.basics.datasets import dataset_spec
     from nbv_prob_cnn.commands.train import CITY_PATIENCE, paper_epochs
-    from nbv_prob_cnn.completion.train import train
+    from nbv_prob_cnn.completion.train import side_paths, train
 
     networks = _parse_only(args.only)
     budget = None if args.slice_min is None else 60.0 * args.slice_min
@@ -124,16 +129,11 @@ def main(argv: list[str] | None = None) -> int:
             return 0
         for dataset, method in pending:
             warm_start = None
-            shipped = (
-                None
-                if weights_path(dataset, method).with_suffix(".last.ckpt").is_file()
-                else shipped_run(dataset, method)
-            )
+            resumable = side_paths(weights_path(dataset, method))["last"].is_file()
+            shipped = None if resumable else shipped_run(dataset, method)
             if shipped is not None and "test_mse" in shipped[1]:
                 print(f"== {dataset} {method}: the shipped weights come from a finished run of this job", flush=True)
-                keys = ("validation_mse", "validation_zero_mse", "validation_mean_mse", "validation_rho",
-                        "test_mse", "test_zero_mse", "test_mean_mse", "test_rho")  # fmt: skip
-                summary = {"epochs": shipped[1].get("epochs"), **{k: shipped[1].get(k) for k in keys}}
+                summary = {"epochs": shipped[1].get("epochs"), **{k: shipped[1].get(k) for k in SCORE_KEYS}}
                 done_path(dataset, method).write_text(json.dumps(summary, indent=1) + "\n")
                 continue
             if shipped is not None:
@@ -160,17 +160,7 @@ def main(argv: list[str] | None = None) -> int:
                 flush=True,
             )
             if result.finished:
-                summary = {
-                    "epochs": result.epochs_done,
-                    "validation_mse": result.validation_mse,
-                    "validation_zero_mse": result.validation_zero_mse,
-                    "validation_mean_mse": result.validation_mean_mse,
-                    "validation_rho": result.validation_rho,
-                    "test_mse": result.test_mse,
-                    "test_zero_mse": result.test_zero_mse,
-                    "test_mean_mse": result.test_mean_mse,
-                    "test_rho": result.test_rho,
-                }
+                summary = {"epochs": result.epochs_done, **{k: getattr(result, k) for k in SCORE_KEYS}}
                 done_path(dataset, method).write_text(json.dumps(summary, indent=1) + "\n")
 
 

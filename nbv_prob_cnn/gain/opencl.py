@@ -312,6 +312,10 @@ class OpenCLRayCaster:
         the ``"returns"`` sensor model's."""
         return min(self.lanes, SENSOR_MAX_LANES) if sensor else self.lanes
 
+    def _launch_lanes(self, options: MarchOptions | None) -> int:
+        """:meth:`program_lanes` of the program a launch with ``options`` runs."""
+        return self.program_lanes(options is not None and options.flags[1])
+
     def kernels(self, variant: str, exact: bool = False, sensor: bool = False) -> tuple:
         """``(ray_gain, view_gain)`` of the program of gain ``variant`` (built on first use), with
         the exact-traversal and ``"returns"`` options (:class:`MarchOptions`), marching
@@ -392,7 +396,7 @@ class OpenCLRayCaster:
         ``options``: the optional modes, :class:`MarchOptions`)."""
         cl, mf = self._cl, self._cl.mem_flags
         n, r = origins.shape[0], offsets.shape[0]
-        lanes = self.program_lanes(options is not None and options.sensor is not None)
+        lanes = self._launch_lanes(options)
         if n == 0:
             return np.empty((n, r), dtype=np.float32)
         code_buf, padded, origin_index, offset_buf = self._common(code, origins, offsets,
@@ -456,7 +460,7 @@ class OpenCLRayCaster:
         # local references keep every buffer alive until the queue has finished with it
         start_buf, rays_buf = self._constant(start), self._constant(rays)
         device = self.device  # local_size: origins per work-group, a multiple of lanes
-        lanes = self.program_lanes(options is not None and options.sensor is not None)
+        lanes = self._launch_lanes(options)
         words = (2 * r if variant == "original" else r) + v  # local floats per origin: rays (+ totals), views
         local_size = int(min(local_size, device.max_work_group_size * lanes, device.local_mem_size // (4 * words)))
         local_size = max(lanes, local_size // lanes * lanes)

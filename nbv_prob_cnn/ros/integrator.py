@@ -146,7 +146,7 @@ SERVICE_RESET = names.INTEGRATOR_RESET
 SERVICE_SAVE = names.INTEGRATOR_SAVE
 SERVICE_DIAGNOSTICS = names.INTEGRATOR_DIAGNOSTICS
 #: The standard diagnostics topic (absolute, as diagnostic_aggregator expects it).
-TOPIC_DIAGNOSTICS = "/diagnostics"
+TOPIC_DIAGNOSTICS = names.DIAGNOSTICS
 #: Most frames waiting for integration with ``drop_when_behind:=false`` (older ones are dropped beyond it).
 MAX_BACKLOG = 1000
 #: ``pose_source:=tf``: period of the retries of images whose transform had not arrived [s].

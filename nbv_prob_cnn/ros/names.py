@@ -37,5 +37,7 @@ MOVE_TO_JOINTS = "arm_sim/move_to_joints"
 INTEGRATOR_RESET = "integrator/reset"
 INTEGRATOR_SAVE = "integrator/save"
 INTEGRATOR_DIAGNOSTICS = "integrator/diagnostics"
+#: The robot-wide diagnostics topic (absolute: every node reports there).
+DIAGNOSTICS = "/diagnostics"
 # actions
 EXPLORE = "nbv/explore"

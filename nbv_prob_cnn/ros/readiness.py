@@ -20,8 +20,9 @@ import threading
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 
-#: The standard diagnostics topic (absolute: shared by every node of the robot).
-TOPIC_DIAGNOSTICS = "/diagnostics"
+from nbv_prob_cnn.ros import names
+
+TOPIC_DIAGNOSTICS = names.DIAGNOSTICS
 #: Suffix of the planner's status name (``<fully qualified node name>: planning``).
 STATUS_SUFFIX = ": planning"
 #: Seconds between two publications of an unchanged state.
