@@ -3,8 +3,10 @@
 There is no ``ros2 bag record`` here; this node records what :mod:`~nbv_prob_cnn.ros.bag_replay`
 and ``nbv integrate`` read: ``/camera/depth/image``, ``/camera/depth/camera_info`` and
 ``/camera/pose`` (remappable), as the serialized CDR bytes received (raw subscriptions, no
-decoding). The log time of a message is its reception time on the node's clock (the rosbag2
-convention); the header stamps inside the messages are kept as published.
+decoding). Messages DDS reports lost before they reached the node are counted per topic,
+logged as they happen and listed in the shutdown summary. The log time of a message is its
+reception time on the node's clock (the rosbag2 convention); the header stamps inside the
+messages are kept as published.
 
 The bag is created when the node starts (an existing ``output`` is never overwritten: the node
 exits with status 1) and closed cleanly on SIGINT/SIGTERM, so the bag is complete and indexed.
@@ -45,7 +47,15 @@ from nbv_prob_cnn.perception.messages import (
     stamp_ns,
 )
 from nbv_prob_cnn.ros import names
-from nbv_prob_cnn.ros.common import GRID_QOS, RELIABILITY, declare_config, param, run_node, subscription_qos
+from nbv_prob_cnn.ros.common import (
+    GRID_QOS,
+    RELIABILITY,
+    declare_config,
+    lost_message_counter,
+    param,
+    run_node,
+    subscription_qos,
+)
 from nbv_prob_cnn.ros.conversions import msg_to_grid
 
 NODE_NAME = "bag_record"
@@ -89,13 +99,17 @@ class BagRecord(Node):
             raise ValueError("parameter 'output' is required (path of the new bag directory)")
         self.path = Path(output).expanduser()
         self.counts: Counter[str] = Counter()
+        self.lost_in_transport: dict[str, int] = {}  # topic -> messages DDS reported lost before delivery
         self._writer = self._open_writer()
         self._connections: dict[str, Any] = {}
         store = typestore()
         for default_topic, (msg_class, msgtype) in TOPICS.items():
             topic = self.resolve_topic_name(names.relative(default_topic))  # recorded under its resolved name
             self._connections[topic] = self._writer.add_connection(topic, msgtype, typestore=store)
-            self.create_subscription(msg_class, names.relative(default_topic), self._callback(topic), qos, raw=True)
+            self.create_subscription(
+                msg_class, names.relative(default_topic), self._callback(topic), qos, raw=True,
+                event_callbacks=lost_message_counter(self, self.lost_in_transport, topic),
+            )  # fmt: skip
         if self.config.planning:
             for topic, (msg_class, msgtype) in PLANNING_TOPICS.items():
                 name = self.resolve_topic_name(names.relative(topic))
@@ -165,7 +179,11 @@ class BagRecord(Node):
 
     def summary(self) -> str:
         per_topic = ", ".join(f"{t} {n}" for t, n in sorted(self.counts.items())) or "nothing"
-        return f"wrote {sum(self.counts.values())} message(s) to {self.path} ({per_topic})"
+        lost = ", ".join(f"{t} {n}" for t, n in sorted(self.lost_in_transport.items()) if n) or "none"
+        return (
+            f"wrote {sum(self.counts.values())} message(s) to {self.path} ({per_topic}); "
+            f"lost in transport before recording (reported by DDS): {lost}"
+        )
 
 
 def main(args: list[str] | None = None) -> int:

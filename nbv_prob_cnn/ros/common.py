@@ -16,6 +16,7 @@ from typing import Any, TypeVar
 
 import rclpy
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor, SetParametersResult
+from rclpy.event_handler import SubscriptionEventCallbacks
 from rclpy.exceptions import ParameterException
 from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor, SingleThreadedExecutor
 from rclpy.node import Node
@@ -186,6 +187,22 @@ def subscription_qos(depth: int, reliability: str) -> QoSProfile:
         reliability=ReliabilityPolicy.RELIABLE if reliability == "reliable" else ReliabilityPolicy.BEST_EFFORT,
         durability=DurabilityPolicy.VOLATILE,
     )
+
+
+def lost_message_counter(node, counts: dict[str, int], topic: str) -> SubscriptionEventCallbacks:
+    """Event callbacks of a subscription that keep ``counts[topic]`` at the number of its messages
+    DDS reports lost before delivery (a gap in a best-effort writer's sequence numbers, or samples a
+    reliable writer gave up on), and log each new loss (at most every 5 s)."""
+    counts[topic] = 0
+
+    def on_lost(status) -> None:
+        counts[topic] = int(status.total_count)
+        node.get_logger().warning(
+            f"{topic}: {status.total_count_change} message(s) lost in transport (DDS); "
+            f"{status.total_count} so far", throttle_duration_sec=5.0,
+        )  # fmt: skip
+
+    return SubscriptionEventCallbacks(message_lost=on_lost)
 
 
 class WaitInterruptedError(Exception):

@@ -96,7 +96,6 @@ from geometry_msgs.msg import TransformStamped
 from nbv_prob_cnn_msgs.msg import VoxelGrid
 from nbv_prob_cnn_msgs.srv import SaveGrid
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
-from rclpy.event_handler import SubscriptionEventCallbacks
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy
 from sensor_msgs.msg import CameraInfo, Image, JointState
@@ -134,7 +133,15 @@ from nbv_prob_cnn.perception.tsdf import (
     TsdfIntegrator,
 )
 from nbv_prob_cnn.ros import names
-from nbv_prob_cnn.ros.common import GRID_QOS, RELIABILITY, declare_config, param, run_node, subscription_qos
+from nbv_prob_cnn.ros.common import (
+    GRID_QOS,
+    RELIABILITY,
+    declare_config,
+    lost_message_counter,
+    param,
+    run_node,
+    subscription_qos,
+)
 from nbv_prob_cnn.ros.conversions import grid_to_msg, time_msg
 from nbv_prob_cnn.ros.robot_params import RobotParams, merged_joint_state
 from nbv_prob_cnn.ros.stream_node import StreamNode
@@ -321,11 +328,11 @@ class Integrator(Node):
         services = MutuallyExclusiveCallbackGroup()
         self.create_subscription(
             Image, names.DEPTH_IMAGE, self._on_image, camera_qos, callback_group=inputs, raw=True,
-            event_callbacks=self._lost_counter(names.DEPTH_IMAGE),
+            event_callbacks=lost_message_counter(self, self.lost_in_transport, names.DEPTH_IMAGE),
         )  # fmt: skip
         self.create_subscription(
             CameraInfo, names.CAMERA_INFO, self._on_info, camera_qos, callback_group=inputs, raw=True,
-            event_callbacks=self._lost_counter(names.CAMERA_INFO),
+            event_callbacks=lost_message_counter(self, self.lost_in_transport, names.CAMERA_INFO),
         )  # fmt: skip
         # /tf and joint_states come at the robot's rate: a side node with its own thread, where they are used
         self._streams = StreamNode(self) if cfg.pose_source == "tf" or cfg.self_filter else None
@@ -341,7 +348,7 @@ class Integrator(Node):
         else:
             self.create_subscription(
                 TransformStamped, names.CAMERA_POSE, self._on_pose, camera_qos, callback_group=inputs, raw=True,
-                event_callbacks=self._lost_counter(names.CAMERA_POSE),
+                event_callbacks=lost_message_counter(self, self.lost_in_transport, names.CAMERA_POSE),
             )  # fmt: skip
         if cfg.self_filter:
             # the filter needs the joint state of each frame's stamp: keep a few seconds of them (they are small)
@@ -370,20 +377,6 @@ class Integrator(Node):
         )
 
     # -------------------------------------------------------------- callbacks
-    def _lost_counter(self, topic: str) -> SubscriptionEventCallbacks:
-        """Event callbacks that count the messages of ``topic`` DDS reports lost on the way (a
-        gap in a best-effort writer's sequence numbers): frames that never reached the node."""
-        self.lost_in_transport[topic] = 0
-
-        def on_lost(status) -> None:
-            self.lost_in_transport[topic] = int(status.total_count)
-            self.get_logger().warning(
-                f"{topic}: {status.total_count_change} message(s) lost in transport (DDS); "
-                f"{status.total_count} so far", throttle_duration_sec=5.0,
-            )  # fmt: skip
-
-        return SubscriptionEventCallbacks(message_lost=on_lost)
-
     def _drop(self, reason: DropReason, text: str, n: int = 1, error: bool = False) -> None:
         """Count ``n`` dropped frames under ``reason`` and log why (at most every 5 s per reason)."""
         self.drops.add(reason, n)
