@@ -77,6 +77,40 @@ def test_interpolation_in_time():
     np.testing.assert_allclose(apply(matrix, (1, 0, 0)), (0, 1, 0), atol=1e-12)
 
 
+def test_interpolation_is_tf2s_when_both_parts_change():
+    """tf2 interpolates the translation on a straight line and the rotation along the shorter arc,
+    each on its own: from (0, 0, 0) unturned at 0 s to (2, 0, 0) turned 90° about z at 1 s, the
+    pose at 0.5 s is (1, 0, 0) turned 45° (a screw motion would leave the straight line)."""
+    tf = TfBuffer()
+    tf.set_transform("world", "rover", 0, (0.0, 0.0, 0.0), IDENTITY)
+    tf.set_transform("world", "rover", 1 * S, (2.0, 0.0, 0.0), Z90)
+    matrix, _ = tf.lookup("world", "rover", S // 2)
+    c = math.cos(math.radians(45))
+    np.testing.assert_allclose(matrix[:3, 3], (1, 0, 0), atol=1e-12)
+    np.testing.assert_allclose(matrix[:3, :3] @ (1, 0, 0), (c, c, 0), atol=1e-12)
+    # the same rotation written as -q is the same sample: the shorter arc, not a turn the long way
+    tf.set_transform("world", "flipped", 0, (0.0, 0.0, 0.0), IDENTITY)
+    tf.set_transform("world", "flipped", 1 * S, (0.0, 0.0, 0.0), tuple(-v for v in Z90))
+    matrix, _ = tf.lookup("world", "flipped", S // 2)
+    np.testing.assert_allclose(matrix[:3, :3] @ (1, 0, 0), (c, c, 0), atol=1e-12)
+
+
+def test_lookup_in_a_long_history_matches_the_two_samples_around_it():
+    """500 samples of a turning, moving frame (10 s at 50 Hz): every lookup between two samples
+    equals the hand-worked interpolation of those two (angle and position linear in time)."""
+    tf = TfBuffer()
+    rate, speed, spin = 50, 0.1, 0.3  # samples per second, m/s along y, rad/s about z
+    for k in range(500):
+        angle = spin * k / rate
+        quaternion = (0.0, 0.0, math.sin(angle / 2), math.cos(angle / 2))
+        tf.set_transform("world", "crane", k * S // rate, (0.0, speed * k / rate, 0.0), quaternion)
+    for t in (0.013, 3.337, 9.971):
+        matrix, _ = tf.lookup("world", "crane", int(t * S))
+        np.testing.assert_allclose(matrix[:3, 3], (0, speed * t, 0), atol=1e-9)
+        angle = spin * t
+        np.testing.assert_allclose(matrix[:3, :3] @ (1, 0, 0), (math.cos(angle), math.sin(angle), 0), atol=1e-9)
+
+
 def test_samples_out_of_order_and_newest_common_stamp():
     tf = TfBuffer()
     for t, x in ((3, 3.0), (1, 1.0), (2, 2.0)):  # arrive out of order
