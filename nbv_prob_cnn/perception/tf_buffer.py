@@ -23,6 +23,7 @@ much (:class:`ExtrapolationError`).
 from __future__ import annotations
 
 import bisect
+import math
 import threading
 from dataclasses import dataclass
 
@@ -72,14 +73,15 @@ def pq_from_translation_quaternion(translation, quaternion_xyzw) -> np.ndarray:
     Raises:
         ValueError: not 3 + 4 numbers, NaN/inf components or a zero quaternion.
     """
-    t = np.asarray(translation, dtype=np.float64).reshape(3)
-    q = np.asarray(quaternion_xyzw, dtype=np.float64).reshape(4)
-    if not (np.all(np.isfinite(t)) and np.all(np.isfinite(q))):
-        raise ValueError(f"transform: NaN or infinite components (translation {t.tolist()}, rotation {q.tolist()})")
-    norm = float(np.linalg.norm(q))
+    # plain floats: this runs for every transform of every /tf message (thousands a second)
+    t = [float(v) for v in np.asarray(translation, dtype=np.float64).reshape(3)]
+    q = [float(v) for v in np.asarray(quaternion_xyzw, dtype=np.float64).reshape(4)]
+    if not all(math.isfinite(v) for v in (*t, *q)):
+        raise ValueError(f"transform: NaN or infinite components (translation {t}, rotation {q})")
+    norm = math.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
     if norm < 1e-9:
-        raise ValueError(f"transform: zero quaternion {q.tolist()}")
-    x, y, z, w = q / norm
+        raise ValueError(f"transform: zero quaternion {q}")
+    x, y, z, w = (v / norm for v in q)
     return np.array([t[0], t[1], t[2], w, x, y, z])
 
 

@@ -153,6 +153,9 @@ class ArmSim(Node):
         self._active_goal = None
         self.joint_pub = self.create_publisher(JointState, names.JOINT_STATES, 10)
         self.pose_pub = self.create_publisher(PoseStamped, names.ARM_CAMERA_POSE, 10)
+        self._posed_q: np.ndarray | None = None  # the configuration the cached transforms are of
+        self._moving_tf: list[TransformStamped] = []
+        self._camera_pose: PoseStamped | None = None
         self.tf_pub = self.create_publisher(TFMessage, "/tf", 100)
         self.tf_static_pub = self.create_publisher(TFMessage, "/tf_static", TF_STATIC_QOS)
         self.description_pub = self.create_publisher(String, ROBOT_DESCRIPTION, DESCRIPTION_QOS)
@@ -166,7 +169,15 @@ class ArmSim(Node):
             goal_callback=self._check_goal, handle_accepted_callback=self._accept,
             cancel_callback=lambda _: CancelResponse.ACCEPT, callback_group=group,
         )  # fmt: skip
-        self.create_timer(1.0 / float(cfg.rate_hz), self._publish)
+        # the state is broadcast from a thread of its own, as a controller manager's loop does: a
+        # 50 Hz executor timer would make rclpy rebuild the wait set over the action server, the
+        # services and the parameter services 50 times a second (a quarter of a core measured)
+        self._stop_broadcast = threading.Event()
+        self._broadcast_errors = 0
+        self._broadcaster = threading.Thread(
+            target=self._broadcast_loop, args=(1.0 / float(cfg.rate_hz),), name="joint_state_broadcast", daemon=True
+        )
+        self._broadcaster.start()
         self.get_logger().info(
             f"arm_sim ready: arm joints {self.arm_joints}, gripper {self.gripper}; "
             f"{self.get_namespace().rstrip('/')}/{cfg.controller_action}"
@@ -368,6 +379,29 @@ class ArmSim(Node):
         fixed = [_transform(j.parent, j.child, self._relative(j, poses), stamp) for j in self.joints if j.fixed]
         self.tf_static_pub.publish(TFMessage(transforms=fixed))
 
+    def _broadcast_loop(self, period_s: float) -> None:
+        """Publish the state every ``period_s`` (a monotonic schedule; ticks missed in a stall are not made up)."""
+        due = time.monotonic()
+        while not self._stop_broadcast.is_set() and self.context.ok():
+            try:
+                self._publish()
+            except Exception as exc:  # keep broadcasting; say what failed
+                if self._stop_broadcast.is_set() or not self.context.ok():
+                    return
+                self._broadcast_errors += 1
+                self.get_logger().error(
+                    f"joint_states/tf broadcast failed ({type(exc).__name__}: {exc}); "
+                    f"{self._broadcast_errors} failure(s) so far",
+                    throttle_duration_sec=5.0,
+                )
+            due = max(due + period_s, time.monotonic())
+            self._stop_broadcast.wait(due - time.monotonic())
+
+    def destroy_node(self) -> None:
+        self._stop_broadcast.set()
+        self._broadcaster.join(timeout=2.0)
+        super().destroy_node()
+
     def _publish(self) -> None:
         now_msg = self.get_clock().now().to_msg()
         now = now_msg.sec + now_msg.nanosec * 1e-9
@@ -383,17 +417,29 @@ class ArmSim(Node):
             joints.position = [float(q[i]) for i in index]
             joints.velocity = [float(dq[i]) for i in index]
             self.joint_pub.publish(joints)
-        poses = self._link_poses(q)
-        moving = [_transform(j.parent, j.child, self._relative(j, poses), now_msg) for j in self.joints if not j.fixed]
-        self.tf_pub.publish(TFMessage(transforms=moving))
-        pose = self.robot.camera_pose(q)
-        msg = PoseStamped()
-        msg.header.stamp = now_msg
-        msg.header.frame_id = self.world_frame
-        msg.pose.position.x, msg.pose.position.y, msg.pose.position.z = (float(v) for v in pose[:3, 3])
-        o = msg.pose.orientation
-        o.x, o.y, o.z, o.w = (float(v) for v in quaternion_from_matrix(pose[:3, :3]))
-        self.pose_pub.publish(msg)
+        if self._posed_q is None or not np.array_equal(q, self._posed_q):
+            # the kinematics only when the arm moved: at rest the same transforms go out, newly stamped
+            poses = self._link_poses(q)
+            self._moving_tf = [
+                _transform(j.parent, j.child, self._relative(j, poses), now_msg) for j in self.joints if not j.fixed
+            ]
+            self._camera_pose = None
+            self._posed_q = q.copy()
+        for transform in self._moving_tf:
+            transform.header.stamp = now_msg
+        self.tf_pub.publish(TFMessage(transforms=self._moving_tf))
+        if self.pose_pub.get_subscription_count() == 0:
+            return  # nobody listens to the private camera-pose topic (it is TF's pose too)
+        if self._camera_pose is None:
+            pose = self.robot.camera_pose(q)
+            msg = PoseStamped()
+            msg.header.frame_id = self.world_frame
+            msg.pose.position.x, msg.pose.position.y, msg.pose.position.z = (float(v) for v in pose[:3, 3])
+            o = msg.pose.orientation
+            o.x, o.y, o.z, o.w = (float(v) for v in quaternion_from_matrix(pose[:3, :3]))
+            self._camera_pose = msg
+        self._camera_pose.header.stamp = now_msg
+        self.pose_pub.publish(self._camera_pose)
 
 
 def _desired(times: np.ndarray, positions: np.ndarray, start: np.ndarray, t: float) -> np.ndarray:
