@@ -133,13 +133,13 @@ class _History(TimeVaryingTransform):
             poses = [self.as_matrix(t) for t in times.ravel()]
             return np.array(poses).reshape(*times.shape, 4, 4)
         stamp = int(times)
-        later = min(max(bisect.bisect_right(self.stamps, stamp), 1), len(self.stamps) - 1)
-        earlier = later - 1
-        if len(self.stamps) == 1 or stamp <= self.stamps[0]:
+        if stamp <= self.stamps[0]:
             position, rotation = self.pqs[0][:3], self.pqs[0][3:]
         elif stamp >= self.stamps[-1]:
             position, rotation = self.pqs[-1][:3], self.pqs[-1][3:]
-        else:
+        else:  # strictly inside: two samples around the stamp
+            later = bisect.bisect_right(self.stamps, stamp)
+            earlier = later - 1
             before, after = self.pqs[earlier], self.pqs[later]
             fraction = (stamp - self.stamps[earlier]) / (self.stamps[later] - self.stamps[earlier])
             position = (1.0 - fraction) * before[:3] + fraction * after[:3]
@@ -190,6 +190,7 @@ class TfBuffer:
         if stamp_ns < 0:
             raise ValueError(f"transform {parent!r} -> {child!r}: negative stamp {stamp_ns} ns")
         pq = pq_from_translation_quaternion(translation, quaternion_xyzw)
+        fixed = StaticTransform(transform_from_pq(pq)) if static else None
         with self._lock:
             edge = self._edges.get(child)
             if (edge is None or edge.parent != parent) and child in self._ancestors(parent):
@@ -197,17 +198,12 @@ class TfBuffer:
             if edge is not None and (edge.parent != parent or edge.static != static):
                 self._manager.remove_transform(child, edge.parent)
                 edge = None
-            if edge is None:
-                transform: TimeVaryingTransform = (
-                    StaticTransform(transform_from_pq(pq)) if static else _History(self.cache_ns)
-                )
+            if edge is None or fixed is not None:  # a new edge, or a static one replaced
+                transform: TimeVaryingTransform = fixed if fixed is not None else _History(self.cache_ns)
                 edge = _Edge(parent, static, transform)
                 self._edges[child] = edge
                 self._manager.add_transform(child, parent, transform)
-            if static:
-                edge.transform = StaticTransform(transform_from_pq(pq))
-                self._manager.add_transform(child, parent, edge.transform)
-            else:
+            if fixed is None:
                 assert isinstance(edge.transform, _History)
                 edge.transform.add(int(stamp_ns), pq)
 
