@@ -11,21 +11,6 @@ venv="$repo/.venv"
 stamp="$venv/.nbv_setup_stamp"
 want="$(cat requirements.txt setup.py launch_scripts/setup.sh | sha256sum | cut -d' ' -f1)"
 
-if [ -f "$stamp" ] && [ "$(cat "$stamp")" = "$want" ]; then
-  VIRTUAL_ENV="$venv" bash "$repo/launch_scripts/build_interfaces.sh"
-
-# The OpenCL kernels need a device that compiles them. pip's pocl (pyopencl[pocl]) fails on CPUs
-# its LLVM does not know ("unknown target CPU 'generic'", e.g. some virtualised AMD EPYC); then the
-# Debian build of pocl (pocl-opencl-icd), which the bundled ICD loader also finds, is installed.
-probe_opencl() { "$venv/bin/python" -c "from nbv_prob_cnn.basics.cl_device import cl_runtime; cl_runtime()" 2>"$venv/.nbv_opencl.log"; }
-if ! probe_opencl; then
-  echo "[setup] no OpenCL device compiles kernels with pip's pocl; installing Debian's pocl-opencl-icd"
-  apt_install pocl-opencl-icd
-  probe_opencl || { tail -5 "$venv/.nbv_opencl.log"; echo "[setup] no usable OpenCL device"; exit 1; }
-fi
-  exit 0
-fi
-
 # Debian packages the wheels need (apt, with sudo unless root).
 apt_install() {
   local sudo=""
@@ -33,6 +18,24 @@ apt_install() {
   $sudo apt-get update -qq
   DEBIAN_FRONTEND=noninteractive $sudo apt-get install -y -qq "$@" >/dev/null
 }
+
+# The OpenCL kernels need a device that compiles them. pip's pocl (pyopencl[pocl]) fails on CPUs
+# its LLVM does not know ("unknown target CPU 'generic'", e.g. some virtualised AMD EPYC); then the
+# Debian build of pocl (pocl-opencl-icd), which the bundled ICD loader also finds, is installed.
+probe_opencl() { "$venv/bin/python" -c "from nbv_prob_cnn.basics.cl_device import cl_runtime; cl_runtime()" 2>"$venv/.nbv_opencl.log"; }
+ensure_opencl() {
+  if ! probe_opencl; then
+    echo "[setup] no OpenCL device compiles kernels with pip's pocl; installing Debian's pocl-opencl-icd"
+    apt_install pocl-opencl-icd
+    probe_opencl || { tail -5 "$venv/.nbv_opencl.log"; echo "[setup] no usable OpenCL device"; exit 1; }
+  fi
+}
+
+if [ -f "$stamp" ] && [ "$(cat "$stamp")" = "$want" ]; then
+  VIRTUAL_ENV="$venv" bash "$repo/launch_scripts/build_interfaces.sh"
+  ensure_opencl
+  exit 0
+fi
 
 # open3d-cpu links against libusb-1.0 (Debian package libusb-1.0-0).
 if ! ldconfig -p 2>/dev/null | grep -q 'libusb-1.0.so.0'; then
@@ -50,14 +53,6 @@ echo "[setup] installing pinned dependencies (requirements.txt)"
   || { cat "$venv/.nbv_install.log"; exit 1; }
 VIRTUAL_ENV="$venv" bash "$repo/launch_scripts/build_interfaces.sh"
 
-# The OpenCL kernels need a device that compiles them. pip's pocl (pyopencl[pocl]) fails on CPUs
-# its LLVM does not know ("unknown target CPU 'generic'", e.g. some virtualised AMD EPYC); then the
-# Debian build of pocl (pocl-opencl-icd), which the bundled ICD loader also finds, is installed.
-probe_opencl() { "$venv/bin/python" -c "from nbv_prob_cnn.basics.cl_device import cl_runtime; cl_runtime()" 2>"$venv/.nbv_opencl.log"; }
-if ! probe_opencl; then
-  echo "[setup] no OpenCL device compiles kernels with pip's pocl; installing Debian's pocl-opencl-icd"
-  apt_install pocl-opencl-icd
-  probe_opencl || { tail -5 "$venv/.nbv_opencl.log"; echo "[setup] no usable OpenCL device"; exit 1; }
-fi
+ensure_opencl
 echo "$want" > "$stamp"
 echo "[setup] done"
