@@ -7,7 +7,7 @@ import pytest
 
 pytest.importorskip("scipy")
 
-from nbv_prob_cnn.completion.b_city_targets import grid_agreement, neighbourhood_mean  # noqa: E402
+from nbv_prob_cnn.completion.b_city_targets import grid_agreement, neighbourhood_mean, tied_view_norms  # noqa: E402
 
 
 def test_neighbourhood_mean_counts_only_kept_cells() -> None:
@@ -35,3 +35,20 @@ def test_one_direction_keeps_the_ranking_and_alternating_ones_lose_it() -> None:
     local, consistency, flat_mixed = grid_agreement(mixed, empty)
     assert flat_mixed == pytest.approx(flat)  # the gains themselves are the same
     assert local < 0.0 and consistency < -0.5
+
+
+def test_tied_views_shrink_the_mean_vector_by_their_spread() -> None:
+    unit = np.array([[1.0, 0.0], [0.0, 1.0], [-1.0, 0.0]])  # +x, +y, -x
+    gains = np.array(
+        [
+            [0.8, 0.1, 0.1],  # one clear best view: norm = gain
+            [0.5, 0.49, 0.0],  # +x and +y tied within 5 %: |(0.5, 0.5)| * 0.5
+            [0.4, 0.0, 0.39],  # +x and -x tied: the directions cancel
+            [0.0, 0.0, 0.0],  # no gain: no tied view
+        ]
+    )
+    norm, count = tied_view_norms(gains, unit, 0.05)
+    assert count.tolist() == [1, 2, 2, 0]
+    assert norm == pytest.approx([0.8, 0.5 * np.sqrt(0.5), 0.0, 0.0])
+    norm, count = tied_view_norms(gains, unit, 0.0)  # exact ties only
+    assert count.tolist() == [1, 1, 1, 0] and norm == pytest.approx([0.8, 0.5, 0.4, 0.0])
