@@ -110,8 +110,10 @@ def tie_agreement(dataset: str, ties: tuple[float, ...] = (0.02, 0.05, 0.1, 0.2)
     rows: dict[float, list[tuple[float, float, float]]] = {t: [] for t in ties}
     for example in examples.fixed(seeds):
         empty = example.inputs[0] > 0
-        lattice = empty[tuple(slice(None, None, stride) for _ in range(empty.ndim))]
-        views = example.target[(slice(None), *np.nonzero(lattice))].T.astype(np.float64)  # (N, V)
+        every_stride: tuple[slice, ...] = (slice(None, None, stride),) * empty.ndim
+        lattice = empty[every_stride]
+        cells: tuple[slice | np.ndarray, ...] = (slice(None), *np.nonzero(lattice))
+        views = example.target[cells].T.astype(np.float64)  # (N, V)
         gain = views.max(axis=1)
         for t in ties:
             norm, count = tied_view_norms(views, unit, t)
@@ -140,7 +142,8 @@ def measure(dataset: str) -> TargetAgreement:
     rhos = []
     for example in examples.fixed(seeds):
         empty = example.inputs[0] > 0
-        lattice = empty[tuple(slice(None, None, stride) for _ in range(empty.ndim))]
+        every_stride: tuple[slice, ...] = (slice(None, None, stride),) * empty.ndim
+        lattice = empty[every_stride]
         rhos.append(grid_agreement(example.target, lattice))
     values = np.array(rhos, dtype=np.float64)
     defined = np.all(np.isfinite(values), axis=1)
