@@ -33,3 +33,12 @@ def test_stage_times_with_the_ranking_and_the_arm_by_hand():
         "plan 4.00 s (CNN 1.00, ray casting 0.50, views 0.10, rank reply 0.30, capability 0.20, IK+collision 1.50 "
         "(12 checked), other 0.40), move 1.00 s, grid wait 0.50 s"
     )
+
+
+def test_server_stage_times_by_hand():
+    from nbv_prob_cnn.ros.nbv_planner import server_stage_times
+
+    assert server_stage_times({}) == ""  # in-process planning: no server request
+    both = {"cnn_server": 1.75, "cnn_inference": 1.5, "rank_server": 0.625}
+    assert server_stage_times(both) == "; servers: completion server 1.75 (inference 1.50), ranking server 0.62"
+    assert server_stage_times({"rank_server": 0.5}) == "; servers: ranking server 0.50"  # a method without CNN

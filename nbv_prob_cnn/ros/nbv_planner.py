@@ -292,6 +292,7 @@ class NbvPlanner(Node):
             )  # fmt: skip
             self._joints = JointStateTracker(self._arm.robot)
         # joint_states and /tf come at the robot's rate: on a side node with its own thread (stream_node)
+        self.server_times: dict[str, float] = {}  # the servers' own times on the last plan's requests (log)
         self._streams = StreamNode(self) if self.use_arm or self.pose_source == "tf" else None
         if self.use_arm:
             self._streams.node.create_subscription(JointState, names.JOINT_STATES, self._on_joint_state, 10)
@@ -462,6 +463,7 @@ class NbvPlanner(Node):
         interrupt = interrupt or self._shutdown
         response = PlanNextBestView.Response()
         start = time.perf_counter()
+        self.server_times.clear()
         try:
             grid = self._latest_grid()
             state, geometry = msg_to_grid(grid)
@@ -595,6 +597,7 @@ class NbvPlanner(Node):
                 raise ValueError(f"completion failed: {reply.message}")
             prob, _ = msg_to_probability(reply.probability)
             completed["msg"], completed["prob"] = reply.probability, prob
+            self.server_times.update(cnn_server=reply.time_total_s, cnn_inference=reply.inference_time_s)
             return prob
 
         def rank(method: str, state: np.ndarray, prob, top_k: int) -> list:
@@ -631,6 +634,7 @@ class NbvPlanner(Node):
                            for v in reply.ranked]  # fmt: skip
             for choice in choices:
                 choice.times.update(raycast=reply.time_raycast_s, views=reply.time_views_s)
+            self.server_times["rank_server"] = reply.time_total_s
             return choices
 
         return complete, rank
@@ -919,6 +923,7 @@ class NbvPlanner(Node):
                 self.get_logger().info(
                     f"view {index}: gain {planned.best_gain:.4f}, unknown fraction {fraction:.4f}, "
                     f"{changed} cells changed; {stage_times(planned, waiting - moving, done - waiting)}"
+                    f"{server_stage_times(self.server_times)}"
                 )
                 index += 1
         except WaitInterruptedError as exc:
@@ -1022,6 +1027,18 @@ def stage_times(planned: PlanNextBestView.Response, move_s: float, grid_wait_s: 
         f"plan {planned.time_total_s:.2f} s (CNN {parts[0]:.2f}, ray casting {parts[1]:.2f}, views {parts[2]:.2f}"
         f"{ranking}, other {rest:.2f}), move {move_s:.2f} s, grid wait {grid_wait_s:.2f} s"
     )
+
+
+def server_stage_times(times: dict[str, float]) -> str:
+    """The servers' own times on the last plan's requests (``time_total_s`` of /nbv/complete and
+    /nbv/rank_views, the completion's inference time), for the log: set beside the planner's
+    round trips they show what the transport costs; empty when the plan made no such request."""
+    parts = []
+    if "cnn_server" in times:
+        parts.append(f"completion server {times['cnn_server']:.2f} (inference {times['cnn_inference']:.2f})")
+    if "rank_server" in times:
+        parts.append(f"ranking server {times['rank_server']:.2f}")
+    return f"; servers: {', '.join(parts)}" if parts else ""
 
 
 def unreachable_message(report: FeasibilityReport) -> str:
