@@ -108,3 +108,34 @@ def test_still_frame_filter_keeps_the_first_frames_of_each_pose() -> None:
     for bad in ((-1,), (1, -0.1), (1, 0.001, math.nan)):
         with pytest.raises(ValueError, match="finite and >= 0"):
             StillFrameFilter(*bad)
+
+
+def test_a_still_camera_posed_by_tf_casts_once() -> None:
+    """Poses looked up in TF between two equal samples differ in their last bits (interpolation):
+    the camera still counts them as one pose; a shift of a micrometre is a new one."""
+    from nbv_prob_cnn.perception.tf_buffer import TfBuffer
+
+    s = 10**9
+    pose = look_at([0.5, -0.4, 0.9])
+    xyzw = xyzw_of(pose[:3, :3])
+    tf = TfBuffer()
+    for stamp in (1 * s, 2 * s):  # the arm stands still: two equal samples
+        tf.set_transform("world", "camera", stamp, pose[:3, 3], xyzw)
+    looked_up = [tf.lookup("world", "camera", s + k * s // 7)[0] for k in range(1, 7)]
+    assert any(not np.array_equal(p, looked_up[0]) for p in looked_up)  # not bit-equal (why the tolerance)
+    camera = DepthCamera(box_meshes(), INTRINSICS)
+    images = [camera.render(p) for p in looked_up]
+    assert camera.renders == 1
+    exact = DepthCamera(box_meshes(), INTRINSICS).render(pose)
+    for image in images:
+        np.testing.assert_allclose(image, exact, atol=1e-6)
+    camera.render(shifted(looked_up[0], 1e-6))
+    assert camera.renders == 2
+
+
+def xyzw_of(rotation: np.ndarray) -> np.ndarray:
+    """Quaternion ``(x, y, z, w)`` of a rotation matrix (pytransform3d gives ``(w, x, y, z)``)."""
+    from pytransform3d.rotations import quaternion_from_matrix
+
+    w, x, y, z = quaternion_from_matrix(rotation)
+    return np.array([x, y, z, w])

@@ -141,6 +141,12 @@ class DepthNoise:
         return depth.astype(np.float32, copy=False)
 
 
+#: Largest difference of any pose element (rotation entries, metres) at which :meth:`DepthCamera.render`
+#: re-uses its last ray cast: far below a pixel (about 1.6e-3 rad at 640 px, 60 deg) and a depth
+#: step of float32, far above the rounding of a TF interpolation between two equal samples.
+SAME_POSE_TOLERANCE = 1e-9
+
+
 class MeshScene:
     """Triangle meshes in world metres, ready for ray casting (an open3d ``RaycastingScene``).
 
@@ -204,7 +210,7 @@ class DepthCamera:
         self.depth_max = float(depth_max)
         self.scene = meshes if isinstance(meshes, MeshScene) else MeshScene(meshes)
         self._rays_optical = self.intrinsics.pixel_rays()
-        self._last: tuple | None = None  # (pose and occluder key, occluders, exact depth, cos incidence)
+        self._last: tuple | None = None  # (occluder ids, pose, occluders, exact depth, cos incidence)
         self.renders = 0  # ray casts done (a still camera re-uses the last)
 
     @property
@@ -217,17 +223,20 @@ class DepthCamera:
         ``occluders`` are further scenes (e.g. a robot arm at its current joint state) seen
         together with the camera's own: each pixel returns the nearest surface of all of them,
         before the depth range and the noise are applied. The exact image of the last call is
-        kept: called again from the same pose with the same occluder objects, only the noise is
-        drawn anew (a camera that stands still costs no ray casting; :attr:`renders` counts the
-        casts).
+        kept: called again from the same pose (every element within :data:`SAME_POSE_TOLERANCE`)
+        with the same occluder objects, only the noise is drawn anew (a camera that stands still
+        costs no ray casting; :attr:`renders` counts the casts). The tolerance matters for poses
+        looked up in TF: interpolating between two equal samples is exact only to the last bits.
         """
         pose = check_pose(pose_world_from_optical, "pose_world_from_optical")
-        key = (pose.tobytes(), tuple(id(o) for o in occluders))
-        if self._last is not None and self._last[0] == key:
-            depth, cos_incidence = self._last[2], self._last[3]
+        occluder_ids = tuple(id(o) for o in occluders)
+        last = self._last
+        if last is not None and last[0] == occluder_ids and np.max(np.abs(pose - last[1])) <= SAME_POSE_TOLERANCE:
+            depth, cos_incidence = last[3], last[4]
         else:
             depth, cos_incidence = self._cast(pose, occluders)
-            self._last = (key, tuple(occluders), depth, cos_incidence)  # the occluders kept: their ids stay theirs
+            # the occluders kept: their ids stay theirs
+            self._last = (occluder_ids, pose.copy(), tuple(occluders), depth, cos_incidence)
         if isinstance(self.noise, SensorNoise):
             return self.noise.apply_image(depth, self._noise_rng, cos_incidence)
         if self.noise is not None:

@@ -358,6 +358,11 @@ class SimCamera(Node):
             self.frames += 1
             return stamp_ns
 
+    @property
+    def camera_renders(self) -> int:
+        """Ray casts of the scene so far (a still camera re-uses its last: fewer than frames)."""
+        return self._camera.renders
+
     def _target_pose(self, msg: PoseStamped) -> np.ndarray:
         frame = msg.header.frame_id
         if frame not in ("", self.frame_id):
@@ -470,7 +475,13 @@ class SimCamera(Node):
 
 def main(args: list[str] | None = None) -> int:
     """Run the node until interrupted; 1 on a configuration error."""
-    return run_node(SimCamera, args, threads=1, summary=lambda node: f"published {node.frames} frame(s)")
+    return run_node(SimCamera, args, threads=1, summary=frame_summary)
+
+
+def frame_summary(node: Node) -> str:
+    """The node's last log line: frames published and ray casts they took."""
+    assert isinstance(node, SimCamera)
+    return f"published {node.frames} frame(s), {node.camera_renders} ray cast(s)"
 
 
 if __name__ == "__main__":
