@@ -28,6 +28,11 @@ three options, with the completion network as the default:
   per ``2**removed_deconv`` cells per axis (3DT City-CNNs: 3, i.e. an 8× stride);
 * ``extra_deconv``: deconv blocks added after the last one (no skip), each doubling the output
   resolution (D-City-CNN: ``log2(N_rays)`` for its composite cells).
+
+On a CPU the forward pass runs in the channels-last layout (``channels_last`` /
+``channels_last_3d``): oneDNN's convolutions are faster on it. Measured with 2 torch threads on a
+2-core AMD EPYC: the 3DT completion forward pass 0.82 -> 0.52 s, the 2D one on a 1248² map 0.77
+-> 0.44 s, a training step of the 3DU Flat City-CNN 3.33 -> 3.04 s; outputs equal to 1e-6.
 """
 
 from __future__ import annotations
@@ -42,6 +47,8 @@ from nbv_prob_cnn.basics.grid import EMPTY, OCCUPIED, UNKNOWN
 #: Negative slope of every LeakyReLU (the paper gives none; 0.3 is the Keras default the
 #: original implementation ran with).
 LEAKY_SLOPE = 0.3
+#: The channels-last memory format of a 2D / 3D network's activations (used on a CPU).
+CHANNELS_LAST = {2: torch.channels_last, 3: torch.channels_last_3d}
 
 #: Initial bias of the final 1×1 conv: logit(0.15), so an untrained network outputs P0.
 PRIOR_LOGIT = float(np.log(0.15 / 0.85))
@@ -223,6 +230,8 @@ class CompletionNet(nn.Module):
         for size in reversed(spatial):  # F.pad lists the last axis first
             pad += [0, (-size) % self.multiple]
         padded = functional.pad(x, pad) if any(pad) else x  # E = O = 0 there: unknown
+        if padded.device.type == "cpu":  # oneDNN's convolutions are faster channels-last (module doc)
+            padded = padded.contiguous(memory_format=CHANNELS_LAST[self.dims])
 
         skips = []
         h = padded
