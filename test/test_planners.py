@@ -126,3 +126,25 @@ def test_origin_stride_overrides_the_dataset(rng):
     assert strided.shape[0] < every.shape[0] and np.all(strided % 2 == 0)
     with pytest.raises(ValueError, match="origin_stride"):
         PlanningContext(SMALL_3D, origin_stride=0)
+
+
+def test_top_k_with_a_view_mask_returns_only_the_positive_views_best_first(rng):
+    """Most views masked out (as by the arm's capability map): the top-k selection runs over the
+    positive gains only; with fewer of them than top_k, every one comes back, best first, as a
+    brute-force sort of the masked gains gives them."""
+    state, prob = _grid(rng)
+    context = PlanningContext(SMALL_3D, backend="opencl")
+    origins = np.argwhere(state == 0)
+    full = ray_gains(state, prob, context.directions, 8, origins, "numpy") @ context.membership
+    allowed = rng.random(full.shape) < 0.002
+    masked = np.where(allowed, full, 0.0).ravel()
+    positive = np.flatnonzero(masked > 0)
+    assert 5 < positive.size < 400
+    found = search_views(state, prob, origins, context, top_k=400, view_mask=lambda chunk: allowed)
+    assert len(found) == positive.size
+    expected = positive[np.lexsort((positive, -masked[positive]))]
+    np.testing.assert_allclose([f.gain for f in found], masked[expected], atol=1e-5)
+    got = {int(np.flatnonzero((origins == f.cell).all(axis=1))[0]) * full.shape[1] + f.view_index for f in found}
+    assert got == set(positive.tolist())
+    few = search_views(state, prob, origins, context, top_k=5, view_mask=lambda chunk: allowed)
+    np.testing.assert_allclose([f.gain for f in few], masked[expected[:5]], atol=1e-5)

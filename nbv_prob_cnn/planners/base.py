@@ -240,10 +240,11 @@ def search_views(
         k = min(top_k, views.size)
         if k == 1:
             best = np.array([np.argmax(views)])  # the first of equal maxima
-        elif k < views.size:
-            best = np.argpartition(views, views.size - k)[views.size - k :]
-        else:
-            best = np.arange(views.size)
+        else:  # only positive gains are returned: select among those (most views of a masked or
+            # explored grid have none, and a selection over all of them cost more than the ray casting)
+            best = np.flatnonzero(views > 0.0)
+            if k < best.size:
+                best = best[np.argpartition(views[best], best.size - k)[best.size - k :]]
         kept_gain = np.concatenate([kept_gain, views[best]])
         kept_index = np.concatenate([kept_index, best + start * n_views])
         order = np.lexsort((kept_index, -kept_gain))[:top_k]  # gain descending, then index
@@ -251,10 +252,12 @@ def search_views(
         t_view += time.perf_counter() - t1
         t_ray += t1 - t0
     times = {"cnn": 0.0, "raycast": t_ray, "views": t_view}
+    positive = kept_gain > 0.0
+    kept_gain, kept_index = kept_gain[positive], kept_index[positive]
+    cells = origins[kept_index // n_views]  # a copy: one row per choice
     return [
-        ViewChoice(origins[i // n_views].copy(), int(i % n_views), float(g), dict(times))
-        for g, i in zip(kept_gain, kept_index, strict=True)
-        if g > 0.0
+        ViewChoice(cell, int(view), float(g), dict(times))
+        for cell, view, g in zip(cells, (kept_index % n_views).tolist(), kept_gain.tolist(), strict=True)
     ]
 
 
