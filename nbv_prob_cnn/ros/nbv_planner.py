@@ -414,13 +414,19 @@ class NbvPlanner(Node):
             swept = SweptVolume(arm.checker, geometry, SWEPT_STEP) if self.arm_carve_swept else None
             self._selectors[key] = (ArmViewSelector(arm, geometry, swept, self.arm_fallback_radius_m), [0])
         selector, fed = self._selectors[key]
-        if selector.swept is not None:
-            with self._seen_lock:
-                seen = self._seen_q[fed[0] :]
-            for q in seen:
-                selector.swept.add_configuration(q)
-            fed[0] += len(seen)
+        self._sweep_seen(selector, fed)
         return selector
+
+    def _sweep_seen(self, selector: ArmViewSelector, fed: list[int]) -> None:
+        """Add the configurations seen on joint_states since the last call to the selector's swept
+        volume (``fed[0]``: how many it has had; call with ``_arm_lock`` held)."""
+        if selector.swept is None:
+            return
+        with self._seen_lock:
+            seen = self._seen_q[fed[0] :]
+        for q in seen:
+            selector.swept.add_configuration(q)
+        fed[0] += len(seen)
 
     def _took_planned_view(self) -> None:
         """The exploration moved the camera to the last plan's view: it is taken; when the arm
@@ -433,6 +439,10 @@ class NbvPlanner(Node):
                 else:
                     selector.take(view.choice)
                 self._last_arm_plan = None
+                # the move's joint states now, while the exploration waits for a new grid, not in the next plan
+                for swept_by, fed in self._selectors.values():
+                    if swept_by is selector:
+                        self._sweep_seen(selector, fed)
 
     def _latest_grid(self) -> VoxelGrid:
         with self._grid_lock:
