@@ -14,6 +14,12 @@ EMPTY = 0
 OCCUPIED = 1
 
 
+def lattice_index(ndim: int, stride: int) -> tuple[slice, ...]:
+    """The index of every ``stride``-th cell along each of ``ndim`` axes (``a[lattice_index(a.ndim, s)]``:
+    the cells whose every coordinate is a multiple of ``s``)."""
+    return (slice(None, None, stride),) * ndim
+
+
 def check_state(state: np.ndarray, name: str = "state") -> np.ndarray:
     """Validate a ternary grid and return it as a C-contiguous ``int8`` array.
 

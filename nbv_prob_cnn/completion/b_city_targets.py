@@ -33,6 +33,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.ndimage import uniform_filter
 
+from nbv_prob_cnn.basics.grid import lattice_index
 from nbv_prob_cnn.completion.city_scores import spearman
 
 
@@ -110,8 +111,7 @@ def tie_agreement(dataset: str, ties: tuple[float, ...] = (0.02, 0.05, 0.1, 0.2)
     rows: dict[float, list[tuple[float, float, float]]] = {t: [] for t in ties}
     for example in examples.fixed(seeds):
         empty = example.inputs[0] > 0
-        every_stride: tuple[slice, ...] = (slice(None, None, stride),) * empty.ndim
-        lattice = empty[every_stride]
+        lattice = empty[lattice_index(empty.ndim, stride)]
         cells: tuple[slice | np.ndarray, ...] = (slice(None), *np.nonzero(lattice))
         views = example.target[cells].T.astype(np.float64)  # (N, V)
         gain = views.max(axis=1)
@@ -142,8 +142,7 @@ def measure(dataset: str) -> TargetAgreement:
     rhos = []
     for example in examples.fixed(seeds):
         empty = example.inputs[0] > 0
-        every_stride: tuple[slice, ...] = (slice(None, None, stride),) * empty.ndim
-        lattice = empty[every_stride]
+        lattice = empty[lattice_index(empty.ndim, stride)]
         rhos.append(grid_agreement(example.target, lattice))
     values = np.array(rhos, dtype=np.float64)
     defined = np.all(np.isfinite(values), axis=1)

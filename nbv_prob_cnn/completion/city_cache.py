@@ -46,7 +46,7 @@ from pathlib import Path
 import numpy as np
 
 from nbv_prob_cnn.basics.datasets import DatasetSpec, dataset_spec
-from nbv_prob_cnn.basics.grid import frontier_mask
+from nbv_prob_cnn.basics.grid import frontier_mask, lattice_index
 from nbv_prob_cnn.completion.data import DATA_VERSION, cache_root, crop_box, load_or_generate_sample, rotations
 from nbv_prob_cnn.completion.tasks import Example
 
@@ -145,7 +145,7 @@ class Region:
         sub_box = sub_box or tuple(slice(0, n) for n in self.empty.shape)
         if any(b.start % s for b in sub_box):
             raise ValueError(f"sub_box: starts {[b.start for b in sub_box]} are not on the {s}-cell lattice")
-        every = tuple(slice(None, None, s) for _ in sub_box)
+        every = lattice_index(len(sub_box), s)
         empty_lattice = self.empty[every]
         index = np.full(empty_lattice.shape, -1, dtype=np.int64)
         index[empty_lattice] = np.arange(int(empty_lattice.sum()))

@@ -23,6 +23,7 @@ import torch
 from scipy.stats import spearmanr
 
 from nbv_prob_cnn.basics.datasets import DatasetSpec
+from nbv_prob_cnn.basics.grid import lattice_index
 from nbv_prob_cnn.completion.tasks import Example
 
 
@@ -46,7 +47,7 @@ def gain_pairs(method: str, spec: DatasetSpec, output: np.ndarray, example: Exam
 
     s = CityGeometry.of(method, spec).stride
     empty = example.inputs[0] > 0
-    lattice_empty = empty[tuple(slice(None, None, s) for _ in range(empty.ndim))]
+    lattice_empty = empty[lattice_index(empty.ndim, s)]
     cells = np.argwhere(lattice_empty)
     if method == "b_city_cnn":
         index = (slice(None), *cells.T)

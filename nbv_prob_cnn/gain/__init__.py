@@ -21,7 +21,7 @@ from __future__ import annotations
 import numpy as np
 
 from nbv_prob_cnn.basics.camera import in_frustum
-from nbv_prob_cnn.basics.grid import check_probability, check_state
+from nbv_prob_cnn.basics.grid import check_probability, check_state, lattice_index
 from nbv_prob_cnn.basics.modes import BACKEND_NAMES
 from nbv_prob_cnn.gain.best_view import BestOriginView
 from nbv_prob_cnn.gain.directions import check_directions, distance_weights, ray_directions, sample_offsets
@@ -50,7 +50,7 @@ def empty_origins(state: np.ndarray, stride: int = 1) -> np.ndarray:
     empty = state == 0
     if stride > 1:
         sub = np.zeros_like(empty)
-        keep = tuple(slice(None, None, stride) for _ in range(state.ndim))
+        keep = lattice_index(state.ndim, stride)
         sub[keep] = empty[keep]
         empty = sub
     return np.argwhere(empty)

@@ -40,7 +40,13 @@ import torch
 
 from nbv_prob_cnn.basics.camera import orientations
 from nbv_prob_cnn.basics.datasets import DatasetSpec
-from nbv_prob_cnn.basics.grid import check_ground_truth, check_state, frontier_mask, probability_from_truth
+from nbv_prob_cnn.basics.grid import (
+    check_ground_truth,
+    check_state,
+    frontier_mask,
+    lattice_index,
+    probability_from_truth,
+)
 from nbv_prob_cnn.completion.model import CompletionNet
 from nbv_prob_cnn.gain import empty_origins, ray_directions, ray_gains, view_membership
 from nbv_prob_cnn.planners.base import OriginFilter, PlanningContext, RankingPlanner, ViewChoice
@@ -119,7 +125,7 @@ def output_mask(geometry: CityGeometry, state: np.ndarray) -> np.ndarray:
     """``(*out_spatial)`` float32 mask of the network output: 1 at empty lattice cells (D-City:
     their boundary sub-cells), 0 elsewhere (and at the central sub-cells)."""
     s = geometry.stride
-    return lattice_output_mask(geometry, (state == 0)[tuple(slice(None, None, s) for _ in range(state.ndim))])
+    return lattice_output_mask(geometry, (state == 0)[lattice_index(state.ndim, s)])
 
 
 def lattice_output_mask(geometry: CityGeometry, empty_lattice: np.ndarray) -> np.ndarray:
