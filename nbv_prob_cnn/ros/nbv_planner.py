@@ -430,7 +430,8 @@ class NbvPlanner(Node):
 
     def _took_planned_view(self) -> None:
         """The exploration moved the camera to the last plan's view: it is taken; when the arm
-        moved there (``move_mode`` arm), its straight joint path is swept too."""
+        moved there (``move_mode`` arm or trajectory), its joint path is swept too, and so are the
+        joint states seen during the move."""
         with self._arm_lock:
             if self._last_arm_plan is not None:
                 selector, q_start, view = self._last_arm_plan
