@@ -241,6 +241,35 @@ def test_mean_target_and_spearman_by_hand():
     assert math.isnan(spearman(np.array([1.0, 1.0]), np.array([1.0, 2.0])))
 
 
+def test_cell_rho_ranks_the_cells_by_their_best_view_only():
+    """Three empty cells of a 2D Flat City-CNN output, hand-worked: the views inside each cell
+    ranked right (so the pair ρ is high) but the cells' best views in the opposite order: cell
+    ρ -1. B-City-CNN: the norms of the vectors, the same -1."""
+    from nbv_prob_cnn.completion.city_scores import cell_gain_pairs, gain_pairs, spearman
+
+    spec = dataset_spec("2d")
+    inputs = np.zeros((2, 1, 3), np.float32)
+    inputs[0] = 1.0  # all three cells empty
+    mask = np.ones((1, 1, 3), np.float32)
+    target = np.zeros((60, 1, 3), np.float32)
+    output = np.zeros((60, 1, 3), np.float32)
+    # best view gains (target): cell 0 0.2, cell 1 0.5, cell 2 0.1; each cell's second view half of it
+    for cell, (best, predicted) in enumerate([(0.2, 0.3), (0.5, 0.1), (0.1, 0.6)]):
+        target[cell, 0, cell], target[cell + 10, 0, cell] = best, best / 2
+        output[cell, 0, cell], output[cell + 10, 0, cell] = predicted, predicted / 2
+    example = Example(inputs, target, mask)
+    predicted, truth = cell_gain_pairs("flat_city_cnn", spec, output, example)
+    # ranks (2, 1, 3) against (2, 3, 1): 1 - 6 * (0 + 4 + 4) / (3 * 8) = -1
+    assert spearman(predicted, truth) == pytest.approx(-1.0)
+    assert spearman(*gain_pairs("flat_city_cnn", spec, output, example)) > 0.5
+    b_target = np.zeros((2, 1, 3), np.float32)
+    b_output = np.zeros((2, 1, 3), np.float32)
+    b_target[:, 0, :] = [[0.2, 0.0, -0.1], [0.0, 0.5, 0.0]]  # norms 0.2, 0.5, 0.1
+    b_output[:, 0, :] = [[0.0, 0.1, 0.0], [0.3, 0.0, -0.6]]  # norms 0.3, 0.1, 0.6
+    predicted, truth = cell_gain_pairs("b_city_cnn", spec, b_output, Example(inputs, b_target, mask))
+    assert spearman(predicted, truth) == pytest.approx(-1.0)
+
+
 def test_scores_of_a_perfect_and_a_constant_predictor(tiny_worlds):
     """A network that outputs the target: MSE 0, ρ 1; the all-zero and mean-target MSEs by
     direct computation."""
@@ -259,6 +288,7 @@ def test_scores_of_a_perfect_and_a_constant_predictor(tiny_worlds):
     c = np.full(60, 0.05, np.float32)
     scores = score_city(Oracle(), "flat_city_cnn", spec, examples, c, torch.device("cpu"), 2)
     assert scores.mse == 0.0 and scores.rho == pytest.approx(1.0) and scores.n == 2
+    assert scores.cell_rho == pytest.approx(1.0)
     assert scores.zero_mse == pytest.approx(np.mean([np.mean(e.target.astype(np.float64) ** 2) for e in examples]))
     expected = np.mean([np.mean((e.mask * 0.05 - e.target.astype(np.float64)) ** 2) for e in examples])
     assert scores.mean_mse == pytest.approx(expected, rel=1e-5)

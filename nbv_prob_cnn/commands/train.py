@@ -166,7 +166,8 @@ def run(args: argparse.Namespace) -> int:
         print(
             f"mean-target output: validation MSE {result.validation_mean_mse:.5f}, test MSE "
             f"{result.test_mean_mse:.5f}; Spearman rho: validation {result.validation_rho:.3f}, "
-            f"test {result.test_rho:.3f}"
+            f"test {result.test_rho:.3f}; cell rho: validation {result.validation_cell_rho:.3f}, "
+            f"test {result.test_cell_rho:.3f}"
         )
     print(f"history: {result.history_csv}, plot: {result.plot}, card: {result.card}")
     return 0

@@ -10,6 +10,11 @@
   decodes them, :func:`~nbv_prob_cnn.planners.city_cnn.decode_views`), over the best view's gain
   (the vector norm) of every empty lattice cell for B-City-CNN. Grids where either side is
   constant have no ρ and are left out of the mean.
+* **cell ρ**, the same for all three variants: Spearman ρ between the predicted and the target
+  gain of each empty lattice cell's best view (decoded, the largest view gain per cell), across
+  cells. For B-City-CNN it equals ρ (one gain per cell); for Flat and D-City-CNN ρ also counts
+  the ranking of the views inside each cell, cell ρ only the ranking of the cells, which is what
+  a planner taking the best (cell, view) pair needs besides.
 """
 
 from __future__ import annotations
@@ -58,6 +63,21 @@ def gain_pairs(method: str, spec: DatasetSpec, output: np.ndarray, example: Exam
     return predicted.ravel(), target.ravel()
 
 
+def cell_gain_pairs(
+    method: str, spec: DatasetSpec, output: np.ndarray, example: Example
+) -> tuple[np.ndarray, np.ndarray]:
+    """Predicted and target gain of the best view of every empty lattice cell (cell ρ, see module
+    docs), decoded as the planner decodes them."""
+    from nbv_prob_cnn.planners.city_cnn import CityGeometry, decode_views
+
+    s = CityGeometry.of(method, spec).stride
+    empty = example.inputs[0] > 0
+    origins = np.argwhere(empty[lattice_index(empty.ndim, s)]) * s
+    predicted = decode_views(method, output, empty, spec, origins)
+    target = decode_views(method, example.target, empty, spec, origins)
+    return predicted.max(axis=1, initial=0.0), target.max(axis=1, initial=0.0)
+
+
 def spearman(a: np.ndarray, b: np.ndarray) -> float:
     """Spearman ρ of two samples; NaN when either is constant or shorter than 2."""
     if a.size < 2 or np.all(a == a[0]) or np.all(b == b[0]):
@@ -75,6 +95,7 @@ class CityScores:
     rho: float  # mean over grids with a defined ρ
     rho_grids: int  # how many grids have one
     n: int
+    cell_rho: float = float("nan")  # mean over grids with a defined cell ρ
 
 
 def score_city(
@@ -88,7 +109,7 @@ def score_city(
 ) -> CityScores:
     """Score ``model`` on ``examples`` (built batch by batch, see module docs)."""
     model.eval()
-    mse, zero, mean, rhos = [], [], [], []
+    mse, zero, mean, rhos, cell_rhos = [], [], [], [], []
     c = torch.as_tensor(mean_target, dtype=torch.float32)
     with torch.inference_mode():
         for start in range(0, len(examples), batch):
@@ -102,7 +123,9 @@ def score_city(
                 constant = mask * c.reshape(-1, *([1] * (target.ndim - 1)))
                 mean.append(float(torch.mean((constant - target) ** 2)))
                 rhos.append(spearman(*gain_pairs(method, spec, out, e)))
+                cell_rhos.append(spearman(*cell_gain_pairs(method, spec, out, e)))
     defined = [r for r in rhos if np.isfinite(r)]
+    cells_defined = [r for r in cell_rhos if np.isfinite(r)]
     return CityScores(
         float(np.mean(mse)) if mse else float("nan"),
         float(np.mean(zero)) if zero else float("nan"),
@@ -110,6 +133,7 @@ def score_city(
         float(np.mean(defined)) if defined else float("nan"),
         len(defined),
         len(mse),
+        float(np.mean(cells_defined)) if cells_defined else float("nan"),
     )
 
 
@@ -149,7 +173,8 @@ def main(argv: list[str] | None = None) -> int:
     s, _ = score_weights(args.dataset, args.method, args.weights)
     print(
         f"{args.dataset} {args.method} {args.weights or 'shipped'}: validation MSE {s.mse:.6g} (all-zero "
-        f"{s.zero_mse:.6g}, mean target {s.mean_mse:.6g}), Spearman rho {s.rho:.4f} ({s.rho_grids} of {s.n} grids)"
+        f"{s.zero_mse:.6g}, mean target {s.mean_mse:.6g}), Spearman rho {s.rho:.4f} ({s.rho_grids} of {s.n} grids), "
+        f"cell rho {s.cell_rho:.4f}"
     )
     return 0
 

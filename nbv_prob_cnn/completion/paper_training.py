@@ -70,7 +70,8 @@ GPU_ONLY: tuple[tuple[str, str], ...] = (("3du", "d_city_cnn"),)
 #: The scores of a finished network in its ``done.json`` (besides ``epochs``): fields of a
 #: ``TrainResult``, keys of a model card.
 SCORE_KEYS = ("validation_mse", "validation_zero_mse", "validation_mean_mse", "validation_rho",
-              "test_mse", "test_zero_mse", "test_mean_mse", "test_rho")  # fmt: skip
+              "test_mse", "test_zero_mse", "test_mean_mse", "test_rho", "validation_cell_rho",
+              "test_cell_rho")  # fmt: skip
 
 #: The model-card note of this job's runs (how :func:`shipped_run` recognises their weights).
 NOTE = "Paper-scale run of issue #21 (nbv_prob_cnn.completion.paper_training, 1 torch thread)."
@@ -156,7 +157,8 @@ def main(argv: list[str] | None = None) -> int:
             state = "finished" if result.finished else "paused"
             print(
                 f"== {dataset} {method}: {state} after {result.epochs_done} epochs, best validation MSE "
-                f"{result.validation_mse:.6f}, validation rho {result.validation_rho:.3f}",
+                f"{result.validation_mse:.6f}, validation rho {result.validation_rho:.3f}, "
+                f"cell rho {result.validation_cell_rho:.3f}",
                 flush=True,
             )
             if result.finished:

@@ -41,7 +41,7 @@ RESULT_FILE = "train_result.json"
 
 _RESULT_FLOATS = (
     "validation_mse", "test_mse", "validation_zero_mse", "test_zero_mse", "validation_mean_mse",
-    "test_mean_mse", "validation_rho", "test_rho",
+    "test_mean_mse", "validation_rho", "test_rho", "validation_cell_rho", "test_cell_rho",
 )  # fmt: skip
 
 
@@ -139,4 +139,6 @@ def train_with_ray(
         values["test_mean_mse"],
         values["validation_rho"],
         values["test_rho"],
+        validation_cell_rho=values["validation_cell_rho"],
+        test_cell_rho=values["test_cell_rho"],
     )

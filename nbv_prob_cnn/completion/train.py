@@ -99,6 +99,8 @@ class TrainResult:
     validation_rho: float = float("nan")  # City-CNNs: Spearman ρ, prediction vs target (city_scores)
     test_rho: float = float("nan")
     finished: bool = True  # False: a time budget ended the call before the last epoch
+    validation_cell_rho: float = float("nan")  # City-CNNs: ρ of each cell's best view gain, across cells
+    test_cell_rho: float = float("nan")
 
 
 def side_paths(out: str | Path) -> dict[str, Path]:
@@ -267,6 +269,8 @@ def _write_history(history: list[dict], csv_path: Path, png_path: Path, title: s
     fields = ["epoch", "train_mse", "validation_mse", "epoch_seconds", "elapsed_seconds", "lr"]
     if any("validation_rho" in row for row in history):  # City-CNNs
         fields.insert(3, "validation_rho")
+    if any("validation_cell_rho" in row for row in history):  # City-CNN runs since cell ρ was scored
+        fields.insert(4, "validation_cell_rho")
     with open(csv_path, "w", newline="") as fh:
         writer = csv.DictWriter(fh, fieldnames=fields)
         writer.writeheader()
@@ -315,6 +319,8 @@ def _card_markdown(card: dict) -> str:
         "test_mean_mse": "Test MSE of predicting the mean training target (baseline)",
         "validation_rho": "Spearman ρ, prediction vs target, validation grids (mean over grids)",
         "test_rho": "Spearman ρ, prediction vs target, test grids (mean over grids)",
+        "validation_cell_rho": "Cell ρ (each cell's best view gain, across cells), validation grids",
+        "test_cell_rho": "Cell ρ (each cell's best view gain, across cells), test grids",
         "examples": "Training examples",
         "patience": "Early stopping",
         "stopped": "Stopped",
@@ -591,7 +597,11 @@ def train(
                 "epoch_seconds": round(epoch_s, 2),
                 "elapsed_seconds": round(elapsed, 2),
                 "lr": epoch_lr,
-                **({"validation_rho": round(val_scores.rho, 5)} if val_scores is not None else {}),
+                **(
+                    {"validation_rho": round(val_scores.rho, 5), "validation_cell_rho": round(val_scores.cell_rho, 5)}
+                    if val_scores is not None
+                    else {}
+                ),
             }
         )
         bar.set_postfix(epoch=epoch + 1, loss=f"{history[-1]['train_mse']:.4f}", val=_fmt(history))
@@ -599,6 +609,7 @@ def train(
             best = {"validation_mse": val_mse, "epoch": epoch + 1}
             if val_scores is not None:
                 best["validation_rho"] = val_scores.rho
+                best["validation_cell_rho"] = val_scores.cell_rho
             best_state = {k: v.detach().to("cpu", copy=True) for k, v in model.state_dict().items()}
             if rank == 0:
                 save_weights(model, out, dataset, _card(*card_args, history, best, elapsed), name=method)
@@ -614,6 +625,7 @@ def train(
                     out, paths["last"], paths["csv"], paths["png"], paths["card"], float(best["validation_mse"]),
                     float("nan"), None, len(history), finished=False,
                     validation_rho=float(best.get("validation_rho", float("nan"))),
+                    validation_cell_rho=float(best.get("validation_cell_rho", float("nan"))),
                 )  # fmt: skip
     bar.close()
     if rank != 0:  # rank 0 scores the kept weights and writes the card
@@ -641,7 +653,13 @@ def train(
         test_scores = score_city(kept, method, spec, test_examples, mean_target, dev, batch_size)
         test_mse = test_scores.mse
         zero.update({**_baselines("validation", kept_val), **_baselines("test", test_scores)})
-        best = {**best, "validation_rho": kept_val.rho, "test_rho": test_scores.rho}
+        best = {
+            **best,
+            "validation_rho": kept_val.rho,
+            "test_rho": test_scores.rho,
+            "validation_cell_rho": kept_val.cell_rho,
+            "test_cell_rho": test_scores.cell_rho,
+        }
     best = {**best, "test_mse": test_mse}
     if _stopped_early(history, best, patience) and len(history) < epochs:
         best["stopped"] = f"early at epoch {len(history)} of {epochs}: no lower validation MSE for {patience} epochs"
@@ -670,6 +688,8 @@ def train(
         zero.get("test_mean_mse", float("nan")),
         float(best.get("validation_rho", float("nan"))),
         float(best.get("test_rho", float("nan"))),
+        validation_cell_rho=float(best.get("validation_cell_rho", float("nan"))),
+        test_cell_rho=float(best.get("test_cell_rho", float("nan"))),
     )
 
 
@@ -825,8 +845,8 @@ def _card(
         card[key] = round(float(value), 6)
     if "ece" in best:
         card["ece"] = round(float(best["ece"]), 5)
-    for key in ("validation_rho", "test_rho"):
-        if key in best:
+    for key in ("validation_rho", "test_rho", "validation_cell_rho", "test_cell_rho"):
+        if key in best and np.isfinite(best[key]):
             card[key] = round(float(best[key]), 4)
     if "stopped" in best:
         card["stopped"] = best["stopped"]
@@ -882,8 +902,9 @@ def warm_start_state(path: Path, model: CompletionNet) -> tuple[list[dict], dict
         raise ValueError(f"warm start: {csv_path} lacks epochs 1..{epoch}")
     model.load_state_dict(payload["state_dict"])
     best: dict[str, Any] = {"validation_mse": float(history[-1]["validation_mse"]), "epoch": epoch}
-    if "validation_rho" in history[-1]:
-        best["validation_rho"] = float(history[-1]["validation_rho"])
+    for key in ("validation_rho", "validation_cell_rho"):
+        if key in history[-1]:
+            best[key] = float(history[-1][key])
     return history, best, float(history[-1].get("elapsed_seconds", 0.0))
 
 
