@@ -353,3 +353,32 @@ def test_cli_ray_path_calls_ray_train(monkeypatch, tmp_path):
     assert (dataset, epochs, out) == ("3dt", 120, None)
     assert (kwargs["address"], kwargs["workers"], kwargs["patience"], kwargs["crop"]) == ("h:6379", 3, 10, 64)
     assert kwargs["cache"] is True and kwargs["device"] is None
+
+
+def test_cell_ranking_features_and_fit_by_hand():
+    """A 2D Flat City-CNN target whose cells' best view gains grow with the height axis: ρ 1
+    with height, ρ -1 with the not-empty share when the unknown lies at the low end; an oracle
+    network ranks cells and pairs perfectly on 'training' and 'validation' examples alike."""
+    from nbv_prob_cnn.completion.city_cell_ranking import feature_rank_agreement, fit_and_generalisation
+
+    spec = dataset_spec("2d")
+    inputs = np.zeros((2, 1, 6), np.float32)
+    inputs[0, 0, 1:] = 1.0  # cell 0 unknown, cells 1..5 empty
+    inputs[1, 0, 0] = 1.0  # cell 0 is the frontier
+    target = np.zeros((60, 1, 6), np.float32)
+    target[0, 0, 1:] = [0.1, 0.2, 0.3, 0.4, 0.5]  # best view gain grows with the last axis
+    target[7, 0, 1:] = 0.05
+    example = Example(inputs, target, np.ones((1, 1, 6), np.float32))
+    rho = feature_rank_agreement("flat_city_cnn", spec, [example])
+    assert rho["height"] == pytest.approx(1.0)
+    assert rho["distance to frontier"] == pytest.approx(1.0)
+    assert rho["not-empty share r8"] != rho["not-empty share r8"]  # the one unknown cell is in every cube: no ρ
+    table = {example.inputs.tobytes(): target}
+
+    class Oracle(torch.nn.Module):
+        def forward(self, x):
+            return torch.as_tensor(table[x[0].numpy().tobytes()])[None]
+
+    fit = fit_and_generalisation(Oracle(), "flat_city_cnn", spec, lambda i, rng: example, 2, [example])
+    assert (fit.train_cell_rho, fit.validation_cell_rho) == (pytest.approx(1.0), pytest.approx(1.0))
+    assert fit.train_rho == pytest.approx(1.0) and fit.train_examples == 2

@@ -1,0 +1,158 @@
+"""Why the City-CNNs do not rank the cells (issue #21): the cell ρ of trained weights on their own
+training crops and on the validation grids, and how much of a cell's best view gain simple local
+features of the state explain.
+
+A planner built on a City-CNN takes the best (cell, view) pair of the whole grid, so the network
+must rank the cells, not only the views inside each cell. :mod:`~nbv_prob_cnn.completion.city_scores`
+measures both (ρ over all pairs, cell ρ over each cell's best view). This module adds two
+measurements that tell a network that has not learnt the cell ranking from a target that holds
+little of it:
+
+* :func:`fit_and_generalisation`: pair ρ and cell ρ of a weights file on random training crops
+  (unrotated, as training draws them) beside the same on the validation grids. A cell ρ near 0
+  on the training crops too means the network did not fit the ranking, rather than failed to
+  carry it to new grids.
+* :func:`feature_rank_agreement`: Spearman ρ, across the empty lattice cells of each validation
+  grid, between the target's best view gain and local features of the input: height (last
+  axis), distance to the nearest frontier cell, and the share of not-known-empty cells
+  (unknown or occupied) and of frontier cells within a cube of side ``2r + 1`` around the cell.
+
+Run: ``python -m nbv_prob_cnn.completion.city_cell_ranking --dataset 3dt --method flat_city_cnn``
+"""
+
+from __future__ import annotations
+
+import argparse
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+from scipy.ndimage import distance_transform_edt, uniform_filter
+
+from nbv_prob_cnn.basics.datasets import DatasetSpec
+from nbv_prob_cnn.basics.grid import lattice_index
+from nbv_prob_cnn.completion.city_scores import cell_gain_pairs, gain_pairs, spearman
+from nbv_prob_cnn.completion.tasks import Example
+
+#: Half sides (cells) of the neighbourhoods the share features count over.
+RADII = (8, 24)
+
+
+@dataclass(frozen=True)
+class FitScores:
+    """Mean pair ρ and cell ρ on training crops and on validation grids."""
+
+    train_rho: float
+    train_cell_rho: float
+    validation_rho: float
+    validation_cell_rho: float
+    train_examples: int
+    validation_examples: int
+
+
+def local_features(example: Example, stride: int) -> dict[str, np.ndarray]:
+    """Features of each empty lattice cell (``np.argwhere`` order) of an example's input."""
+    empty = example.inputs[0] > 0
+    frontier = example.inputs[1] > 0
+    cells = np.argwhere(empty[lattice_index(empty.ndim, stride)]) * stride
+    at = tuple(cells.T)
+    features = {
+        "height": cells[:, -1].astype(np.float64),
+        "distance to frontier": distance_transform_edt(~frontier)[at] if frontier.any() else np.zeros(len(cells)),
+    }
+    for r in RADII:
+        features[f"not-empty share r{r}"] = uniform_filter((~empty).astype(np.float64), 2 * r + 1, mode="constant")[at]
+        features[f"frontier share r{r}"] = uniform_filter(frontier.astype(np.float64), 2 * r + 1, mode="constant")[at]
+    return features
+
+
+def feature_rank_agreement(method: str, spec: DatasetSpec, examples: Sequence[Example]) -> dict[str, float]:
+    """Mean over ``examples`` of ρ(feature, target best view gain) across their empty lattice
+    cells, per feature of :func:`local_features` (grids without a defined ρ left out)."""
+    from nbv_prob_cnn.planners.city_cnn import CityGeometry
+
+    stride = CityGeometry.of(method, spec).stride
+    rows: dict[str, list[float]] = {}
+    for e in examples:
+        _, gain = cell_gain_pairs(method, spec, e.target, e)
+        for name, values in local_features(e, stride).items():
+            rows.setdefault(name, []).append(spearman(values, gain))
+    return {name: _defined_mean(values) for name, values in rows.items()}
+
+
+def _defined_mean(values: Sequence[float]) -> float:
+    """Mean of the finite values (NaN when none is)."""
+    finite = [v for v in values if np.isfinite(v)]
+    return float(np.mean(finite)) if finite else float("nan")
+
+
+def _rhos(model: torch.nn.Module, method: str, spec: DatasetSpec, examples: Sequence[Example]) -> tuple[float, float]:
+    pairs, cells = [], []
+    with torch.inference_mode():
+        for e in examples:
+            out = model(torch.as_tensor(e.inputs[None], dtype=torch.float32))[0].float().numpy() * e.mask
+            pairs.append(spearman(*gain_pairs(method, spec, out, e)))
+            cells.append(spearman(*cell_gain_pairs(method, spec, out, e)))
+    return _defined_mean(pairs), _defined_mean(cells)
+
+
+def fit_and_generalisation(
+    model: torch.nn.Module,
+    method: str,
+    spec: DatasetSpec,
+    train_example: Callable[[int, np.random.Generator], Example],
+    n_train: int,
+    validation: Sequence[Example],
+    seed: int = 0,
+) -> FitScores:
+    """:class:`FitScores` of ``model`` on ``n_train`` training crops (``train_example(i, rng)``)
+    and on the ``validation`` examples."""
+    model.eval()
+    rng = np.random.default_rng(seed)
+    train = [train_example(i, rng) for i in range(n_train)]
+    train_rho, train_cell = _rhos(model, method, spec, train)
+    val_rho, val_cell = _rhos(model, method, spec, validation)
+    return FitScores(train_rho, train_cell, val_rho, val_cell, len(train), len(validation))
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description="Cell ranking of City-CNN weights and of their targets")
+    parser.add_argument("--dataset", required=True, choices=["2d", "3du", "3dt"])
+    parser.add_argument("--method", required=True, choices=["flat_city_cnn", "b_city_cnn", "d_city_cnn"])
+    parser.add_argument("--weights", default=None, help="weights file (default: the shipped one)")
+    parser.add_argument("--train-crops", type=int, default=20, help="training crops to score (first environments)")
+    parser.add_argument("--threads", type=int, default=1)
+    args = parser.parse_args(argv)
+    torch.set_num_threads(args.threads)
+
+    from nbv_prob_cnn.basics.datasets import dataset_spec
+    from nbv_prob_cnn.completion.city_cache import CachedCityExamples, CacheLayout, ensure_chunks
+    from nbv_prob_cnn.completion.inference import load_model
+
+    spec = dataset_spec(args.dataset)
+    train_seeds, seeds = list(spec.train_seeds)[: args.train_crops], list(spec.validation_seeds)
+    layout = CacheLayout.for_training(args.dataset, spec.training.crop, spec.training.test_crop)
+    ensure_chunks(layout, {"train": train_seeds, "eval": seeds}, progress=True)
+    examples = CachedCityExamples(args.method, layout, train_seeds, seeds, [], spec.training.crop)
+    validation = list(examples.fixed(seeds))
+    model = load_model(args.weights, args.dataset, torch.device("cpu"), model_name=args.method)
+
+    def crop(i: int, rng: np.random.Generator) -> Example:
+        example = examples.train_example(i, 0, rng)
+        assert example is not None
+        return example
+
+    fit = fit_and_generalisation(model, args.method, spec, crop, len(train_seeds), validation)
+    print(
+        f"{args.dataset} {args.method} {args.weights or 'shipped'}: pair rho / cell rho on {fit.train_examples} "
+        f"training crops {fit.train_rho:.3f} / {fit.train_cell_rho:.3f}, on {fit.validation_examples} validation "
+        f"grids {fit.validation_rho:.3f} / {fit.validation_cell_rho:.3f}"
+    )
+    for name, rho in feature_rank_agreement(args.method, spec, validation).items():
+        print(f"{args.dataset} targets: rho(best view gain of a cell, {name}) {rho:+.3f}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
