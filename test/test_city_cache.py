@@ -382,3 +382,33 @@ def test_cell_ranking_features_and_fit_by_hand():
     fit = fit_and_generalisation(Oracle(), "flat_city_cnn", spec, lambda i, rng: example, 2, [example])
     assert (fit.train_cell_rho, fit.validation_cell_rho) == (pytest.approx(1.0), pytest.approx(1.0))
     assert fit.train_rho == pytest.approx(1.0) and fit.train_examples == 2
+
+
+
+def test_inside_crop_targets_against_whole_grid_targets():
+    """A 2D map twice the crop's height. With every unknown cell inside the box the crop takes,
+    no ray finds unknown cells outside it: whole-grid and inside-crop targets rank alike (ρ 1).
+    With an unknown block just outside the box, the whole-grid targets of the cells facing it
+    grow and the rankings part (ρ < 1)."""
+    from nbv_prob_cnn.completion.city_cell_ranking import inside_crop_agreement
+    from nbv_prob_cnn.completion.data import TrainingSample
+
+    spec = dataset_spec("2d")
+    box = crop_box((512, 256), spec.training.crop, np.random.default_rng(0), 1)  # the box the function draws
+    rows = range(box[0].start, box[0].stop)
+    truth = np.zeros((512, 256), np.uint8)
+    truth[::37, ::29] = 1
+    state = np.where(truth == 1, 1, 0).astype(np.int8)
+    state[rows.start + 40 : rows.start + 90, 60:200] = -1
+    state[rows.start + 150 : rows.start + 170, 20:40] = -1
+
+    def agreement(state: np.ndarray) -> tuple[float, float, int]:
+        sample = TrainingSample("2d", 0, state, truth, 1, np.zeros((0, 2), np.int64), np.zeros(0, np.int64))
+        return inside_crop_agreement("flat_city_cnn", spec, [sample], 1, seed=0)
+
+    assert agreement(state) == (pytest.approx(1.0), pytest.approx(1.0), 1)
+    outside = state.copy()
+    edge = rows.stop if rows.stop + 60 <= 512 else rows.start - 60
+    outside[edge : edge + 60, :] = -1  # a band of unknown cells beyond one edge of the box
+    cell, pair, _ = agreement(outside)
+    assert cell < 0.99 and pair < 0.99

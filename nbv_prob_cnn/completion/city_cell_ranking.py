@@ -12,6 +12,10 @@ little of it:
   (unrotated, as training draws them) beside the same on the validation grids. A cell ρ near 0
   on the training crops too means the network did not fit the ranking, rather than failed to
   carry it to new grids.
+* :func:`inside_crop_agreement`: on training crops, ρ between the targets training uses (rays
+  cast through the whole grid) and the targets of the crop alone (rays cast inside it), per
+  cell (best view) and per (cell, view) pair. What the second ranks is all a network shown only
+  the crop can know; a low cell value means the crop's cell ranking is set mostly outside it.
 * :func:`feature_rank_agreement`: Spearman ρ, across the empty lattice cells of each validation
   grid, between the target's best view gain and local features of the input: height (last
   axis), distance to the nearest frontier cell, and the share of not-known-empty cells
@@ -33,7 +37,9 @@ from scipy.ndimage import distance_transform_edt, uniform_filter
 from nbv_prob_cnn.basics.datasets import DatasetSpec
 from nbv_prob_cnn.basics.grid import lattice_index
 from nbv_prob_cnn.completion.city_scores import cell_gain_pairs, gain_pairs, spearman
+from nbv_prob_cnn.completion.data import TrainingSample
 from nbv_prob_cnn.completion.tasks import Example
+from nbv_prob_cnn.planners.city_cnn import encode_city_input
 
 #: Half sides (cells) of the neighbourhoods the share features count over.
 RADII = (8, 24)
@@ -87,6 +93,32 @@ def _defined_mean(values: Sequence[float]) -> float:
     return float(np.mean(finite)) if finite else float("nan")
 
 
+def inside_crop_agreement(
+    method: str, spec: DatasetSpec, samples: Sequence[TrainingSample], crops_per_sample: int, seed: int = 0
+) -> tuple[float, float, int]:
+    """Mean cell ρ and pair ρ between whole-grid and inside-crop targets (module docs) over
+    ``crops_per_sample`` random training crops of each sample; returns them and the crop count."""
+    from nbv_prob_cnn.completion.data import crop_box
+    from nbv_prob_cnn.planners.city_cnn import CityGeometry, city_targets
+
+    stride = CityGeometry.of(method, spec).stride
+    rng = np.random.default_rng(seed)
+    cells, pairs = [], []
+    for sample in samples:
+        for _ in range(crops_per_sample):
+            box = crop_box(sample.state.shape, spec.training.crop, rng, stride)
+            whole = city_targets(method, sample.state, sample.truth, spec, box)
+            state, truth = np.ascontiguousarray(sample.state[box]), np.ascontiguousarray(sample.truth[box])
+            inside = city_targets(method, state, truth, spec)
+            example = Example(encode_city_input(state[None])[0].numpy(), whole, np.ones(1, np.float32))
+            whole_cells, inside_cells = (cell_gain_pairs(method, spec, t, example)[0] for t in (whole, inside))
+            cells.append(spearman(whole_cells, inside_cells))
+            empty_lattice = (state == 0)[lattice_index(state.ndim, stride)]
+            if method == "flat_city_cnn":
+                pairs.append(spearman(whole[:, empty_lattice].ravel(), inside[:, empty_lattice].ravel()))
+    return _defined_mean(cells), _defined_mean(pairs), len(cells)
+
+
 def _rhos(model: torch.nn.Module, method: str, spec: DatasetSpec, examples: Sequence[Example]) -> tuple[float, float]:
     pairs, cells = [], []
     with torch.inference_mode():
@@ -122,6 +154,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--method", required=True, choices=["flat_city_cnn", "b_city_cnn", "d_city_cnn"])
     parser.add_argument("--weights", default=None, help="weights file (default: the shipped one)")
     parser.add_argument("--train-crops", type=int, default=20, help="training crops to score (first environments)")
+    parser.add_argument("--inside-envs", type=int, default=8, help="training environments for the inside-crop targets")
     parser.add_argument("--threads", type=int, default=1)
     args = parser.parse_args(argv)
     torch.set_num_threads(args.threads)
@@ -149,6 +182,15 @@ def main(argv: list[str] | None = None) -> int:
         f"training crops {fit.train_rho:.3f} / {fit.train_cell_rho:.3f}, on {fit.validation_examples} validation "
         f"grids {fit.validation_rho:.3f} / {fit.validation_cell_rho:.3f}"
     )
+    if spec.training.crop is not None:
+        from nbv_prob_cnn.completion.data import load_or_generate_sample
+
+        samples = [load_or_generate_sample(args.dataset, s) for s in train_seeds[: args.inside_envs]]
+        cell, pair, n = inside_crop_agreement(args.method, spec, samples, 2)
+        print(
+            f"{args.dataset} targets on {n} training crops of {spec.training.crop}: rho(whole-grid target, "
+            f"inside-crop target) per cell {cell:.3f}, per (cell, view) {pair:.3f} (Flat City-CNN only)"
+        )
     for name, rho in feature_rank_agreement(args.method, spec, validation).items():
         print(f"{args.dataset} targets: rho(best view gain of a cell, {name}) {rho:+.3f}")
     return 0
