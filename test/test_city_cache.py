@@ -384,7 +384,6 @@ def test_cell_ranking_features_and_fit_by_hand():
     assert fit.train_rho == pytest.approx(1.0) and fit.train_examples == 2
 
 
-
 def test_inside_crop_targets_against_whole_grid_targets():
     """A 2D map twice the crop's height. With every unknown cell inside the box the crop takes,
     no ray finds unknown cells outside it: whole-grid and inside-crop targets rank alike (ρ 1).
