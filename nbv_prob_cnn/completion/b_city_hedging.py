@@ -185,8 +185,8 @@ def main(argv: list[str] | None = None) -> int:
     scores = hedging_tradeoff(
         spec,
         load_model(args.flat_weights, args.dataset, cpu, model_name="flat_city_cnn"),
-        list(flat.fixed(seeds)),
-        list(b.fixed(seeds)),
+        flat.fixed(seeds),  # built lazily, one grid at a time
+        b.fixed(seeds),
         mean_target_per_channel(b.unrotated_training()),
         load_model(args.b_weights, args.dataset, cpu, model_name="b_city_cnn"),
     )

@@ -168,7 +168,7 @@ def main(argv: list[str] | None = None) -> int:
     layout = CacheLayout.for_training(args.dataset, spec.training.crop, spec.training.test_crop)
     ensure_chunks(layout, {"train": train_seeds, "eval": seeds}, progress=True)
     examples = CachedCityExamples(args.method, layout, train_seeds, seeds, [], spec.training.crop)
-    validation = list(examples.fixed(seeds))
+    validation = examples.fixed(seeds)  # built lazily, one grid at a time (a 3DU Flat target is 54 MB)
     model = load_model(args.weights, args.dataset, torch.device("cpu"), model_name=args.method)
 
     def crop(i: int, rng: np.random.Generator) -> Example:
