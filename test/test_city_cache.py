@@ -4,6 +4,7 @@ cached training step never ray-casts, and the scores (mean-target MSE, Spearman 
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -450,3 +451,28 @@ def test_hedging_tradeoff_of_a_flat_oracle(tiny_worlds):
     assert by_k[10.0].mse > 0.0
     zero = next(s for s in scores if s.name == "mean target")
     assert zero.mse == pytest.approx(np.mean([np.mean(e.target.astype(np.float64) ** 2) for e in b]), rel=1e-5)
+
+
+def test_planner_rank_agreement_is_one_when_the_prior_is_the_truth():
+    """prob_ig with P0 = 0 on a map whose unknown cells are all empty in truth computes the
+    omniscient gains themselves: ρ 1 per cell and per pair; walls hidden in the unknown part
+    make the two differ."""
+    from nbv_prob_cnn.completion.city_cell_ranking import planner_rank_agreement
+    from nbv_prob_cnn.completion.data import TrainingSample
+
+    spec = dataclasses.replace(dataset_spec("2d"), p0=0.0)
+    truth = np.zeros((64, 64), np.uint8)
+    truth[0, :] = truth[-1, :] = truth[:, 0] = truth[:, -1] = 1
+    state = np.where(truth == 1, 1, 0).astype(np.int8)
+    state[30:50, 10:40] = -1
+    state[5:12, 45:60] = -1
+
+    def agreement(truth: np.ndarray) -> tuple[float, float]:
+        sample = TrainingSample("2d", 0, state, truth, 1, np.zeros((0, 2), np.int64), np.zeros(0, np.int64))
+        return planner_rank_agreement(spec, [sample], ("prob_ig",))["prob_ig"]
+
+    assert agreement(truth) == (pytest.approx(1.0), pytest.approx(1.0))
+    walled = truth.copy()
+    walled[30:50:3, 10:40] = 1  # occupied rows inside the first unknown block
+    cell, pair = agreement(walled)
+    assert cell < 0.99 and pair < 0.99

@@ -16,6 +16,10 @@ little of it:
   cast through the whole grid) and the targets of the crop alone (rays cast inside it), per
   cell (best view) and per (cell, view) pair. What the second ranks is all a network shown only
   the crop can know; a low cell value means the crop's cell ranking is set mostly outside it.
+* :func:`planner_rank_agreement`: the same two ρ for the view gains the ray-casting planners
+  compute on the state (``prob_ig``: a constant ``P0`` in unknown cells; ``cnn_prob``: the
+  completion CNN's probabilities) against the omniscient ones, on whole validation states: how
+  much of the ranking a planner that looks at the state can reach without a City-CNN.
 * :func:`feature_rank_agreement`: Spearman ρ, across the empty lattice cells of each validation
   grid, between the target's best view gain and local features of the input: height (last
   axis), distance to the nearest frontier cell, and the share of not-known-empty cells
@@ -119,6 +123,37 @@ def inside_crop_agreement(
     return _defined_mean(cells), _defined_mean(pairs), len(cells)
 
 
+def planner_rank_agreement(
+    spec: DatasetSpec, samples: Sequence[TrainingSample], methods: Sequence[str] = ("prob_ig", "cnn_prob")
+) -> dict[str, tuple[float, float]]:
+    """Per method, the mean cell ρ and pair ρ between its view gains and the omniscient ones
+    (:func:`~nbv_prob_cnn.planners.city_cnn.omniscient_ray_gains`, the City-CNN targets before
+    scaling) at the Flat City-CNN's origins of each sample (module docs)."""
+    from nbv_prob_cnn.basics.grid import probability_with_constant
+    from nbv_prob_cnn.completion.inference import complete
+    from nbv_prob_cnn.gain import ray_gains
+    from nbv_prob_cnn.planners.city_cnn import CityGeometry, omniscient_ray_gains
+
+    geometry = CityGeometry.of("flat_city_cnn", spec)
+    rows: dict[str, list[tuple[float, float]]] = {m: [] for m in methods}
+    for sample in samples:
+        origins = geometry.origins(sample.state)
+        target = omniscient_ray_gains(sample.state, sample.truth, geometry, origins) @ geometry.membership
+        for method in methods:
+            if method == "prob_ig":
+                prob = probability_with_constant(sample.state, spec.p0)
+            elif method == "cnn_prob":
+                prob = complete(sample.state, dataset=spec.name)
+            else:
+                raise ValueError(f"methods: expected prob_ig or cnn_prob, got {method!r}")
+            rays = ray_gains(sample.state, prob, geometry.directions, spec.sensor.r_max, origins, mode="prob")
+            views = rays @ geometry.membership
+            rows[method].append(
+                (spearman(views.max(axis=1), target.max(axis=1)), spearman(views.ravel(), target.ravel()))
+            )
+    return {m: (_defined_mean([c for c, _ in v]), _defined_mean([p for _, p in v])) for m, v in rows.items()}
+
+
 def _rhos(model: torch.nn.Module, method: str, spec: DatasetSpec, examples: Sequence[Example]) -> tuple[float, float]:
     pairs, cells = [], []
     with torch.inference_mode():
@@ -155,12 +190,14 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--weights", default=None, help="weights file (default: the shipped one)")
     parser.add_argument("--train-crops", type=int, default=20, help="training crops to score (first environments)")
     parser.add_argument("--inside-envs", type=int, default=8, help="training environments for the inside-crop targets")
+    parser.add_argument("--planner-grids", type=int, default=10, help="validation states for the planners' rho")
     parser.add_argument("--threads", type=int, default=1)
     args = parser.parse_args(argv)
     torch.set_num_threads(args.threads)
 
     from nbv_prob_cnn.basics.datasets import dataset_spec
     from nbv_prob_cnn.completion.city_cache import CachedCityExamples, CacheLayout, ensure_chunks
+    from nbv_prob_cnn.completion.data import load_or_generate_sample
     from nbv_prob_cnn.completion.inference import load_model
 
     spec = dataset_spec(args.dataset)
@@ -183,13 +220,17 @@ def main(argv: list[str] | None = None) -> int:
         f"grids {fit.validation_rho:.3f} / {fit.validation_cell_rho:.3f}"
     )
     if spec.training.crop is not None:
-        from nbv_prob_cnn.completion.data import load_or_generate_sample
-
         samples = [load_or_generate_sample(args.dataset, s) for s in train_seeds[: args.inside_envs]]
         cell, pair, n = inside_crop_agreement(args.method, spec, samples, 2)
         print(
             f"{args.dataset} targets on {n} training crops of {spec.training.crop}: rho(whole-grid target, "
             f"inside-crop target) per cell {cell:.3f}, per (cell, view) {pair:.3f} (Flat City-CNN only)"
+        )
+    states = [load_or_generate_sample(args.dataset, s) for s in seeds[: args.planner_grids]]
+    for method, (cell, pair) in planner_rank_agreement(spec, states).items():
+        print(
+            f"{args.dataset} {method} against the omniscient gains on {len(states)} validation states: cell rho "
+            f"{cell:.3f}, pair rho {pair:.3f}"
         )
     for name, rho in feature_rank_agreement(args.method, spec, validation).items():
         print(f"{args.dataset} targets: rho(best view gain of a cell, {name}) {rho:+.3f}")
