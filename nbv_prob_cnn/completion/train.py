@@ -846,7 +846,7 @@ def _card(
     if "ece" in best:
         card["ece"] = round(float(best["ece"]), 5)
     for key in ("validation_rho", "test_rho", "validation_cell_rho", "test_cell_rho"):
-        if key in best and np.isfinite(best[key]):
+        if key in best:
             card[key] = round(float(best[key]), 4)
     if "stopped" in best:
         card["stopped"] = best["stopped"]
