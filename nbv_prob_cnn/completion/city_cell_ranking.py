@@ -40,7 +40,7 @@ from scipy.ndimage import distance_transform_edt, uniform_filter
 
 from nbv_prob_cnn.basics.datasets import DatasetSpec
 from nbv_prob_cnn.basics.grid import lattice_index
-from nbv_prob_cnn.completion.city_scores import cell_gain_pairs, gain_pairs, spearman
+from nbv_prob_cnn.completion.city_scores import cell_gain_pairs, rank_pairs, spearman
 from nbv_prob_cnn.completion.data import TrainingSample
 from nbv_prob_cnn.completion.tasks import Example
 from nbv_prob_cnn.planners.city_cnn import encode_city_input
@@ -115,11 +115,10 @@ def inside_crop_agreement(
             state, truth = np.ascontiguousarray(sample.state[box]), np.ascontiguousarray(sample.truth[box])
             inside = city_targets(method, state, truth, spec)
             example = Example(encode_city_input(state[None])[0].numpy(), whole, np.ones(1, np.float32))
-            whole_cells, inside_cells = (cell_gain_pairs(method, spec, t, example)[0] for t in (whole, inside))
-            cells.append(spearman(whole_cells, inside_cells))
-            empty_lattice = (state == 0)[lattice_index(state.ndim, stride)]
+            gains, best = rank_pairs(method, spec, inside, example)  # (inside-crop, whole-grid) pairs
+            cells.append(spearman(*best))
             if method == "flat_city_cnn":
-                pairs.append(spearman(whole[:, empty_lattice].ravel(), inside[:, empty_lattice].ravel()))
+                pairs.append(spearman(*gains))
     return _defined_mean(cells), _defined_mean(pairs), len(cells)
 
 
@@ -159,8 +158,9 @@ def _rhos(model: torch.nn.Module, method: str, spec: DatasetSpec, examples: Sequ
     with torch.inference_mode():
         for e in examples:
             out = model(torch.as_tensor(e.inputs[None], dtype=torch.float32))[0].float().numpy() * e.mask
-            pairs.append(spearman(*gain_pairs(method, spec, out, e)))
-            cells.append(spearman(*cell_gain_pairs(method, spec, out, e)))
+            gains, best = rank_pairs(method, spec, out, e)
+            pairs.append(spearman(*gains))
+            cells.append(spearman(*best))
     return _defined_mean(pairs), _defined_mean(cells)
 
 

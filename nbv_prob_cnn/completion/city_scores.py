@@ -46,36 +46,47 @@ def mean_target_per_channel(examples: Sequence[Example]) -> np.ndarray:
     return (total / count).astype(np.float32)
 
 
-def gain_pairs(method: str, spec: DatasetSpec, output: np.ndarray, example: Example) -> tuple[np.ndarray, np.ndarray]:
-    """Predicted and target gains whose rank agreement ρ measures (see module docs)."""
+def _decoded_views(
+    method: str, spec: DatasetSpec, output: np.ndarray, example: Example
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The empty lattice cells ``(N, dims)`` of an example and the predicted and target view gains
+    ``(N, V)`` there, decoded as the planner decodes them."""
     from nbv_prob_cnn.planners.city_cnn import CityGeometry, decode_views
 
     s = CityGeometry.of(method, spec).stride
     empty = example.inputs[0] > 0
-    lattice_empty = empty[lattice_index(empty.ndim, s)]
-    cells = np.argwhere(lattice_empty)
+    cells = np.argwhere(empty[lattice_index(empty.ndim, s)])
+    origins = cells * s
+    return (
+        cells,
+        decode_views(method, output, empty, spec, origins),
+        decode_views(method, example.target, empty, spec, origins),
+    )
+
+
+Pairs = tuple[np.ndarray, np.ndarray]
+
+
+def rank_pairs(method: str, spec: DatasetSpec, output: np.ndarray, example: Example) -> tuple[Pairs, Pairs]:
+    """``(gain pairs, cell pairs)``: the predicted and target values whose agreement ρ and cell ρ
+    measure (see module docs), from one decoding of the output and the target."""
+    cells, predicted, target = _decoded_views(method, spec, output, example)
+    best = (predicted.max(axis=1, initial=0.0), target.max(axis=1, initial=0.0))
     if method == "b_city_cnn":
         index = (slice(None), *cells.T)
-        return np.linalg.norm(output[index], axis=0), np.linalg.norm(example.target[index], axis=0)
-    origins = cells * s
-    predicted = decode_views(method, output, empty, spec, origins)
-    target = decode_views(method, example.target, empty, spec, origins)
-    return predicted.ravel(), target.ravel()
+        return (np.linalg.norm(output[index], axis=0), np.linalg.norm(example.target[index], axis=0)), best
+    return (predicted.ravel(), target.ravel()), best
 
 
-def cell_gain_pairs(
-    method: str, spec: DatasetSpec, output: np.ndarray, example: Example
-) -> tuple[np.ndarray, np.ndarray]:
+def gain_pairs(method: str, spec: DatasetSpec, output: np.ndarray, example: Example) -> Pairs:
+    """Predicted and target gains whose rank agreement ρ measures (see module docs)."""
+    return rank_pairs(method, spec, output, example)[0]
+
+
+def cell_gain_pairs(method: str, spec: DatasetSpec, output: np.ndarray, example: Example) -> Pairs:
     """Predicted and target gain of the best view of every empty lattice cell (cell ρ, see module
     docs), decoded as the planner decodes them."""
-    from nbv_prob_cnn.planners.city_cnn import CityGeometry, decode_views
-
-    s = CityGeometry.of(method, spec).stride
-    empty = example.inputs[0] > 0
-    origins = np.argwhere(empty[lattice_index(empty.ndim, s)]) * s
-    predicted = decode_views(method, output, empty, spec, origins)
-    target = decode_views(method, example.target, empty, spec, origins)
-    return predicted.max(axis=1, initial=0.0), target.max(axis=1, initial=0.0)
+    return rank_pairs(method, spec, output, example)[1]
 
 
 def spearman(a: np.ndarray, b: np.ndarray) -> float:
@@ -122,8 +133,9 @@ def score_city(
                 zero.append(float(torch.mean(target**2)))
                 constant = mask * c.reshape(-1, *([1] * (target.ndim - 1)))
                 mean.append(float(torch.mean((constant - target) ** 2)))
-                rhos.append(spearman(*gain_pairs(method, spec, out, e)))
-                cell_rhos.append(spearman(*cell_gain_pairs(method, spec, out, e)))
+                gains, best = rank_pairs(method, spec, out, e)
+                rhos.append(spearman(*gains))
+                cell_rhos.append(spearman(*best))
     defined = [r for r in rhos if np.isfinite(r)]
     cells_defined = [r for r in cell_rhos if np.isfinite(r)]
     return CityScores(
