@@ -1,4 +1,4 @@
-"""One arm-constrained view choice, as ``nbv arm-compare`` (:class:`~nbv_prob_cnn.arm.comparison.ArmPlanner`)
+"""One arm-constrained view choice, as ``nbv study arm_compare`` (:class:`~studies.arm_comparison.ArmPlanner`)
 and the ROS ``nbv_planner`` (``use_arm``) both make it: :func:`~nbv_prob_cnn.arm.feasibility.plan_with_arm`
 on the grid with the space the arm has swept carved free, never a view already taken, and a
 near-camera fallback when no ranked view is feasible.
@@ -33,7 +33,7 @@ class ArmViewSelector:
             space) before giving up; 0: off.
 
     Views taken (:meth:`take`) are never ranked again: in a static scene a view repeated shows
-    nothing new, while the gain model may still credit it (seen in ``arm-compare``: a view kept
+    nothing new, while the gain model may still credit it (seen in ``nbv study arm_compare``: a view kept
     its ``prob_ig`` gain after being taken and the arm, unable to reach the better ones, took it
     again and again).
     """

@@ -18,7 +18,7 @@ from nbv_prob_cnn.arm.robot import RobotConfig, RobotModel
 from nbv_prob_cnn.basics.camera import matrix_from_quaternion
 from nbv_prob_cnn.basics.geometry import GridGeometry
 
-#: Grid-collision sample spacing, in cells (as ``nbv arm-compare``).
+#: Grid-collision sample spacing, in cells (as ``nbv study arm_compare``).
 SAMPLE_SPACING_CELLS = 0.75
 
 

@@ -5,7 +5,7 @@ activations). With glibc's defaults, the threshold above which ``malloc`` maps a
 (and ``free`` returns it to the system) slides up after the first large free, up to 32 MiB; from
 then on such arrays are carved from the heaps of the executor's threads, and the holes they leave
 stay resident. In an 8-minute soak of the simulated graph this made ``gain_server`` grow 25 % and
-``nbv_planner`` 22 % after the first exploration (docs/soak/README.md).
+``nbv_planner`` 22 % after the first exploration (studies/results/soak/README.md).
 
 What is done about it, measured side by side in 8-minute soaks and on the CNN and the gain
 search of a 3DT grid (docs/ros.md#memory-of-long-running-nodes):

@@ -27,7 +27,7 @@ goal), in every ``move_mode``.
 
 With ``use_arm:=true`` (robot description parameters of :class:`RobotParams`) a plan is the best
 view the arm reaches collision-free from the configuration of the latest ``/joint_states``
-(:class:`~nbv_prob_cnn.arm.selection.ArmViewSelector`, as ``nbv arm-compare``: views ranked by
+(:class:`~nbv_prob_cnn.arm.selection.ArmViewSelector`, as ``nbv study arm_compare``: views ranked by
 gain, capability map, IK and its alternatives, self/grid collision and the straight joint path,
 utility ``gain − motion_weight · path length``, a near-camera fallback); the response carries its
 joint goal. The planner's grid (not the integrator's) counts as free the cells the arm's bodies

@@ -1,30 +1,30 @@
 """The noisy table of a tabletop world as a triangle mesh that matches its voxel grid (for the
-simulated depth camera). Reads only the :class:`~nbv_prob_cnn.worlds.world.World` it is given, so
-:mod:`~nbv_prob_cnn.worlds.world` can use it without importing the tabletop generator."""
+simulated depth camera). It takes the world's arrays, not the world, so that the world module uses
+it and neither imports the other's module."""
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from collections.abc import Mapping, Sequence
 
 import numpy as np
 import trimesh
 
-if TYPE_CHECKING:
-    from nbv_prob_cnn.worlds.world import World
 
-
-def table_surface_mesh(world: World) -> trimesh.Trimesh:
-    """The noisy table as a mesh that matches the voxel grid: each (x, y) column's top face at
-    its own height (one cell lower or higher where the grid's noise says so), vertical walls
-    where neighbouring columns differ, and a slab below the lowest top."""
-    res = world.resolution
-    top = round(world.table["height_m"] / res)
-    bottom = top - round(world.table["thickness_m"] / res)
-    truth = world.ground_truth
+def table_surface_mesh(
+    truth: np.ndarray, resolution_m: float, origin_m: Sequence[float] | np.ndarray, table: Mapping[str, float]
+) -> trimesh.Trimesh:
+    """The noisy table of the ground-truth grid ``truth`` (cells of ``resolution_m``, lowest corner
+    at ``origin_m``; ``table`` with ``height_m`` and ``thickness_m``) as a mesh that matches the
+    voxel grid: each (x, y) column's top face at its own height (one cell lower or higher where
+    the grid's noise says so), vertical walls where neighbouring columns differ, and a slab below
+    the lowest top."""
+    res = float(resolution_m)
+    top = round(table["height_m"] / res)
+    bottom = top - round(table["thickness_m"] / res)
     heights = np.full(truth.shape[:2], top, dtype=np.int64)
     heights[truth[:, :, top - 1] == 0] = top - 1
     heights[truth[:, :, top] == 1] = top + 1  # raised noise (or an object resting there)
-    origin = np.asarray(world.origin, dtype=np.float64)
+    origin = np.asarray(origin_m, dtype=np.float64)
     grid_shape: tuple[int, ...] = np.shape(heights)
     nx, ny = grid_shape[0], grid_shape[1]
     ii, jj = np.meshgrid(np.arange(nx), np.arange(ny), indexing="ij")

@@ -74,7 +74,7 @@ class World:
         if self.table and self.dims == 3:
             from nbv_prob_cnn.worlds.table_mesh import table_surface_mesh  # trimesh only when asked
 
-            meshes.append(table_surface_mesh(self))
+            meshes.append(table_surface_mesh(self.ground_truth, self.resolution, self.origin, self.table))
         return meshes
 
     def save(self, path: str | Path) -> None:
