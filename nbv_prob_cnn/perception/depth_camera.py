@@ -21,7 +21,15 @@ import numpy as np
 
 from nbv_prob_cnn.sensing.sensor_noise import SensorNoise
 
-__all__ = ["DepthCamera", "DepthNoise", "Intrinsics", "MeshScene", "check_pose"]
+__all__ = [
+    "ROTATION_TOLERANCE",
+    "DepthCamera",
+    "DepthNoise",
+    "Intrinsics",
+    "MeshScene",
+    "check_pose",
+    "nearest_rotation",
+]
 
 
 @dataclass(frozen=True)
@@ -86,22 +94,66 @@ class Intrinsics:
         return self.pixel_rays()[valid] * depth[valid][:, None]
 
 
-def check_pose(pose: np.ndarray, name: str = "pose") -> np.ndarray:
-    """Validate a rigid 4×4 transform; return it as float64.
+#: Largest deviation from orthonormality, ``max |R Rᵀ - I|``, of a pose's rotation block that
+#: :func:`check_pose` repairs (re-orthonormalises) instead of refusing. Rotations written to text
+#: files by real trackers are orthonormal to a few 1e-4 (7-Scenes: 4e-4); 1e-2 (a 0.5 % scale or a
+#: 0.6 deg shear at most) still tells rounding from a matrix that is not a rotation at all.
+ROTATION_TOLERANCE = 1e-2
+#: Deviations up to this are double rounding of an exact rotation: such poses are returned unchanged
+#: (bit for bit), so a pose passed through :func:`check_pose` twice stays the same.
+ORTHONORMAL_ALREADY = 1e-12
+
+
+def nearest_rotation(rot: np.ndarray) -> np.ndarray:
+    """The rotation closest (Frobenius norm) to a 3×3 matrix of positive determinant: the
+    orthonormal factor ``U Vᵀ`` of its polar decomposition (``rot = U S Vᵀ``, SVD).
 
     Raises:
-        ValueError: wrong shape, non-finite values, or a rotation block that is not orthonormal.
+        ValueError: not 3×3, or a determinant <= 0 (a reflection or a singular matrix, which no
+            rotation approximates).
     """
-    mat = np.asarray(pose, dtype=np.float64)
+    mat = np.asarray(rot, dtype=np.float64)
+    if mat.shape != (3, 3):
+        raise ValueError(f"rotation: expected a 3x3 matrix, got shape {mat.shape}")
+    if not np.linalg.det(mat) > 0:
+        raise ValueError(f"rotation: determinant {np.linalg.det(mat):.6g} is not positive (a reflection or singular)")
+    u, _, vt = np.linalg.svd(mat)
+    return u @ vt
+
+
+def check_pose(pose: np.ndarray, name: str = "pose") -> np.ndarray:
+    """Validate a rigid 4×4 transform; return it as float64 with an orthonormal rotation block.
+
+    A rotation block within :data:`ROTATION_TOLERANCE` of orthonormal (the rounding of poses read
+    from text files or written by trackers) is replaced by the nearest rotation
+    (:func:`nearest_rotation`, orthonormal to 1e-15); the translation is kept. One within
+    :data:`ORTHONORMAL_ALREADY` is returned as given.
+
+    Raises:
+        ValueError: wrong shape, non-finite values, a last row other than ``[0, 0, 0, 1]``, a
+            reflection (determinant < 0), or a rotation block farther than the tolerance from
+            orthonormal (a scale or shear, named with its deviation).
+    """
+    mat = np.array(pose, dtype=np.float64)
     if mat.shape != (4, 4):
         raise ValueError(f"{name}: expected a 4x4 matrix, got shape {mat.shape}")
     if not np.all(np.isfinite(mat)):
         raise ValueError(f"{name}: contains NaN or infinite values")
-    rot = mat[:3, :3]
-    if not np.allclose(rot @ rot.T, np.eye(3), atol=1e-5) or np.linalg.det(rot) < 0:
-        raise ValueError(f"{name}: the rotation block is not a proper rotation")
     if not np.allclose(mat[3], [0.0, 0.0, 0.0, 1.0]):
         raise ValueError(f"{name}: last row must be [0, 0, 0, 1], got {mat[3].tolist()}")
+    rot = mat[:3, :3]
+    deviation = float(np.max(np.abs(rot @ rot.T - np.eye(3))))
+    determinant = float(np.linalg.det(rot))
+    if determinant < 0:
+        raise ValueError(f"{name}: the rotation block is a reflection (determinant {determinant:.6g}), not a rotation")
+    if deviation > ROTATION_TOLERANCE:
+        raise ValueError(
+            f"{name}: the rotation block is not a rotation: max |R R^T - I| = {deviation:.3g} "
+            f"exceeds the tolerance {ROTATION_TOLERANCE:g} (a scaled or sheared matrix)"
+        )
+    if deviation > ORTHONORMAL_ALREADY:
+        mat[:3, :3] = nearest_rotation(rot)
+    mat[3] = (0.0, 0.0, 0.0, 1.0)
     return mat
 
 

@@ -431,7 +431,7 @@ def decode_frame(frame: PairedFrame) -> tuple[np.ndarray, Intrinsics, np.ndarray
         )
     pose = transform_msg_to_pose(frame.pose)
     try:
-        check_pose(pose, "pose")
+        pose = check_pose(pose, "pose")
     except ValueError as exc:
         raise FrameRejectedError(DropReason.NON_FINITE_POSE, str(exc)) from exc
     return depth, intrinsics, pose
