@@ -21,8 +21,8 @@ from rclpy.node import Node
 from std_srvs.srv import Trigger
 
 from nbv_prob_cnn.ros import names
-from nbv_prob_cnn.ros.common import GRID_QOS
 from nbv_prob_cnn.ros.graph import call_with_resend
+from nbv_prob_cnn.ros.qos import GRID_QOS
 from studies.soak_report import EventLog
 
 STATUS_NAMES = {GoalStatus.STATUS_SUCCEEDED: "succeeded", GoalStatus.STATUS_CANCELED: "canceled",

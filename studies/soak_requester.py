@@ -25,7 +25,7 @@ from rclpy.node import Node
 from std_srvs.srv import Trigger
 
 from nbv_prob_cnn.ros import names
-from nbv_prob_cnn.ros.common import GRID_QOS
+from nbv_prob_cnn.ros.qos import GRID_QOS
 from studies.soak_report import KINDS, EventLog, RequestMix, RequestSpec
 
 #: A service not seen this long is recorded as unavailable instead of called [s].

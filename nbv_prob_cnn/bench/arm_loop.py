@@ -163,9 +163,9 @@ def node_loop(
 
     from nbv_prob_cnn.planners.requests import choice_from_pose
     from nbv_prob_cnn.ros import names
-    from nbv_prob_cnn.ros.common import GRID_QOS
     from nbv_prob_cnn.ros.conversions import grid_to_msg, pose_to_arrays
     from nbv_prob_cnn.ros.graph import NodeGraph, call_with_resend, ros_environment
+    from nbv_prob_cnn.ros.qos import GRID_QOS
 
     env = ros_environment(domain_id)
     os.environ.update({k: env[k] for k in ("ROS_AUTOMATIC_DISCOVERY_RANGE", "RMW_IMPLEMENTATION",

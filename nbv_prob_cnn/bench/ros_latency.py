@@ -23,8 +23,8 @@ def ros_latency_benchmark(dataset: str = "3du", method: str = "cnn_prob", seed: 
     from nbv_prob_cnn_msgs.msg import VoxelGrid
     from nbv_prob_cnn_msgs.srv import PlanNextBestView
 
-    from nbv_prob_cnn.ros.common import GRID_QOS
     from nbv_prob_cnn.ros.conversions import grid_to_msg
+    from nbv_prob_cnn.ros.qos import GRID_QOS
     from nbv_prob_cnn.worlds import load_or_generate
 
     world = load_or_generate(dataset, seed)

@@ -71,7 +71,7 @@ from nbv_prob_cnn.arm.trajectory import (
 )
 from nbv_prob_cnn.basics.camera import quaternion_from_matrix
 from nbv_prob_cnn.ros import names
-from nbv_prob_cnn.ros.common import declare_config, param, run_node, shutdown_interrupt
+from nbv_prob_cnn.ros.parameters import declare_config, param
 from nbv_prob_cnn.ros.robot_params import (
     BUILTIN_PANDA,
     DESCRIPTION_QOS,
@@ -80,6 +80,7 @@ from nbv_prob_cnn.ros.robot_params import (
     description_config,
     xacro_arguments,
 )
+from nbv_prob_cnn.ros.runtime import run_node, shutdown_interrupt
 
 NODE_NAME = "arm_sim"
 #: ``/tf_static`` keeps its messages for late joiners (tf2's static broadcaster QoS).

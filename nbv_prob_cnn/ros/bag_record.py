@@ -47,16 +47,10 @@ from nbv_prob_cnn.perception.messages import (
     stamp_ns,
 )
 from nbv_prob_cnn.ros import names
-from nbv_prob_cnn.ros.common import (
-    GRID_QOS,
-    RELIABILITY,
-    declare_config,
-    lost_message_counter,
-    param,
-    run_node,
-    subscription_qos,
-)
 from nbv_prob_cnn.ros.conversions import msg_to_grid
+from nbv_prob_cnn.ros.parameters import declare_config, param
+from nbv_prob_cnn.ros.qos import GRID_QOS, RELIABILITY, lost_message_counter, subscription_qos
+from nbv_prob_cnn.ros.runtime import run_node
 
 NODE_NAME = "bag_record"
 #: The recorded planning output (``planning:=true``): topic -> (rclpy class, rosbag2 type name).

@@ -56,7 +56,8 @@ from std_srvs.srv import Trigger
 from nbv_prob_cnn.perception.bags import TOPIC_IMAGE, BagError, bag_topics, read_raw_messages
 from nbv_prob_cnn.perception.replay_accounting import ReplayDelta, replay_delta, replay_line
 from nbv_prob_cnn.ros import names
-from nbv_prob_cnn.ros.common import declare_config, param, run_node
+from nbv_prob_cnn.ros.parameters import declare_config, param
+from nbv_prob_cnn.ros.runtime import run_node
 
 NODE_NAME = "bag_replay"
 #: A diagnostics request not answered in this time is sent again (a request sent right after the

@@ -27,7 +27,7 @@ from nbv_prob_cnn.basics.camera import dataset_defaults
 from nbv_prob_cnn.gain.sampling import SENSOR_MODELS, GainSensor
 from nbv_prob_cnn.perception.messages import camera_info_to_intrinsics
 from nbv_prob_cnn.ros import names
-from nbv_prob_cnn.ros.common import param
+from nbv_prob_cnn.ros.parameters import param
 
 #: Best effort matches both best-effort (SENSOR_DATA) and reliable camera_info publishers.
 CAMERA_INFO_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.BEST_EFFORT)

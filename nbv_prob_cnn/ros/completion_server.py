@@ -20,8 +20,9 @@ from rclpy.node import Node
 from nbv_prob_cnn.basics.camera import DATASETS
 from nbv_prob_cnn.basics.datasets import dataset_for_grid
 from nbv_prob_cnn.ros import names
-from nbv_prob_cnn.ros.common import declare_config, param, run_node
 from nbv_prob_cnn.ros.conversions import msg_to_grid, probability_to_msg
+from nbv_prob_cnn.ros.parameters import declare_config, param
+from nbv_prob_cnn.ros.runtime import run_node
 
 
 @dataclass

@@ -27,9 +27,10 @@ from rclpy.signals import SignalHandlerOptions
 
 from nbv_prob_cnn.basics.grid import unknown_fraction_all
 from nbv_prob_cnn.ros import names
-from nbv_prob_cnn.ros.common import GRID_QOS, SPIN_PERIOD_S
 from nbv_prob_cnn.ros.conversions import msg_to_grid, pose_to_arrays
+from nbv_prob_cnn.ros.qos import GRID_QOS
 from nbv_prob_cnn.ros.readiness import TOPIC_DIAGNOSTICS, planner_readiness
+from nbv_prob_cnn.ros.runtime import SPIN_PERIOD_S
 from nbv_prob_cnn.ros.stream_node import STREAMS_SUFFIX
 
 #: Terminal states of a goal, by ``action_msgs/GoalStatus`` value.

@@ -51,14 +51,16 @@ from nbv_prob_cnn.planners.requests import (
 )
 from nbv_prob_cnn.ros import names
 from nbv_prob_cnn.ros.camera_sensor import CameraInfoSensor, SensorParams
-from nbv_prob_cnn.ros.common import GRID_QOS, call_service, declare_config, param, positive_seconds, run_node
 from nbv_prob_cnn.ros.conversions import (
     arrays_to_pose_stamped,
     grid_to_msg,
     msg_to_grid,
     msg_to_probability,
 )
+from nbv_prob_cnn.ros.parameters import declare_config, param, positive_seconds
+from nbv_prob_cnn.ros.qos import GRID_QOS
 from nbv_prob_cnn.ros.robot_params import ArmViewParams, JointStateTracker, joint_state_msg
+from nbv_prob_cnn.ros.runtime import call_service, run_node
 from nbv_prob_cnn.ros.stream_node import StreamNode
 from nbv_prob_cnn.ros.tf_listener import TfListener
 

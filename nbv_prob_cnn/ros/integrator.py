@@ -133,17 +133,11 @@ from nbv_prob_cnn.perception.tsdf import (
     TsdfIntegrator,
 )
 from nbv_prob_cnn.ros import names
-from nbv_prob_cnn.ros.common import (
-    GRID_QOS,
-    RELIABILITY,
-    declare_config,
-    lost_message_counter,
-    param,
-    run_node,
-    subscription_qos,
-)
 from nbv_prob_cnn.ros.conversions import grid_to_msg, time_msg
+from nbv_prob_cnn.ros.parameters import declare_config, param
+from nbv_prob_cnn.ros.qos import GRID_QOS, RELIABILITY, lost_message_counter, subscription_qos
 from nbv_prob_cnn.ros.robot_params import RobotParams, merged_joint_state
+from nbv_prob_cnn.ros.runtime import run_node
 from nbv_prob_cnn.ros.stream_node import StreamNode
 from nbv_prob_cnn.ros.tf_listener import POSE_SOURCES, TfListener
 

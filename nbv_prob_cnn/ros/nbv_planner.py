@@ -67,6 +67,7 @@ from nbv_prob_cnn.arm.trajectory import TimedPath, time_parameterise_path
 from nbv_prob_cnn.arm.views import ArmPlanningSetup
 from nbv_prob_cnn.basics.camera import DATASETS
 from nbv_prob_cnn.basics.grid import unknown_fraction_all
+from nbv_prob_cnn.basics.interrupt import Interrupt, WaitInterruptedError
 from nbv_prob_cnn.basics.modes import BACKEND_NAMES, MOVE_MODES, Backend, MoveMode
 from nbv_prob_cnn.exploration.view_guard import ViewGuard
 from nbv_prob_cnn.gain.variant import GAIN_VARIANTS
@@ -77,17 +78,6 @@ from nbv_prob_cnn.planners.ranked_views import ranked_from_arrays, view_mask_to_
 from nbv_prob_cnn.planners.requests import choice_from_pose, flat_cells, origin_filter, planning_context, view_pose
 from nbv_prob_cnn.ros import names
 from nbv_prob_cnn.ros.camera_sensor import CameraInfoSensor, SensorParams
-from nbv_prob_cnn.ros.common import (
-    GRID_QOS,
-    Interrupt,
-    WaitInterruptedError,
-    call_service,
-    declare_config,
-    param,
-    positive_seconds,
-    run_node,
-    shutdown_interrupt,
-)
 from nbv_prob_cnn.ros.conversions import (
     arrays_to_pose_stamped,
     geometry_of,
@@ -97,9 +87,13 @@ from nbv_prob_cnn.ros.conversions import (
     pose_to_arrays,
     probability_to_msg,
 )
+from nbv_prob_cnn.ros.grid_holder import LatestGrid
+from nbv_prob_cnn.ros.joint_state_intake import JointStateIntake
 from nbv_prob_cnn.ros.markers import planning_markers
+from nbv_prob_cnn.ros.parameters import declare_config, param, positive_seconds
 from nbv_prob_cnn.ros.readiness import READY, SETTING_UP, ReadinessPublisher
-from nbv_prob_cnn.ros.robot_params import ArmViewParams, JointStateTracker, joint_state_msg
+from nbv_prob_cnn.ros.robot_params import ArmViewParams, joint_state_msg
+from nbv_prob_cnn.ros.runtime import call_service, run_node, shutdown_interrupt
 from nbv_prob_cnn.ros.stream_node import StreamNode
 from nbv_prob_cnn.ros.tf_listener import POSE_SOURCES, TfListener
 
@@ -255,8 +249,6 @@ class NbvPlanner(Node):
         super().__init__("nbv_planner")
         self.config = declare_config(self, PlannerConfig)  # also sets self.<name> for each parameter
         self._rng = np.random.default_rng()
-        self._grid_lock = threading.Condition()
-        self._grid: VoxelGrid | None = None
         self._camera_lock = threading.Condition()
         self._camera_pose: TransformStamped | None = None
         self._explore_lock = threading.Lock()  # guards the four fields below
@@ -271,7 +263,7 @@ class NbvPlanner(Node):
             )
         self._workspace = workspace_box(self.workspace_min, self.workspace_max)  # raises on bad values
         self._arm: ArmPlanningSetup | None = None
-        self._joints: JointStateTracker | None = None
+        self._joints: JointStateIntake | None = None
         self._arm_lock = threading.Lock()  # guards the fields below (arm planning runs one at a time)
         self._selectors: dict[tuple, tuple[ArmViewSelector, list]] = {}  # per grid geometry: selector, fed count
         self._seen_lock = threading.Lock()  # guards _seen_q (not _arm_lock: a plan holds that for long)
@@ -290,13 +282,13 @@ class NbvPlanner(Node):
                 if self.move_mode == "trajectory" and cfg.arm_path_timeout_s > 0 else None,
                 roll_symmetric=cfg.arm_roll_symmetric,
             )  # fmt: skip
-            self._joints = JointStateTracker(self._arm.robot)
         # joint_states and /tf come at the robot's rate: on a side node with its own thread (stream_node)
         self.server_times: dict[str, float] = {}  # the servers' own times on the last plan's requests (log)
         self._streams = StreamNode(self) if self.use_arm or self.pose_source == "tf" else None
-        if self.use_arm:
-            self._streams.node.create_subscription(JointState, names.JOINT_STATES, self._on_joint_state, 10)
-        self.create_subscription(VoxelGrid, names.GRID, self._on_grid, GRID_QOS, callback_group=group)
+        if self._arm is not None and self._streams is not None:
+            on_configuration = self._saw_configuration if self.arm_carve_swept else None
+            self._joints = JointStateIntake(self._arm.robot, self, self._streams.node, on_configuration)
+        self._grid = LatestGrid(self, callback_group=group, on_grid=self._prepare_arm if self._arm else None)
         self._tf = TfListener(self._streams.node) if self.pose_source == "tf" else None
         if self._tf is None:
             self.create_subscription(TransformStamped, names.CAMERA_POSE, self._on_camera_pose, 10,
@@ -334,13 +326,6 @@ class NbvPlanner(Node):
         self.get_logger().info(f"nbv_planner ready: dataset {self.dataset}, method {self.method}, {mode}")
 
     # -- inputs -------------------------------------------------------------------------------
-    def _on_grid(self, msg: VoxelGrid) -> None:
-        with self._grid_lock:
-            self._grid = msg
-            self._grid_lock.notify_all()
-        if self._arm is not None:
-            self._prepare_arm(msg)
-
     def _prepare_arm(self, msg: VoxelGrid) -> None:
         """use_arm: on the first grid of a geometry, load (or build) its capability map and
         collision model in a background thread, so the first plan does not wait for them (a plan
@@ -392,18 +377,11 @@ class NbvPlanner(Node):
         t = pose.transform.translation
         return np.array([t.x, t.y, t.z]), stamp_ns(pose.header.stamp)
 
-    def _on_joint_state(self, msg: JointState) -> None:
-        error = self._joints.on_joint_state(msg)
-        if error:
-            self.get_logger().error(f"{error}", throttle_duration_sec=5.0)
-        elif self.arm_carve_swept:
-            try:
-                q, _ = self._joints.current()
-            except ValueError:  # a joint has not arrived yet (arm and gripper publish apart)
-                return
-            with self._seen_lock:
-                if not self._seen_q or np.abs(q - self._seen_q[-1]).max() >= SWEPT_STEP:
-                    self._seen_q.append(q)
+    def _saw_configuration(self, q: np.ndarray) -> None:
+        """arm_carve_swept: keep a configuration seen on joint_states (one swept step from the last kept)."""
+        with self._seen_lock:
+            if not self._seen_q or np.abs(q - self._seen_q[-1]).max() >= SWEPT_STEP:
+                self._seen_q.append(q)
 
     def _selector(self, geometry) -> ArmViewSelector:
         """The arm's view selector of this grid geometry, its swept volume brought up to date
@@ -445,27 +423,10 @@ class NbvPlanner(Node):
                     if swept_by is selector:
                         self._sweep_seen(selector, fed)
 
-    def _latest_grid(self) -> VoxelGrid:
-        with self._grid_lock:
-            if self._grid is None:
-                raise ValueError("no grid received yet on /nbv/grid")
-            return self._grid
-
     def destroy_node(self) -> None:
         if self._streams is not None:
             self._streams.destroy()
         super().destroy_node()
-
-    def _wait_for_grid(self, min_stamp_ns: int, timeout_s: float, interrupt: Interrupt) -> VoxelGrid:
-        with self._grid_lock:
-            ok = interrupt.wait_for(
-                self._grid_lock,
-                lambda: self._grid is not None and stamp_ns(self._grid.header.stamp) >= min_stamp_ns,
-                timeout_s,
-            )
-            if not ok:
-                raise TimeoutError(f"no grid including the frame at {min_stamp_ns} ns within {timeout_s:.0f} s")
-            return self._grid
 
     # -- planning -----------------------------------------------------------------------------
     def plan(self, request: PlanNextBestView.Request, interrupt: Interrupt | None = None) -> PlanNextBestView.Response:
@@ -476,7 +437,7 @@ class NbvPlanner(Node):
         start = time.perf_counter()
         self.server_times.clear()
         try:
-            grid = self._latest_grid()
+            grid = self._grid.latest()
             state, geometry = msg_to_grid(grid)
             frame = grid.header.frame_id or self.frame_id
             method = ros_method(request.method, self.method)
@@ -870,7 +831,7 @@ class NbvPlanner(Node):
         fraction = 1.0
         index, failures = 0, 0  # views taken; failed moves in a row
         try:
-            previous = msg_to_grid(self._wait_for_grid(0, self.grid_timeout_s, interrupt))[0]
+            previous = msg_to_grid(self._grid.wait_for_stamp(0, self.grid_timeout_s, interrupt))[0]
             fraction = unknown_fraction_all(previous)
             guard = self._view_guard = self._new_view_guard(previous.shape)
             if self._joints is not None:  # the arm's first joint state may still be on its way
@@ -915,7 +876,7 @@ class NbvPlanner(Node):
                 if self._arm is not None:
                     self._took_planned_view()
                 waiting = time.perf_counter()
-                grid = self._wait_for_grid(frame_ns, self.grid_timeout_s, interrupt)
+                grid = self._grid.wait_for_stamp(frame_ns, self.grid_timeout_s, interrupt)
                 done = time.perf_counter()
                 seen = msg_to_grid(grid)[0]
                 fraction = unknown_fraction_all(seen)

@@ -1,5 +1,5 @@
 """What each node offers, read from its code without starting it: the parameters from its config
-dataclass (:func:`~nbv_prob_cnn.ros.common.param` fields) and its topics, services and actions
+dataclass (:func:`~nbv_prob_cnn.ros.parameters.param` fields) and its topics, services and actions
 from the ``create_publisher`` / ``create_subscription`` / ``create_service`` / ``create_client`` /
 ``ActionServer`` / ``ActionClient`` calls of its module.
 
@@ -21,7 +21,7 @@ from types import ModuleType
 from typing import Any
 
 from nbv_prob_cnn.ros import NODES
-from nbv_prob_cnn.ros.common import ParamSpec
+from nbv_prob_cnn.ros.parameters import ParamSpec
 
 _CALLS = {
     "create_publisher": ("topic", "publishes"),
@@ -70,7 +70,7 @@ def node_module(name: str) -> ModuleType:
 
 def config_class(module: ModuleType) -> type:
     """The config dataclass the node declares its parameters from (the module's dataclass whose
-    fields are all :func:`~nbv_prob_cnn.ros.common.param` fields, named ``...Config``)."""
+    fields are all :func:`~nbv_prob_cnn.ros.parameters.param` fields, named ``...Config``)."""
     found = [
         obj
         for obj in vars(module).values()

@@ -18,8 +18,8 @@ from nbv_prob_cnn_msgs.srv import PlanNextBestView
 
 from nbv_prob_cnn.basics.grid import unknown_fraction_all
 from nbv_prob_cnn.ros import names
-from nbv_prob_cnn.ros.common import GRID_QOS
 from nbv_prob_cnn.ros.conversions import msg_to_grid, pose_to_arrays
+from nbv_prob_cnn.ros.qos import GRID_QOS
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -44,8 +44,9 @@ from nbv_prob_cnn.arm.robot import (
     pose_from_xyz_rpy,
     robot_config,
 )
+from nbv_prob_cnn.basics.interrupt import Interrupt, wait_on
 from nbv_prob_cnn.perception.messages import stamp_ns
-from nbv_prob_cnn.ros.common import Interrupt, param, wait_on
+from nbv_prob_cnn.ros.parameters import param
 
 #: ``urdf_path`` value of the built-in robot: the Franka Panda of ``pybullet_data``.
 BUILTIN_PANDA = "panda"

@@ -66,9 +66,10 @@ from nbv_prob_cnn.perception.messages import (
 from nbv_prob_cnn.perception.messages import stamp_ns as message_stamp_ns
 from nbv_prob_cnn.perception.tf_buffer import TransformError
 from nbv_prob_cnn.ros import names
-from nbv_prob_cnn.ros.common import declare_config, param, run_node
 from nbv_prob_cnn.ros.conversions import pose_to_arrays, time_msg, transform_stamped_msg
+from nbv_prob_cnn.ros.parameters import declare_config, param
 from nbv_prob_cnn.ros.robot_params import RobotParams
+from nbv_prob_cnn.ros.runtime import run_node
 from nbv_prob_cnn.ros.stream_node import StreamNode
 from nbv_prob_cnn.ros.tf_listener import POSE_SOURCES, TF_QOS, TOPIC_TF, TfListener
 from nbv_prob_cnn.sensing.sensor_noise import PRESETS, SensorNoise, sensor_noise

@@ -13,7 +13,7 @@ pytest.importorskip("rclpy")
 
 from rclpy.task import Future  # noqa: E402
 
-from nbv_prob_cnn.ros.common import Interrupt, WaitInterruptedError, wait_on  # noqa: E402
+from nbv_prob_cnn.basics.interrupt import Interrupt, WaitInterruptedError, wait_on  # noqa: E402
 
 LONG_S = 30.0  # a timeout no test may wait out
 

@@ -35,9 +35,9 @@ from nbv_prob_cnn.basics.camera import matrix_from_quaternion, quaternion_from_m
 from nbv_prob_cnn.basics.geometry import GridGeometry  # noqa: E402
 from nbv_prob_cnn.planners import GAIN_METHODS, GainPlanner  # noqa: E402
 from nbv_prob_cnn.planners.requests import planning_context  # noqa: E402
-from nbv_prob_cnn.ros.common import GRID_QOS  # noqa: E402
 from nbv_prob_cnn.ros.conversions import grid_to_msg, pose_to_arrays  # noqa: E402
 from nbv_prob_cnn.ros.graph import NodeGraph, call_with_resend  # noqa: E402
+from nbv_prob_cnn.ros.qos import GRID_QOS  # noqa: E402
 from nbv_prob_cnn.ros.readiness import planner_readiness  # noqa: E402
 
 pytestmark = pytest.mark.slow  # multi-process ROS graphs

@@ -203,8 +203,8 @@ def test_planning_battery(tmp_path: Path, ros_domain) -> None:
     from test_ros_perception import domain_id
 
     from nbv_prob_cnn.basics.geometry import GridGeometry
-    from nbv_prob_cnn.ros.common import GRID_QOS
     from nbv_prob_cnn.ros.conversions import grid_to_msg
+    from nbv_prob_cnn.ros.qos import GRID_QOS
 
     env = ros_domain(domain_id(3))
     domain = int(env["ROS_DOMAIN_ID"])

@@ -23,9 +23,9 @@ from tf2_msgs.msg import TFMessage  # noqa: E402
 from nbv_prob_cnn.basics.grid import probability_with_constant  # noqa: E402
 from nbv_prob_cnn.planners.pose_scoring import IN_UNKNOWN_CELL, VALID, score_poses  # noqa: E402
 from nbv_prob_cnn.planners.requests import planning_context  # noqa: E402
-from nbv_prob_cnn.ros.common import GRID_QOS  # noqa: E402
 from nbv_prob_cnn.ros.conversions import grid_to_msg  # noqa: E402
 from nbv_prob_cnn.ros.graph import wait_for  # noqa: E402
+from nbv_prob_cnn.ros.qos import GRID_QOS  # noqa: E402
 from nbv_prob_cnn.ros.tf_listener import TF_STATIC_QOS  # noqa: E402
 
 pytestmark = pytest.mark.slow  # multi-process ROS graphs

@@ -14,9 +14,9 @@ from nbv_prob_cnn_msgs.msg import VoxelGrid  # noqa: E402
 from nbv_prob_cnn_msgs.srv import PlanNextBestView  # noqa: E402
 from test_ros_planning import GEOMETRY, call, random_grid  # noqa: E402
 
-from nbv_prob_cnn.ros.common import GRID_QOS  # noqa: E402
 from nbv_prob_cnn.ros.conversions import grid_to_msg  # noqa: E402
 from nbv_prob_cnn.ros.graph import wait_for  # noqa: E402
+from nbv_prob_cnn.ros.qos import GRID_QOS  # noqa: E402
 
 ros = planning_tests.ros_fixture(160, 10)  # the same fixture, on this module's domains 160..169
 

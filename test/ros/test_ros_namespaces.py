@@ -17,9 +17,9 @@ from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 
 from nbv_prob_cnn.basics.geometry import GridGeometry  # noqa: E402
 from nbv_prob_cnn.ros import names  # noqa: E402
-from nbv_prob_cnn.ros.common import GRID_QOS  # noqa: E402
 from nbv_prob_cnn.ros.conversions import grid_to_msg  # noqa: E402
 from nbv_prob_cnn.ros.graph import NodeGraph, call_with_resend, node_command, wait_for  # noqa: E402
+from nbv_prob_cnn.ros.qos import GRID_QOS  # noqa: E402
 
 GEOMETRY = GridGeometry((0.0, 0.0, 0.0), 0.02, (24, 24, 24))
 DOCUMENTED = {

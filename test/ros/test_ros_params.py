@@ -12,7 +12,7 @@ rclpy = pytest.importorskip("rclpy")
 from rclpy.exceptions import ParameterException  # noqa: E402
 from rclpy.parameter import Parameter  # noqa: E402
 
-from nbv_prob_cnn.ros.common import declare_config, param, positive_seconds  # noqa: E402
+from nbv_prob_cnn.ros.parameters import declare_config, param, positive_seconds  # noqa: E402
 
 
 def _odd(value: int) -> None:

@@ -39,7 +39,6 @@ from nbv_prob_cnn.perception.bags import (  # noqa: E402
     BagWarning,
     read_frames,
 )
-from nbv_prob_cnn.ros.common import GRID_QOS  # noqa: E402
 from nbv_prob_cnn.ros.conversions import msg_to_grid  # noqa: E402
 from nbv_prob_cnn.ros.graph import (  # noqa: E402
     NodeGraph,
@@ -48,6 +47,7 @@ from nbv_prob_cnn.ros.graph import (  # noqa: E402
     shm_segments,
     wait_for,
 )
+from nbv_prob_cnn.ros.qos import GRID_QOS  # noqa: E402
 
 pytestmark = pytest.mark.slow  # multi-process ROS graphs
 

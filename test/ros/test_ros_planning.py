@@ -23,9 +23,9 @@ from nbv_prob_cnn.basics.grid import probability_with_constant  # noqa: E402
 from nbv_prob_cnn.planners import GainPlanner, PlanningContext  # noqa: E402
 from nbv_prob_cnn.planners.methods import GAIN_METHODS  # noqa: E402
 from nbv_prob_cnn.planners.pose_scoring import INVALID_POSE, VALID, score_poses  # noqa: E402
-from nbv_prob_cnn.ros.common import GRID_QOS  # noqa: E402
 from nbv_prob_cnn.ros.conversions import grid_to_msg  # noqa: E402
 from nbv_prob_cnn.ros.graph import NodeGraph, call_with_resend, wait_for  # noqa: E402
+from nbv_prob_cnn.ros.qos import GRID_QOS  # noqa: E402
 
 pytestmark = pytest.mark.slow  # multi-process ROS graphs
 

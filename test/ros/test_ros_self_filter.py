@@ -27,9 +27,9 @@ from nbv_prob_cnn.arm.collision import hull_points  # noqa: E402
 from nbv_prob_cnn.arm.robot import RobotModel  # noqa: E402
 from nbv_prob_cnn.arm.robot_scene import RobotScene  # noqa: E402
 from nbv_prob_cnn.basics.grid import OCCUPIED  # noqa: E402
-from nbv_prob_cnn.ros.common import GRID_QOS  # noqa: E402
 from nbv_prob_cnn.ros.conversions import arrays_to_pose_stamped, msg_to_grid  # noqa: E402
 from nbv_prob_cnn.ros.graph import NodeGraph  # noqa: E402
+from nbv_prob_cnn.ros.qos import GRID_QOS  # noqa: E402
 from nbv_prob_cnn.ros.sim_camera import look_at_pose  # noqa: E402
 
 pytestmark = pytest.mark.slow  # multi-process ROS graph

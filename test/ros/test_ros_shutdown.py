@@ -26,9 +26,9 @@ from rclpy.action import ActionClient  # noqa: E402
 from test_ros_explore import spun_node  # noqa: E402
 
 from nbv_prob_cnn.basics.geometry import GridGeometry  # noqa: E402
-from nbv_prob_cnn.ros.common import GRID_QOS  # noqa: E402
 from nbv_prob_cnn.ros.conversions import grid_to_msg  # noqa: E402
 from nbv_prob_cnn.ros.graph import NodeGraph, wait_for  # noqa: E402
+from nbv_prob_cnn.ros.qos import GRID_QOS  # noqa: E402
 
 pytestmark = pytest.mark.slow  # multi-process ROS graphs
 

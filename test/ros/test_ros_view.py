@@ -21,10 +21,10 @@ from visualization_msgs.msg import MarkerArray  # noqa: E402
 
 from nbv_prob_cnn import cli  # noqa: E402
 from nbv_prob_cnn.basics.geometry import GridGeometry  # noqa: E402
-from nbv_prob_cnn.ros.common import GRID_QOS  # noqa: E402
 from nbv_prob_cnn.ros.conversions import grid_to_msg  # noqa: E402
 from nbv_prob_cnn.ros.graph import NodeGraph  # noqa: E402
 from nbv_prob_cnn.ros.markers import planning_markers  # noqa: E402
+from nbv_prob_cnn.ros.qos import GRID_QOS  # noqa: E402
 from nbv_prob_cnn.viz.recorded_run import gain_heat_map, load_run  # noqa: E402
 
 GEOMETRY = GridGeometry((0.1, 0.2, 0.0), 0.05, (8, 8, 4))
