@@ -155,23 +155,65 @@ _CONFIG_PREFIX = r"\b(?:self\.config|self\._params|self|cfg|params)\."
 
 
 def _optional_helpers(tree: ast.AST) -> dict[str, str]:
-    """``self._x = Helper(...) if COND else None`` -> ``{"self._x": COND}``."""
-    found = {}
+    """The condition under which an attribute is not None: ``self._x = Helper(...) if COND else
+    None`` -> ``{"self._x": COND}``, and likewise for an attribute whose every other value is set
+    inside ``if COND:`` (``self._arm = ArmPlanningSetup(...)`` under ``if self.use_arm:``)."""
+    parents = {child: parent for parent in ast.walk(tree) for child in ast.iter_child_nodes(parent)}
+    found: dict[str, str] = {}
+    conditions: dict[str, set[str]] = {}
     for node in ast.walk(tree):
-        if (isinstance(node, ast.Assign) and len(node.targets) == 1 and isinstance(node.value, ast.IfExp)
-                and isinstance(node.value.orelse, ast.Constant) and node.value.orelse.value is None):  # fmt: skip
-            found[ast.unparse(node.targets[0])] = ast.unparse(node.value.test)
+        if not isinstance(node, (ast.Assign, ast.AnnAssign)) or node.value is None:
+            continue
+        targets = node.targets if isinstance(node, ast.Assign) else [node.target]
+        if len(targets) != 1 or not isinstance(targets[0], ast.Attribute):
+            continue
+        target, value = ast.unparse(targets[0]), node.value
+        if isinstance(value, ast.Constant) and value.value is None:
+            continue
+        if isinstance(value, ast.IfExp) and isinstance(value.orelse, ast.Constant) and value.orelse.value is None:
+            found[target] = ast.unparse(value.test)
+        else:
+            conditions.setdefault(target, set()).add(_condition(node, parents, raw=True))
+    for target, tests in conditions.items():
+        if target not in found and len(tests) == 1 and "" not in tests:
+            found[target] = tests.pop()
     return found
 
 
-def _condition(node: ast.AST, parents: dict[ast.AST, ast.AST], optional: dict[str, str] | None = None) -> str:
+def _simplified(condition: str) -> str:
+    """Duplicate conjuncts, and a conjunct ``a or b`` next to ``a``, dropped: ``a and (a or b)`` -> ``a``."""
+    try:
+        tree = ast.parse(condition, mode="eval").body
+    except SyntaxError:
+        return condition
+    conjuncts = tree.values if isinstance(tree, ast.BoolOp) and isinstance(tree.op, ast.And) else [tree]
+    texts = [ast.unparse(c) for c in conjuncts]
+    kept: list[ast.expr] = []
+    for conjunct, text in zip(conjuncts, texts, strict=True):
+        absorbed = (
+            isinstance(conjunct, ast.BoolOp)
+            and isinstance(conjunct.op, ast.Or)
+            and any(ast.unparse(v) in texts for v in conjunct.values)
+        )
+        if not absorbed and text not in [ast.unparse(k) for k in kept]:
+            kept.append(conjunct)
+    if len(kept) == len(conjuncts):
+        return condition
+    return ast.unparse(kept[0] if len(kept) == 1 else ast.BoolOp(ast.And(), kept))
+
+
+def _condition(
+    node: ast.AST, parents: dict[ast.AST, ast.AST], optional: dict[str, str] | None = None, raw: bool = False
+) -> str:
+    """The conditions of the ``if`` statements and expressions around ``node``, joined by ``and``,
+    config prefixes removed (kept with ``raw``) and simplified (:func:`_simplified`)."""
     tests = []
     while node in parents:
         parent = parents[node]
         test = ast.unparse(parent.test) if isinstance(parent, (ast.If, ast.IfExp)) else ""
         for attribute, condition in (optional or {}).items():  # "self._tf is None" -> "not (pose_source == 'tf')"
             test = test.replace(f"{attribute} is None", f"not ({condition})").replace(f"{attribute} is not None",
-                                                                                        condition)  # fmt: skip
+                                                                                        f"({condition})")  # fmt: skip
         if isinstance(parent, (ast.If, ast.IfExp)) and node in ([parent.body] if isinstance(parent, ast.IfExp)
                                                                 else parent.body):  # fmt: skip
             tests.append(test)
@@ -184,15 +226,16 @@ def _condition(node: ast.AST, parents: dict[ast.AST, ast.AST], optional: dict[st
             tests.append(f"not ({test})")
         node = parent
     text = " and ".join(reversed(tests))
-    return re.sub(_CONFIG_PREFIX, "", text)
+    return text if raw else _simplified(re.sub(_CONFIG_PREFIX, "", text))
 
 
 def _helper_class(call: ast.Call, module: ModuleType) -> type | None:
-    """The class of a call ``Helper(self, ...)`` when ``Helper`` is a class of another module of
-    :mod:`nbv_prob_cnn.ros` (it creates interfaces on the node it is given, e.g. ``TfListener``)."""
+    """The class of a call ``Helper(..., self, ...)`` when ``Helper`` is a class of another module of
+    :mod:`nbv_prob_cnn.ros` (it creates interfaces on the node it is given, e.g. ``TfListener``,
+    ``JointStateIntake(robot, self, self._streams.node)``)."""
     # the node itself, or its side node for high-rate streams (nbv_prob_cnn.ros.stream_node)
     if not (
-        isinstance(call.func, ast.Name) and call.args and ast.unparse(call.args[0]) in ("self", "self._streams.node")
+        isinstance(call.func, ast.Name) and any(ast.unparse(arg) in ("self", "self._streams.node") for arg in call.args)
     ):
         return None
     obj = vars(module).get(call.func.id)
