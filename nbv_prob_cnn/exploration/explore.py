@@ -13,7 +13,9 @@ from typing import TextIO
 import numpy as np
 from tqdm import tqdm
 
-from nbv_prob_cnn.basics.grid import unknown_fraction, unknown_fraction_all
+from nbv_prob_cnn.basics.grid import unknown_fraction
+from nbv_prob_cnn.basics.interrupt import Interrupt
+from nbv_prob_cnn.exploration.session import ExplorationSession, NoView, PlannedView, TakenView
 from nbv_prob_cnn.exploration.view_guard import ViewGuard
 from nbv_prob_cnn.planners import Planner, PlanningContext, ViewChoice
 from nbv_prob_cnn.sensing.observe import observe
@@ -106,60 +108,98 @@ def explore(
     with ``noise``, walls this far outside the grid (see :func:`observe`). ``guard``: rules out
     each pose whose view changed fewer than its threshold of cells, plans around the ruled-out
     poses and stops when nothing else has positive gain (:mod:`~nbv_prob_cnn.exploration.view_guard`);
-    None: the paper's plain loop.
+    None: the paper's plain loop. The loop and its stop rules are the
+    :class:`~nbv_prob_cnn.exploration.session.ExplorationSession`'s, with the world as grid source
+    and mover.
     """
     if views < 1:
         raise ValueError(f"views: expected at least 1 view, got {views}")
-    state = np.full(world.shape, -1, dtype=np.int8)
-    geometry = world.geometry
+    simulated = SimulatedWorld(world, context, noise, room_margin_m)
     records: list[IterationRecord] = []
-    stop_reason = f"reached {views} views"
     bar = tqdm(total=views, desc=f"{world.dataset} {planner.name}", unit="view", disable=not progress)
-    choice: ViewChoice = first if first is not None else first_view(world, context)
-    elapsed = 0.0
-    for iteration in range(views):
-        if iteration > 0 and not np.any(state == 0):
-            # nothing is known to be free, so nothing to plan from (a noisy sensor's view can return
-            # nothing, e.g. inside its minimum range): another random view, as the first one
-            choice, elapsed = first_view(world, context), 0.0
-        elif iteration > 0:
-            start = time.perf_counter()
-            planned = planner.plan(state, context) if guard is None else guard.plan(planner, state, context)
-            elapsed = time.perf_counter() - start
-            if planned is None:
-                stop_reason = f"no view with positive gain (or none feasible) after {iteration} views"
-                if guard is not None and guard.ruled_out:
-                    stop_reason += f", {len(guard.ruled_out)} ruled out for changing < {guard.min_changed_cells} cells"
-                break
-            choice = planned
-        orientation = context.orientations[choice.view_index]
-        before = state.copy()
-        observe(state, world.ground_truth, choice.cell, orientation, context.active_sensor,
-                noise=noise, rng=context.rng, resolution_m=world.resolution, room_margin_m=room_margin_m)  # fmt: skip
-        changed = int(np.count_nonzero(state != before))
-        if guard is not None:
-            guard.record(choice, changed)
+
+    def record(taken: TakenView[ViewChoice]) -> None:
+        choice = taken.planned.target
         records.append(
             IterationRecord(
-                iteration=iteration,
-                unknown_fraction=unknown_fraction(state, world.ground_truth),
-                unknown_fraction_all=unknown_fraction_all(state),
+                iteration=taken.index,
+                unknown_fraction=unknown_fraction(taken.grid, world.ground_truth),
+                unknown_fraction_all=taken.unknown_fraction,
                 gain=choice.gain,
-                time_total_s=elapsed,
+                time_total_s=taken.planned.seconds,
                 time_cnn_s=choice.times["cnn"],
                 time_raycast_s=choice.times["raycast"],
                 time_views_s=choice.times["views"],
                 cell=np.asarray(choice.cell).copy(),
-                position_m=geometry.cell_centre(choice.cell),
+                position_m=world.geometry.cell_centre(choice.cell),
                 quaternion=context.view_quaternion(choice.view_index),
-                changed_cells=changed,
-                ruled_out_views=0 if guard is None else len(guard.ruled_out),
+                changed_cells=taken.changed_cells,
+                ruled_out_views=taken.ruled_out_views,
             )
         )
         bar.update(1)
-        bar.set_postfix(unknown=f"{records[-1].unknown_fraction:.3f}", plan_s=f"{elapsed:.2f}")
+        bar.set_postfix(unknown=f"{records[-1].unknown_fraction:.3f}", plan_s=f"{taken.planned.seconds:.2f}")
+
+    session = ExplorationSession(
+        simulated, SimulatedPlanner(world, planner, context, first), simulated, views, guard=guard, on_view=record
+    )
+    result = session.run()
     bar.close()
-    return ExplorationResult(records, state, stop_reason)
+    if result.error is not None:
+        raise result.error
+    return ExplorationResult(records, simulated.state, result.reason)
+
+
+class SimulatedWorld:
+    """Grid source and mover of a simulated exploration: the state starts all unknown, and a move
+    observes the world from the view (:func:`observe`)."""
+
+    def __init__(
+        self, world: World, context: PlanningContext, noise: SensorNoise | None, room_margin_m: float | None
+    ) -> None:
+        self.world, self.context, self.noise, self.room_margin_m = world, context, noise, room_margin_m
+        self.state = np.full(world.shape, -1, dtype=np.int8)
+
+    def first_grid(self, interrupt: Interrupt) -> np.ndarray:
+        return self.state.copy()
+
+    def move(self, planned: PlannedView[ViewChoice], interrupt: Interrupt) -> int:
+        choice, world, context = planned.target, self.world, self.context
+        observe(self.state, world.ground_truth, choice.cell, context.orientations[choice.view_index],
+                context.active_sensor, noise=self.noise, rng=context.rng, resolution_m=world.resolution,
+                room_margin_m=self.room_margin_m)  # fmt: skip
+        return 0
+
+    def grid_after(self, stamp_ns: int, interrupt: Interrupt) -> np.ndarray:
+        return self.state.copy()
+
+
+class SimulatedPlanner:
+    """The views of a simulated exploration: ``first`` (or a random one) first, a random one while
+    no cell is known empty, else the planner's best (around the guard's ruled-out poses)."""
+
+    def __init__(self, world: World, planner: Planner, context: PlanningContext, first: ViewChoice | None) -> None:
+        self.world, self.planner, self.context, self.first = world, planner, context, first
+
+    def plan(
+        self, grid: np.ndarray, views: int, guard: ViewGuard | None, interrupt: Interrupt
+    ) -> PlannedView[ViewChoice] | NoView:
+        if views == 0 and self.first is not None:
+            return PlannedView(self.first, self.first.gain, self.first)
+        if views == 0 or not np.any(grid == 0):
+            # nothing is known to be free, so nothing to plan from (a noisy sensor's view can return
+            # nothing, e.g. inside its minimum range): another random view, as the first one
+            choice = first_view(self.world, self.context)
+            return PlannedView(choice, choice.gain, choice)
+        start = time.perf_counter()
+        if guard is None:
+            planned = self.planner.plan(grid, self.context)
+        else:
+            planned = guard.plan(self.planner, grid, self.context)
+        seconds = time.perf_counter() - start
+        if planned is None:
+            return NoView("no view with positive gain (or none feasible)")
+        return PlannedView(planned, planned.gain, planned, seconds)
 
 
 def write_csv(records: list[IterationRecord], path: str | Path | TextIO) -> None:
