@@ -127,7 +127,7 @@ class ArmSim(Node):
 
     def __init__(self) -> None:
         super().__init__(NODE_NAME)
-        self.config = declare_config(self, ArmSimConfig)  # also sets self.<name> for each parameter
+        self.config = declare_config(self, ArmSimConfig, mirror=False)
         cfg = self.config
         self.description = self._description(cfg)
         dirs = [d for d in cfg.package_dirs if d]
@@ -306,9 +306,11 @@ class ArmSim(Node):
             self.motion.move_through(waypoints, start_time, list(np.diff(np.r_[0.0, times])))
             start_q = base[index]
         path_tol = {t.name: t.position for t in goal.path_tolerance}
-        goal_tol = dict.fromkeys(joint_names, self.default_goal_tolerance)
+        goal_tol = dict.fromkeys(joint_names, self.config.default_goal_tolerance)
         goal_tol.update({t.name: t.position for t in goal.goal_tolerance if t.position != 0})
-        goal_time = goal.goal_time_tolerance.sec + goal.goal_time_tolerance.nanosec * 1e-9 or self.default_goal_time_s
+        goal_time = (
+            goal.goal_time_tolerance.sec + goal.goal_time_tolerance.nanosec * 1e-9 or self.config.default_goal_time_s
+        )
         end = start_time + float(times[-1])
         feedback = FollowJointTrajectory.Feedback(joint_names=joint_names)
         shutdown = shutdown_interrupt(self)
@@ -434,7 +436,7 @@ class ArmSim(Node):
         if self._camera_pose is None:
             pose = self.robot.camera_pose(q)
             msg = PoseStamped()
-            msg.header.frame_id = self.world_frame
+            msg.header.frame_id = self.config.world_frame
             msg.pose.position.x, msg.pose.position.y, msg.pose.position.z = (float(v) for v in pose[:3, 3])
             o = msg.pose.orientation
             o.x, o.y, o.z, o.w = (float(v) for v in quaternion_from_matrix(pose[:3, :3]))

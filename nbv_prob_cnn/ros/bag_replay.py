@@ -89,9 +89,7 @@ class BagReplayConfig:
     bag: str = param("", "rosbag2 directory or .mcap file (required)")
     rate: float = param(1.0, "replay speed factor (2.0 = twice as fast as recorded)", min_value=1e-3, max_value=1e4)
     loop: bool = param(False, "start again at the end, until interrupted")
-    start_delay_s: float = param(
-        0.0, "wait this long before the first message [s]", min_value=0.0, max_value=3600.0, attribute="start_delay"
-    )
+    start_delay_s: float = param(0.0, "wait this long before the first message [s]", min_value=0.0, max_value=3600.0)
     exit_when_done: bool = param(True, "exit (status 0) after the last message; false: keep running")
     topics: str = param("", "comma-separated topics to replay; empty = every topic of the bag")
     queue_size: int = param(10, "publisher history depth", min_value=1, max_value=10000)
@@ -101,7 +99,7 @@ class BagReplayConfig:
     )  # fmt: skip
     wait_timeout_s: float = param(
         30.0, "longest wait for subscribers (then exit 1, nothing published) and the integrator's diagnostics [s]",
-        min_value=0.0, max_value=3600.0, attribute="wait_timeout",
+        min_value=0.0, max_value=3600.0,
     )  # fmt: skip
     pace_by_integrator: bool = param(
         True, "before each depth image, wait until the integrator (integrator/diagnostics) received every image "
@@ -109,11 +107,10 @@ class BagReplayConfig:
     )  # fmt: skip
     frame_timeout_s: float = param(
         10.0, "pace_by_integrator: longest wait for the integrator to finish one frame (then go on, with a "
-        "warning) [s]", min_value=0.01, max_value=600.0, attribute="frame_timeout",
+        "warning) [s]", min_value=0.01, max_value=600.0,
     )  # fmt: skip
     ack_timeout_s: float = param(
         5.0, "at the end, longest wait for reliable subscribers to acknowledge [s]", min_value=0.0, max_value=600.0,
-        attribute="ack_timeout",
     )  # fmt: skip
 
 
@@ -122,11 +119,11 @@ class BagReplay(Node):
 
     def __init__(self) -> None:
         super().__init__(NODE_NAME)
-        self.config = declare_config(self, BagReplayConfig)  # also sets self.<name> per parameter
+        self.config = declare_config(self, BagReplayConfig, mirror=False)
         topics, queue_size = self.config.topics, self.config.queue_size
-        if not self.bag:
+        if not self.config.bag:
             raise ValueError("parameter 'bag' is required (a rosbag2 directory or .mcap file)")
-        self.path = Path(self.bag).expanduser()
+        self.path = Path(self.config.bag).expanduser()
 
         # validate everything before the first publisher exists: a bad bag publishes nothing
         available = bag_topics(self.path)
@@ -166,7 +163,7 @@ class BagReplay(Node):
         self.late_frames = 0  # frames the integrator had not finished within frame_timeout_s
         self.get_logger().info(
             f"{self.path}: {n_messages} message(s) on {self.topics} validated in {time.monotonic() - t0:.2f} s; "
-            f"rate {self.rate:g}, loop {self.loop}"
+            f"rate {self.config.rate:g}, loop {self.config.loop}"
         )
 
     def _sleep(self, executor: SingleThreadedExecutor, seconds: float) -> None:
@@ -181,16 +178,17 @@ class BagReplay(Node):
         Raises:
             TimeoutError: not within ``wait_timeout_s`` (nothing has been published).
         """
-        deadline = time.monotonic() + self.wait_timeout
+        wanted, timeout_s = self.config.wait_for_subscribers, self.config.wait_timeout_s
+        deadline = time.monotonic() + timeout_s
         while True:
             counts = {t: p.get_subscription_count() for t, p in self._topic_publishers.items()}
-            if min(counts.values()) >= self.wait_for_subscribers:
+            if min(counts.values()) >= wanted:
                 self._sleep(executor, 0.2)  # let the readers finish matching the writers
                 return
             if time.monotonic() >= deadline:
-                short = {t: n for t, n in counts.items() if n < self.wait_for_subscribers}
+                short = {t: n for t, n in counts.items() if n < wanted}
                 raise TimeoutError(
-                    f"after {self.wait_timeout:g} s, fewer than {self.wait_for_subscribers} subscriber(s) on "
+                    f"after {timeout_s:g} s, fewer than {wanted} subscriber(s) on "
                     f"{short}: start the integrator first (or set wait_for_subscribers:=0 to publish regardless)"
                 )
             self._sleep(executor, 0.05)
@@ -213,11 +211,11 @@ class BagReplay(Node):
     def _start_pacing(self, executor: SingleThreadedExecutor) -> None:
         """Take the integrator's counts before the first frame (or warn that there is none)."""
         name = self.resolve_service_name(self._diagnostics.srv_name)
-        if self._diagnostics.wait_for_service(timeout_sec=self.wait_timeout):
-            self._baseline = self._integrator_report(executor, self.wait_timeout)
+        if self._diagnostics.wait_for_service(timeout_sec=self.config.wait_timeout_s):
+            self._baseline = self._integrator_report(executor, self.config.wait_timeout_s)
         if self._baseline is None:
             self.get_logger().warning(
-                f"no integrator diagnostics at {name} within {self.wait_timeout:g} s: paced by bag time only, "
+                f"no integrator diagnostics at {name} within {self.config.wait_timeout_s:g} s: paced by bag time only, "
                 "frames lost by a slow receiver cannot be seen (pace_by_integrator:=false silences this)"
             )
         else:
@@ -234,7 +232,7 @@ class BagReplay(Node):
         """Wait until the integrator received every image sent and has none pending."""
         if self._baseline is None or self.frames_sent == 0:
             return
-        deadline = time.monotonic() + self.frame_timeout
+        deadline = time.monotonic() + self.config.frame_timeout_s
         while (remaining := deadline - time.monotonic()) > 0:
             delta = self._update_delta(executor, remaining)
             if delta is not None and delta.received >= self.frames_sent and delta.pending == 0:
@@ -243,7 +241,7 @@ class BagReplay(Node):
         self.late_frames += 1
         got = f"received {self.delta.received}, pending {self.delta.pending}" if self.delta else "no answer"
         self.get_logger().warning(
-            f"frame {self.frames_sent}: the integrator did not finish it within {self.frame_timeout:g} s "
+            f"frame {self.frames_sent}: the integrator did not finish it within {self.config.frame_timeout_s:g} s "
             f"({got}); going on", throttle_duration_sec=5.0,
         )  # fmt: skip
 
@@ -253,12 +251,12 @@ class BagReplay(Node):
         Raises:
             TimeoutError: no subscribers within ``wait_timeout_s`` (nothing published).
         """
-        if self.wait_for_subscribers > 0:
+        if self.config.wait_for_subscribers > 0:
             self._wait_for_subscribers(executor)
-        if self.pace_by_integrator:
+        if self.config.pace_by_integrator:
             self._start_pacing(executor)
-        if self.start_delay > 0:
-            self._sleep(executor, self.start_delay)
+        if self.config.start_delay_s > 0:
+            self._sleep(executor, self.config.start_delay_s)
         t_start = time.monotonic()
         while True:
             first_ns = None
@@ -269,21 +267,23 @@ class BagReplay(Node):
                 is_frame = msg.topic == TOPIC_IMAGE
                 if is_frame:
                     self._wait_for_integrator(executor)  # the previous frame first (no-op unless pacing)
-                due = pass_start + (msg.log_time_ns - first_ns) * 1e-9 / self.rate
+                due = pass_start + (msg.log_time_ns - first_ns) * 1e-9 / self.config.rate
                 self._sleep(executor, due - time.monotonic())
                 self._topic_publishers[msg.topic].publish(msg.data)
                 self.published[msg.topic] += 1
                 self.frames_sent += int(is_frame)
             self.passes += 1
-            if not self.loop:
+            if not self.config.loop:
                 break
         for topic, publisher in self._topic_publishers.items():
-            if not publisher.wait_for_all_acked(Duration(seconds=self.ack_timeout)):
-                self.get_logger().warning(f"{topic}: not every subscriber acknowledged within {self.ack_timeout:g} s")
+            if not publisher.wait_for_all_acked(Duration(seconds=self.config.ack_timeout_s)):
+                self.get_logger().warning(
+                    f"{topic}: not every subscriber acknowledged within {self.config.ack_timeout_s:g} s"
+                )
         if self._baseline is not None:
             self._wait_for_integrator(executor)
             self._sleep(executor, 0.1)  # drops are counted just after the frame leaves the pending set
-            self._update_delta(executor, self.wait_timeout)
+            self._update_delta(executor, self.config.wait_timeout_s)
         self.get_logger().info(f"done: {self.summary()} in {time.monotonic() - t_start:.2f} s")
 
     def summary(self) -> str:
@@ -300,7 +300,7 @@ def main(args: list[str] | None = None) -> int:
 
     def replay(node: BagReplay, executor) -> None:
         node.replay(executor)
-        if not node.exit_when_done:
+        if not node.config.exit_when_done:
             executor.spin()
 
     return run_node(

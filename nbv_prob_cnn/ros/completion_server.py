@@ -50,36 +50,37 @@ class CompletionServer(Node):
 
     def __init__(self) -> None:
         super().__init__("completion_server")
-        self.config = declare_config(self, CompletionConfig)  # also sets self.<name> for each parameter
+        self.config = cfg = declare_config(self, CompletionConfig, mirror=False)
         from nbv_prob_cnn.completion.inference import WeightsError, load_model, resolve_device
 
-        self._device = resolve_device(None if self.device == "auto" else self.device)
-        if self._device.type == "cpu" and self.torch_threads > 0:
+        self._device = resolve_device(None if cfg.device == "auto" else cfg.device)
+        if self._device.type == "cpu" and cfg.torch_threads > 0:
             # one thread per core by default: in the main job on 2 cores (camera, TF and joint-state
             # streams beside it) 1 thread gave a median CNN stage of 1.82 s against 1.21-1.44 s
             import torch
 
-            torch.set_num_threads(self.torch_threads)
+            torch.set_num_threads(cfg.torch_threads)
         self._load_model, self._weights_error = load_model, WeightsError
         # offered before the model loads: a client that finds it waits for the answer (served once
         # the node spins) instead of giving up on a service that is not there yet
         self.create_service(CompleteGrid, names.COMPLETE, self._complete)
         try:  # load now so the first request is fast; failures are reported per request
-            model = self._model_for(self.dataset)
+            model = self._model_for(cfg.dataset)
             warm = ""
-            if self.warm_up:
+            if cfg.warm_up:
                 from nbv_prob_cnn.completion import complete
 
                 start = time.perf_counter()
-                complete(np.full(DATASETS[self.dataset].shape, -1, dtype=np.int8), model=model, device=self._device)
+                complete(np.full(DATASETS[cfg.dataset].shape, -1, dtype=np.int8), model=model, device=self._device)
                 warm = f", warmed up in {time.perf_counter() - start:.2f} s"
             on = f"{self._device}" + (f" ({torch_threads_text()})" if self._device.type == "cpu" else "")
-            self.get_logger().info(f"completion_server ready: {self.dataset} weights on {on}{warm}")
+            self.get_logger().info(f"completion_server ready: {cfg.dataset} weights on {on}{warm}")
         except WeightsError as exc:
             self.get_logger().error(str(exc))
 
     def _model_for(self, dataset: str):
-        path = self.weights_file if (self.weights_file and dataset == self.dataset) else None
+        cfg = self.config
+        path = cfg.weights_file if (cfg.weights_file and dataset == cfg.dataset) else None
         return self._load_model(path, dataset, self._device)
 
     def _complete(self, request: CompleteGrid.Request, response: CompleteGrid.Response):
@@ -88,7 +89,7 @@ class CompletionServer(Node):
         received = time.perf_counter()
         try:
             state, geometry = msg_to_grid(request.grid)
-            dataset = request.dataset or dataset_for_grid(state.shape, self.dataset)
+            dataset = request.dataset or dataset_for_grid(state.shape, self.config.dataset)
             if dataset not in DATASETS:
                 raise ValueError(f"dataset: unknown data set {dataset!r}; expected one of {sorted(DATASETS)}")
             if DATASETS[dataset].dims != geometry.dims:

@@ -20,12 +20,11 @@ grid's occupied and unknown cells (:func:`~nbv_prob_cnn.arm.views.reachable_pose
 from __future__ import annotations
 
 import array
-import threading
 import time
 from dataclasses import dataclass
 
 import numpy as np
-from nbv_prob_cnn_msgs.msg import ViewScore, VoxelGrid
+from nbv_prob_cnn_msgs.msg import ViewScore
 from nbv_prob_cnn_msgs.srv import CompleteGrid, EvaluateViews, RankViews
 from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.node import Node
@@ -50,16 +49,17 @@ from nbv_prob_cnn.planners.requests import (
     rank_for_request,
 )
 from nbv_prob_cnn.ros import names
-from nbv_prob_cnn.ros.camera_sensor import CameraInfoSensor, SensorParams
+from nbv_prob_cnn.ros.camera_sensor import CameraInfoSensor, Frustum, SensorParams
 from nbv_prob_cnn.ros.conversions import (
     arrays_to_pose_stamped,
     grid_to_msg,
     msg_to_grid,
     msg_to_probability,
 )
+from nbv_prob_cnn.ros.grid_holder import LatestGrid
+from nbv_prob_cnn.ros.joint_state_intake import JointStateIntake
 from nbv_prob_cnn.ros.parameters import declare_config, param, positive_seconds
-from nbv_prob_cnn.ros.qos import GRID_QOS
-from nbv_prob_cnn.ros.robot_params import ArmViewParams, JointStateTracker, joint_state_msg
+from nbv_prob_cnn.ros.robot_params import ArmViewParams, joint_state_msg
 from nbv_prob_cnn.ros.runtime import call_service, run_node
 from nbv_prob_cnn.ros.stream_node import StreamNode
 from nbv_prob_cnn.ros.tf_listener import TfListener
@@ -83,7 +83,6 @@ class GainServerConfig(SensorParams, ArmViewParams):
     )  # fmt: skip
     completion: str = param(
         "service", "CNN maps from the completion service or in this process", choices=("service", "in_process"),
-        attribute="completion_mode",
     )  # fmt: skip
     completion_timeout_s: float = param(
         60.0, "wait for nbv/complete", min_value=0.1, max_value=600.0, dynamic=True, check=positive_seconds
@@ -96,38 +95,35 @@ class GainServer(Node):
 
     def __init__(self) -> None:
         super().__init__("gain_server")
-        self.config = declare_config(self, GainServerConfig)  # also sets self.<name> for each parameter
+        self.config = cfg = declare_config(self, GainServerConfig, mirror=False)
         self._rng = np.random.default_rng()
-        self._lock = threading.Lock()
-        self._grid: VoxelGrid | None = None
         group = ReentrantCallbackGroup()
         self._arm: ArmPlanningSetup | None = None
-        self._joints: JointStateTracker | None = None
-        if self.use_arm:
+        self._joints: JointStateIntake | None = None
+        if cfg.use_arm:
             # no capability map: every pose gets the exact check
-            self._arm = ArmPlanningSetup(self.config.robot_config(self), free_above_m=self.config.free_above(),
-                                         capability_stride=0)  # fmt: skip
-            self._joints = JointStateTracker(self._arm.robot)
+            robot = cfg.robot_config(self)
+            self._arm = ArmPlanningSetup(robot, free_above_m=cfg.free_above(), capability_stride=0)
         # joint_states and /tf come at the robot's rate: on a side node with its own thread (stream_node)
         self._streams = StreamNode(self)
-        if self.use_arm:
-            self._streams.node.create_subscription(JointState, names.JOINT_STATES, self._on_joint_state, 10)
-        self.create_subscription(VoxelGrid, names.GRID, self._on_grid, GRID_QOS, callback_group=group)
+        if self._arm is not None:
+            self._joints = JointStateIntake(self._arm.robot, self, self._streams.node)
+        self._grid = LatestGrid(self, callback_group=group)
         self._tf = TfListener(self._streams.node)
-        self._sensor = CameraInfoSensor(self, self.config, self.dataset, callback_group=group)
+        self._sensor = CameraInfoSensor(self, cfg, cfg.dataset, callback_group=group)
         self._complete_client = self.create_client(CompleteGrid, names.COMPLETE, callback_group=group)
         self.create_service(EvaluateViews, names.EVALUATE_VIEWS, self._evaluate_views, callback_group=group)
         self.create_service(RankViews, names.RANK_VIEWS, self._rank_views, callback_group=group)
         warm = self._warm_up_ray_caster()
         self.get_logger().info(
-            f"gain_server ready: dataset {self.dataset}, method {self.method}, TF by {self._tf.backend}{warm}"
+            f"gain_server ready: dataset {cfg.dataset}, method {cfg.method}, TF by {self._tf.backend}{warm}"
         )
 
     def _warm_up_ray_caster(self) -> str:
         """Build the OpenCL kernels now (about 1.5 s), not in the first request; "" without OpenCL."""
         from nbv_prob_cnn.basics.cl_device import opencl_available
 
-        if self.backend == "numpy" or not opencl_available():
+        if self.config.backend == "numpy" or not opencl_available():
             return ""
         from nbv_prob_cnn.gain.opencl import get_ray_caster
 
@@ -135,37 +131,34 @@ class GainServer(Node):
         get_ray_caster()
         return f", OpenCL kernels built in {time.perf_counter() - start:.1f} s"
 
-    def _on_grid(self, msg: VoxelGrid) -> None:
-        with self._lock:
-            self._grid = msg
-
-    def _on_joint_state(self, msg: JointState) -> None:
-        error = self._joints.on_joint_state(msg)
-        if error:
-            self.get_logger().error(error, throttle_duration_sec=5.0)
-
     def _arm_solutions(self, state, geometry, positions: np.ndarray, quats: np.ndarray) -> list[JointState]:
         """Per pose the IK solution as a JointState (empty when the arm cannot take the pose)."""
+        assert self._arm is not None and self._joints is not None  # use_arm
         seed = self._joints.current_or(self._arm.robot.reference_q)  # raises on wrong names
         solutions = reachable_poses(self._arm.feasibility(geometry), positions, quats, state, geometry, seed)
         return [joint_state_msg(self._arm.robot, q) for q in solutions]
 
-    def _latest_grid(self) -> VoxelGrid:
-        with self._lock:
-            if self._grid is None:
-                raise ValueError("no grid received yet on /nbv/grid")
-            return self._grid
+    def _planning_context(self, geometry: GridGeometry, frustum: Frustum) -> PlanningContext:
+        """The planning set-up of a request: this node's data set, backend, rays, gain and sensor model."""
+        cfg = self.config
+        context = planning_context(
+            cfg.dataset, geometry, cfg.backend, cfg.n_rays, self._rng,
+            frustum.hfov_deg, frustum.vfov_deg, frustum.max_range_m, frustum.min_range_m,
+        )  # fmt: skip
+        context.gain_variant = cfg.gain_variant
+        cfg.apply_sensor_model(context, geometry.resolution)
+        return context
 
     def _completion(self, header, geometry: GridGeometry):
         """The CNN probability source for this node's mode."""
-        if self.completion_mode == "in_process":
+        if self.config.completion == "in_process":
             return cnn_completion
 
         def via_service(state: np.ndarray, context: PlanningContext) -> np.ndarray:
             request = CompleteGrid.Request()
-            request.grid = grid_to_msg(state, geometry, header.frame_id or self.frame_id, header.stamp)
-            request.dataset = self.dataset
-            response = call_service(self, self._complete_client, request, self.completion_timeout_s)
+            request.grid = grid_to_msg(state, geometry, header.frame_id or self.config.frame_id, header.stamp)
+            request.dataset = self.config.dataset
+            response = call_service(self, self._complete_client, request, self.config.completion_timeout_s)
             if not response.success:
                 raise ValueError(f"completion failed: {response.message}")
             prob, _ = msg_to_probability(response.probability)
@@ -180,17 +173,12 @@ class GainServer(Node):
                 raise ValueError("no poses in the request")
             if len(request.poses) > MAX_POSES:
                 raise ValueError(f"{len(request.poses)} poses exceed the limit of {MAX_POSES}")
-            grid = self._latest_grid()
+            grid = self._grid.latest()
             state, geometry = msg_to_grid(grid)
-            frame = grid.header.frame_id or self.frame_id
-            method = gain_method(request.method, self.method)
+            frame = grid.header.frame_id or self.config.frame_id
+            method = gain_method(request.method, self.config.method)
             frustum = self._sensor.frustum(request.hfov_deg, request.vfov_deg, request.max_range_m)
-            context = planning_context(
-                self.dataset, geometry, self.backend, self.n_rays, self._rng,
-                frustum.hfov_deg, frustum.vfov_deg, frustum.max_range_m, frustum.min_range_m,
-            )  # fmt: skip
-            context.gain_variant = self.gain_variant
-            self.config.apply_sensor_model(context, geometry.resolution)
+            context = self._planning_context(geometry, frustum)
             positions = np.array([[p.pose.position.x, p.pose.position.y, p.pose.position.z] for p in request.poses])
             o = [p.pose.orientation for p in request.poses]
             quats = np.array([[q.x, q.y, q.z, q.w] for q in o])
@@ -254,16 +242,10 @@ class GainServer(Node):
     def _rank_views(self, request: RankViews.Request, response: RankViews.Response):
         start = time.perf_counter()
         try:
-            grid = request.grid if request.grid.size_x else self._latest_grid()
+            grid = request.grid if request.grid.size_x else self._grid.latest()
             state, geometry = msg_to_grid(grid)
-            frame = grid.header.frame_id or self.frame_id
-            frustum = self._sensor.frustum()
-            context = planning_context(
-                self.dataset, geometry, self.backend, self.n_rays, self._rng,
-                frustum.hfov_deg, frustum.vfov_deg, frustum.max_range_m, frustum.min_range_m,
-            )  # fmt: skip
-            context.gain_variant = self.gain_variant
-            self.config.apply_sensor_model(context, geometry.resolution)
+            frame = grid.header.frame_id or self.config.frame_id
+            context = self._planning_context(geometry, self._sensor.frustum())
             given = None
             if request.probability.size_x:
                 given, _ = msg_to_probability(request.probability)
@@ -291,8 +273,9 @@ class GainServer(Node):
                 evaluated.append(kept.shape[0])
                 return kept
 
-            ranked = rank_for_request(request.method, self.method, state, context, request.top_k, counting, given,
-                                      view_mask)  # fmt: skip
+            ranked = rank_for_request(
+                request.method, self.config.method, state, context, request.top_k, counting, given, view_mask
+            )
             arrays = ranked_to_arrays(ranked, context, geometry)
             response.ranked_cells = array.array("I", arrays.cells.astype(np.uint32).tobytes())
             response.ranked_orientations = array.array("H", arrays.orientations.astype(np.uint16).tobytes())

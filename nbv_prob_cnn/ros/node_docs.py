@@ -180,6 +180,15 @@ def _optional_helpers(tree: ast.AST) -> dict[str, str]:
     return found
 
 
+def _grouped(condition: str) -> str:
+    """``condition`` in parentheses when it is an ``and`` / ``or`` (to stand inside another)."""
+    try:
+        grouped = isinstance(ast.parse(condition, mode="eval").body, ast.BoolOp)
+    except SyntaxError:
+        grouped = True
+    return f"({condition})" if grouped else condition
+
+
 def _simplified(condition: str) -> str:
     """Duplicate conjuncts, and a conjunct ``a or b`` next to ``a``, dropped: ``a and (a or b)`` -> ``a``."""
     try:
@@ -212,8 +221,8 @@ def _condition(
         parent = parents[node]
         test = ast.unparse(parent.test) if isinstance(parent, (ast.If, ast.IfExp)) else ""
         for attribute, condition in (optional or {}).items():  # "self._tf is None" -> "not (pose_source == 'tf')"
-            test = test.replace(f"{attribute} is None", f"not ({condition})").replace(f"{attribute} is not None",
-                                                                                        f"({condition})")  # fmt: skip
+            test = test.replace(f"{attribute} is None", f"not ({condition})")
+            test = test.replace(f"{attribute} is not None", _grouped(condition))
         if isinstance(parent, (ast.If, ast.IfExp)) and node in ([parent.body] if isinstance(parent, ast.IfExp)
                                                                 else parent.body):  # fmt: skip
             tests.append(test)

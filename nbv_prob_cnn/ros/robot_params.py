@@ -27,6 +27,7 @@ import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 from rclpy.node import Node
@@ -47,6 +48,9 @@ from nbv_prob_cnn.arm.robot import (
 from nbv_prob_cnn.basics.interrupt import Interrupt, wait_on
 from nbv_prob_cnn.perception.messages import stamp_ns
 from nbv_prob_cnn.ros.parameters import param
+
+if TYPE_CHECKING:
+    from nbv_prob_cnn.ros.tf_listener import TfListener
 
 #: ``urdf_path`` value of the built-in robot: the Franka Panda of ``pybullet_data``.
 BUILTIN_PANDA = "panda"
@@ -209,7 +213,7 @@ class GraphReader:
         self.executor = SingleThreadedExecutor(context=node.context)
         self.executor.add_node(self.helper)
         self._descriptions: list[str] = []
-        self._tf = None
+        self._tf: TfListener | None = None
 
     def __enter__(self) -> GraphReader:
         return self
@@ -231,8 +235,11 @@ class GraphReader:
             ValueError: nothing within ``timeout_s``.
         """
         topic = self.helper.resolve_topic_name(ROBOT_DESCRIPTION)
-        self.helper.create_subscription(String, ROBOT_DESCRIPTION, lambda m: self._descriptions.append(m.data),
-                                        DESCRIPTION_QOS)  # fmt: skip
+
+        def on_description(msg: String) -> None:
+            self._descriptions.append(msg.data)
+
+        self.helper.create_subscription(String, ROBOT_DESCRIPTION, on_description, DESCRIPTION_QOS)
         if not self._spin_until(lambda: bool(self._descriptions), timeout_s):
             raise ValueError(
                 f"robot description: nothing on {topic} within {timeout_s:g} s (start the robot's "
@@ -248,12 +255,13 @@ class GraphReader:
 
         if self._tf is None:
             self._tf = TfListener(self.helper)
+        tf = self._tf
         found: list[np.ndarray] = []
 
         def ready() -> bool:
             if not found:
                 try:
-                    found.append(self._tf.lookup(target, source)[0])
+                    found.append(tf.lookup(target, source)[0])
                 except TransformError:
                     return False
             return True
@@ -309,7 +317,7 @@ def merged_joint_state(merger: JointStateMerger, msg):
     if not merger.complete():
         return None
     q = merger.configuration()
-    if dataclasses.is_dataclass(msg):  # rosbags message
+    if dataclasses.is_dataclass(msg) and not isinstance(msg, type):  # rosbags message
         return dataclasses.replace(msg, name=list(merger.joint_names), position=q, velocity=np.zeros(0),
                                    effort=np.zeros(0))  # fmt: skip
     return JointState(header=msg.header, name=list(merger.joint_names), position=[float(v) for v in q])
@@ -375,9 +383,9 @@ class JointStateTracker:
             raise ValueError(self._error)
         if not self._arrived:
             raise ValueError("no joint state received yet on joint_states")
-        if self._q is None:
-            self._merger.configuration()  # raises, naming the joints never received
-        return self._q.copy(), self._stamp_ns
+        # before every joint arrived, the merger's configuration raises, naming the joints never received
+        q = self._q if self._q is not None else self._merger.configuration()
+        return q.copy(), self._stamp_ns
 
     def wait_for_first(self, timeout_s: float, interrupt: Interrupt | None = None) -> None:
         """Wait until every joint of the robot has a position (or a malformed message arrived).

@@ -10,7 +10,7 @@ import time
 import weakref
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
-from typing import Any
+from typing import Any, TypeVar
 
 import rclpy
 from rclpy.exceptions import ParameterException
@@ -25,6 +25,8 @@ from nbv_prob_cnn.basics.process_heap import (
     limit_heap_retention,
     release_free_heap,
 )
+
+NodeT = TypeVar("NodeT", bound=Node)
 
 _shutdown_interrupts: weakref.WeakKeyDictionary[Node, Interrupt] = weakref.WeakKeyDictionary()
 _shutdown_lock = threading.Lock()
@@ -200,12 +202,12 @@ class MultiThreadedNodeExecutor(NodeExecutor, MultiThreadedExecutor):
 
 
 def run_node(
-    factory: Callable[[], Node],
+    factory: Callable[[], NodeT],
     args: list[str] | None = None,
     *,
     threads: int = 4,
-    run: Callable[[Node, object], None] | None = None,
-    summary: Callable[[Node], str] | None = None,
+    run: Callable[[NodeT, Any], None] | None = None,
+    summary: Callable[[NodeT], str] | None = None,
     startup_errors: tuple[type[BaseException], ...] = (ValueError, RuntimeError, ParameterException),
     startup_message: str = "cannot start",
 ) -> int:
@@ -233,7 +235,7 @@ def run_node(
     heap = limit_heap_retention()  # before rclpy and the executor start their threads
     rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
     signals = SignalStop()
-    node = None
+    node: NodeT | None = None
     executor: SingleThreadedNodeExecutor | MultiThreadedNodeExecutor | None = None
     code = 0
     try:
@@ -268,9 +270,9 @@ def run_node(
 
 
 def shut_down_node(
-    node: Node | None,
+    node: NodeT | None,
     executor: NodeExecutor | None,
-    summary: Callable[[Node], str] | None = None,
+    summary: Callable[[NodeT], str] | None = None,
     drain_s: float = DRAIN_S,
     join_s: float = CALLBACK_JOIN_S,
 ) -> None:
