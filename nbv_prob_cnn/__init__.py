@@ -43,7 +43,7 @@ _PUBLIC: dict[str, str] = {
     **dict.fromkeys(("SensorNoise", "sensor_noise"), "nbv_prob_cnn.sensing.sensor_noise"),
     **dict.fromkeys(
         ("ray_directions", "ray_gains", "origin_view_gains", "view_gains", "view_membership", "empty_origins",
-         "best_origin_view", "BestOriginView"),
+         "best_origin_view", "BestOriginView", "GainSettings"),
         "nbv_prob_cnn.gain",
     ),
     **dict.fromkeys(("complete", "load_model"), "nbv_prob_cnn.completion"),

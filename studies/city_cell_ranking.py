@@ -145,7 +145,7 @@ def planner_rank_agreement(
                 prob = complete(sample.state, dataset=spec.name)
             else:
                 raise ValueError(f"methods: expected prob_ig or cnn_prob, got {method!r}")
-            rays = ray_gains(sample.state, prob, geometry.directions, spec.sensor.r_max, origins, mode="prob")
+            rays = ray_gains(sample.state, prob, geometry.directions, spec.sensor.r_max, origins)
             views = rays @ geometry.membership
             rows[method].append(
                 (spearman(views.max(axis=1), target.max(axis=1)), spearman(views.ravel(), target.ravel()))

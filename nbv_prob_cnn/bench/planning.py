@@ -45,7 +45,7 @@ from typing import Any
 import numpy as np
 
 from nbv_prob_cnn.basics.grid import probability_with_constant, unknown_fraction
-from nbv_prob_cnn.gain import origin_view_gains
+from nbv_prob_cnn.gain import GainSettings, origin_view_gains
 from nbv_prob_cnn.gain.directions import distance_weights, sample_offsets
 from nbv_prob_cnn.planners import PlanningContext, make_planner
 from nbv_prob_cnn.planners.base import search_best_view, search_views
@@ -385,7 +385,7 @@ def _time_original_variant(result, state, prob, origins, context, repeats, autho
     cell, view = subset[index // n_views : index // n_views + 1], index % n_views
     ours_there = origin_view_gains(
         state, prob, original.directions, original.active_sensor.r_max, original.membership, cell, "opencl",
-        variant="original", free_hits=free_hits,
+        settings=GainSettings(variant="original", free_hits=free_hits),
     )  # fmt: skip
     result.same_authors_view = bool(ours) and (
         (np.array_equal(cell[0], ours[0].cell) and view == ours[0].view_index)

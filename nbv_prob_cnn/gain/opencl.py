@@ -17,15 +17,15 @@ paper's.
 
 from __future__ import annotations
 
+import dataclasses
 import functools
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 from scipy.ndimage import distance_transform_cdt
 
 from nbv_prob_cnn.basics.cl_device import cl_runtime
-from nbv_prob_cnn.gain.sampling import GainSensor, RaySamples
+from nbv_prob_cnn.gain.march import MarchOptions, RayMarch
 from nbv_prob_cnn.gain.variant import ORIGINAL_FOCAL, ORIGINAL_NEAR_HIT, check_variant
 
 KERNEL_SOURCE = Path(__file__).with_name("raycast.cl")
@@ -61,49 +61,6 @@ BOUND_BLOCK = 2
 MIN_ORIGINS_PER_BLOCK = 2.0
 #: Relative (and absolute) margin added to the block bounds of ``best_view``.
 BOUND_MARGIN = 1e-4
-
-
-@dataclass(frozen=True)
-class MarchOptions:
-    """The optional modes of a launch (docs/sensing.md; the paper's variant only).
-
-    Attributes:
-        samples: the rays' :class:`~nbv_prob_cnn.gain.sampling.RaySamples` (their offsets are the
-            launch's ``offsets``); ``"exact"`` builds ``GAIN_EXACT``.
-        min_range: minimum range (cells) of the exact tables' per-ray first return (``ig``: its
-            minimum range; the ``"returns"`` model: the sensor's).
-        sensor: the ``"returns"`` model's sensor (builds ``GAIN_SENSOR``), or None.
-        directions: ``(R, dims)`` ray directions (the grazing test), with ``sensor``.
-        normals: ``(dims, *shape)`` surface normals of the grid
-            (:func:`~nbv_prob_cnn.gain.sampling.occupancy_normals`), with ``sensor``.
-    """
-
-    samples: RaySamples
-    min_range: float = 0.0
-    sensor: GainSensor | None = None
-    directions: np.ndarray | None = None
-    normals: np.ndarray | None = None
-
-    @property
-    def exact(self) -> bool:
-        return self.samples.sampling == "exact"
-
-    @property
-    def flags(self) -> tuple[bool, bool]:
-        """``(GAIN_EXACT, GAIN_SENSOR)`` of the program."""
-        return self.exact, self.sensor is not None
-
-    def bound_options(self) -> MarchOptions | None:
-        """The options of the coarse-to-fine bounds: the paper's gain on the same samples (an
-        upper bound of the ``"returns"`` gain: every cell counts at most its visibility), marched
-        only as far as a sample has weight."""
-        if not self.exact:
-            return None
-        cut = self.samples.weighted
-        s = self.samples
-        truncated = RaySamples(s.offsets[:, :cut], s.distance[:, :cut], np.minimum(s.counts, cut), s.weights[:, :cut],
-                               s.total, s.sampling)  # fmt: skip
-        return MarchOptions(truncated, self.min_range)
 
 
 def march_normals(normals: np.ndarray, padded_shape: tuple[int, int, int]) -> np.ndarray:
@@ -163,7 +120,7 @@ def march_grid(code: np.ndarray, border: float = -1.0) -> np.ndarray:
     return march
 
 
-def linear_indices(cells: np.ndarray, padded_shape: tuple[int, int, int], shift: int) -> np.ndarray:
+def linear_indices(cells: np.ndarray, padded_shape: tuple[int, ...], shift: int) -> np.ndarray:
     """Linear indices into the padded grid of ``(N, dims)`` cell coordinates (or offsets,
     ``shift = 0``; cells of the unpadded grid use ``shift = 1``)."""
     strides = np.array([padded_shape[1] * padded_shape[2], padded_shape[2], 1], dtype=np.int64)
@@ -370,49 +327,37 @@ class OpenCLRayCaster:
             self._cache[key] = buf
         return buf
 
-    def _common(self, code: np.ndarray, origins: np.ndarray, offsets: np.ndarray, border: float = -1.0):
+    def _offsets(self, offsets: np.ndarray, padded_shape: tuple[int, ...]):
+        """The device's linear sample offsets ``(R, T)`` of ``(R, T, dims)`` cell offsets."""
+        offset_index = linear_indices(offsets.reshape(-1, offsets.shape[2]), padded_shape, shift=0)
+        return self._constant(offset_index.reshape(offsets.shape[:2]))
+
+    def _common(self, code: np.ndarray, origins: np.ndarray, march: RayMarch):
         """Device grid, host grid, linear origins and device linear offsets ``(R, T)``."""
         cl, mf = self._cl, self._cl.mem_flags
-        padded = march_grid(code, border)
+        padded = march_grid(code, _border(march))
         code_buf = cl.Buffer(self.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=padded)
         origin_index = linear_indices(origins, padded.shape, shift=1)
-        offset_index = linear_indices(offsets.reshape(-1, offsets.shape[2]), padded.shape, shift=0)
-        return code_buf, padded, origin_index, self._constant(offset_index.reshape(offsets.shape[:2]))
+        return code_buf, padded, origin_index, self._offsets(march.offsets, padded.shape)
 
-    def run(
-        self,
-        code: np.ndarray,
-        origins: np.ndarray,
-        offsets: np.ndarray,
-        total_weight: float,
-        mode: str,
-        eps: float,
-        min_range: float,
-        variant: str = "paper",
-        options: MarchOptions | None = None,
-    ) -> np.ndarray:
-        """Ray gains ``(N, R)`` float32 for the encoded grid ``code`` (``variant``: see
-        :mod:`nbv_prob_cnn.gain.variant`; ``offsets`` and ``total_weight`` must be its;
-        ``options``: the optional modes, :class:`MarchOptions`)."""
+    def run(self, code: np.ndarray, origins: np.ndarray, march: RayMarch) -> np.ndarray:
+        """Ray gains ``(N, R)`` float32 for the encoded grid ``code`` (:func:`encode_grid`) from
+        ``origins``, marching ``march`` (:class:`~nbv_prob_cnn.gain.march.RayMarch`)."""
         cl, mf = self._cl, self._cl.mem_flags
-        n, r = origins.shape[0], offsets.shape[0]
-        lanes = self._launch_lanes(options)
+        n, r = origins.shape[0], march.offsets.shape[0]
+        lanes = self._launch_lanes(march.options)
         if n == 0:
             return np.empty((n, r), dtype=np.float32)
-        code_buf, padded, origin_index, offset_buf = self._common(code, origins, offsets,
-                                                                  _border(variant, mode, options))  # fmt: skip
+        code_buf, padded, origin_index, offset_buf = self._common(code, origins, march)
         origin_index = pad_to(origin_index, lanes)
         blocks = origin_index.size // lanes
         out = np.empty((blocks, r, lanes), dtype=np.float32)
         origin_buf = cl.Buffer(self.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=origin_index)
         out_buf = cl.Buffer(self.context, mf.WRITE_ONLY, out.nbytes)
-        kernel = self.kernels(variant, *(options.flags if options else ()))[0]
-        extra = self._option_args(options, padded.shape)  # held until the queue has finished
-        kernel.set_args(
-            code_buf, origin_buf, np.int32(origin_index.size), offset_buf, np.int32(r), np.int32(offsets.shape[1]),
-            np.int32(code.ndim - 1), np.float32(1.0 / total_weight), np.float32(total_weight), np.float32(eps),
-            np.int32(MODES[mode]), np.float32(min_range), out_buf, *extra,
-        )  # fmt: skip
+        kernel = self.kernels(*march.program)[0]
+        extra = self._option_args(march.options, padded.shape)  # held until the queue has finished
+        kernel.set_args(code_buf, origin_buf, np.int32(origin_index.size), offset_buf, *_march_args(march), out_buf,
+                        *extra)  # fmt: skip
         cl.enqueue_nd_range_kernel(self.queue, kernel, (blocks * r,), None)
         cl.enqueue_copy(self.queue, out, out_buf)
         self.queue.finish()
@@ -422,37 +367,26 @@ class OpenCLRayCaster:
         self,
         code: np.ndarray,
         origins: np.ndarray,
-        offsets: np.ndarray,
+        march: RayMarch,
         membership: np.ndarray,
-        total_weight: float,
-        mode: str,
-        eps: float,
-        min_range: float,
         local_size: int = VIEW_GAIN_LOCAL_SIZE,
         view_sets: np.ndarray | None = None,
-        variant: str = "paper",
-        options: MarchOptions | None = None,
     ) -> np.ndarray:
         """View gains ``(N, V)`` float32: the ray gains of each origin summed over the rays of
         each view (``membership`` is the ``(R, V)`` 0/1 ray-in-view matrix; the original variant:
         sum of hits over sum of hits + miss). ``view_sets``: see :meth:`_views` (None: every view)."""
-        code_buf, padded, origin_index, offset_buf = self._common(code, origins, offsets,
-                                                                  _border(variant, mode, options))  # fmt: skip
-        return self._views(
-            code_buf, padded, origin_index, offset_buf, offsets.shape, membership, code.ndim - 1, total_weight,
-            mode, eps, min_range, local_size, view_sets, variant, options,
-        )  # fmt: skip
+        code_buf, padded, origin_index, offset_buf = self._common(code, origins, march)
+        return self._views(code_buf, padded, origin_index, offset_buf, march, membership, local_size, view_sets)
 
-    def _views(self, code_buf, padded, origin_index, offset_buf, offsets_shape, membership, nu, total_weight,
-               mode, eps, min_range, local_size=VIEW_GAIN_LOCAL_SIZE, view_sets=None,
-               variant="paper", options=None) -> np.ndarray:  # fmt: skip
+    def _views(self, code_buf, padded, origin_index, offset_buf, march: RayMarch, membership,
+               local_size=VIEW_GAIN_LOCAL_SIZE, view_sets=None) -> np.ndarray:  # fmt: skip
         """``view_gain`` on a device grid ``code_buf`` (host copy ``padded``) at linear origins.
 
         ``view_sets``: None (every view exact) or per origin the views wanted exactly, ``(N, V)``
         booleans: a work-group sums the union of its origins' views and marches only their rays;
         other views get 0 (a lower bound of their gains)."""
         cl, mf = self._cl, self._cl.mem_flags
-        n, (r, n_samples), v = origin_index.shape[0], offsets_shape[:2], membership.shape[1]
+        n, r, v = origin_index.shape[0], march.offsets.shape[0], membership.shape[1]
         out = np.empty((n, v), dtype=np.float32)
         if n == 0:
             return out
@@ -460,8 +394,8 @@ class OpenCLRayCaster:
         # local references keep every buffer alive until the queue has finished with it
         start_buf, rays_buf = self._constant(start), self._constant(rays)
         device = self.device  # local_size: origins per work-group, a multiple of lanes
-        lanes = self._launch_lanes(options)
-        words = (2 * r if variant == "original" else r) + v  # local floats per origin: rays (+ totals), views
+        lanes = self._launch_lanes(march.options)
+        words = (2 * r if march.variant == "original" else r) + v  # local floats per origin: rays (+ totals), views
         local_size = int(min(local_size, device.max_work_group_size * lanes, device.local_mem_size // (4 * words)))
         local_size = max(lanes, local_size // lanes * lanes)
         first_sample = group_first_samples(padded, origin_index, local_size)
@@ -475,8 +409,8 @@ class OpenCLRayCaster:
         if view_sets is None:
             cl.enqueue_copy(self.queue, set_buf, every)
         out_buf = cl.Buffer(self.context, mf.WRITE_ONLY, block * v * 4)
-        kernel = self.kernels(variant, *(options.flags if options else ()))[1]
-        extra = self._option_args(options, padded.shape)
+        kernel = self.kernels(*march.program)[1]
+        extra = self._option_args(march.options, padded.shape)
         for begin in range(0, n, block):
             count = min(block, n - begin)
             cl.enqueue_copy(self.queue, origin_buf, pad_to(origin_index[begin : begin + count], local_size))
@@ -485,10 +419,8 @@ class OpenCLRayCaster:
             if view_sets is not None:
                 cl.enqueue_copy(self.queue, set_buf, np.ascontiguousarray(sets[group : group + groups]))
             kernel.set_args(
-                code_buf, origin_buf, np.int32(count), offset_buf, np.int32(r), np.int32(n_samples),
-                np.int32(nu), np.float32(1.0 / total_weight), np.float32(total_weight), np.float32(eps),
-                np.int32(MODES[mode]), np.float32(min_range), start_buf, rays_buf, np.int32(v), first_buf, set_buf,
-                np.int32(set_stride), np.int32(-(-v // 32)),
+                code_buf, origin_buf, np.int32(count), offset_buf, *_march_args(march), start_buf, rays_buf,
+                np.int32(v), first_buf, set_buf, np.int32(set_stride), np.int32(-(-v // 32)),
                 cl.LocalMemory(4 * words * local_size), out_buf, *extra,
             )  # fmt: skip
             cl.enqueue_nd_range_kernel(self.queue, kernel, (groups * local_size // lanes,), (local_size // lanes,))
@@ -497,20 +429,18 @@ class OpenCLRayCaster:
         return out
 
     def block_bounds(
-        self, code, origins, offsets, membership, total_weight, mode, size=None, variant="paper"
+        self, code: np.ndarray, origins: np.ndarray, march: RayMarch, membership: np.ndarray, size: int | None = None
     ) -> tuple[np.ndarray, np.ndarray]:
         """Per origin its block, per block and view an upper bound of ``G_W`` of the block's
         origins: ``(block_of (N,), bounds (B, V))`` (see :meth:`best_view`)."""
         size = BOUND_BLOCK if size is None else size
-        return self._block_bounds(march_grid(code), origins, offsets, membership, total_weight, mode, size,
-                                  variant=variant)  # fmt: skip
+        return self._block_bounds(march_grid(code), origins, march, membership, size)
 
-    def _block_bounds(self, padded, origins, offsets, membership, total_weight, mode, size=BOUND_BLOCK,
-                      min_per_block=0.0, variant="paper", options=None):  # fmt: skip
+    def _block_bounds(self, padded, origins, march: RayMarch, membership, size=BOUND_BLOCK, min_per_block=0.0):
         """``(block_of, bounds)``; bounds None when blocks hold fewer than ``min_per_block``
         origins on average (bounds would cost about as much as exact gains), and for the original
         ``ig``, whose per-ray totals vary (its view gain is a ratio: no bound here)."""
-        if variant == "original" and mode == "ig":
+        if march.variant == "original" and march.mode == "ig":
             return np.zeros(origins.shape[0], dtype=np.int64), None
         dims = origins.shape[1]
         shift = np.array([1, 1, 1 if dims == 3 else 0][:dims])
@@ -522,34 +452,25 @@ class OpenCLRayCaster:
         corners, block_of = np.unique(corner_index, return_inverse=True)
         if corners.size * min_per_block > origins.shape[0]:
             return block_of.ravel(), None
-        bound = bound_grid(padded, dims, probabilistic=mode != "ig", size=size)
-        offset_index = linear_indices(offsets.reshape(-1, offsets.shape[2]), bound.shape, shift=0)
-        offset_buf = self._constant(offset_index.reshape(offsets.shape[:2]))
+        bound = bound_grid(padded, dims, probabilistic=march.mode != "ig", size=size)
         mf = self._cl.mem_flags
         bound_buf = self._cl.Buffer(self.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=bound)
         # prob_free bounds itself: the least p of a window is below every cell's p (1 - p is above)
-        bound_mode = "prob_free" if mode == "prob_free" else "prob"
-        view_bound = self._views(
-            bound_buf, bound, corners, offset_buf, offsets.shape, membership, dims - 1, total_weight, bound_mode,
-            0.0, 0.0, variant=variant, options=options,
-        )  # fmt: skip
+        bound_march = dataclasses.replace(march, mode="prob_free" if march.mode == "prob_free" else "prob", eps=0.0,
+                                          min_range=0.0)  # fmt: skip
+        view_bound = self._views(bound_buf, bound, corners, self._offsets(march.offsets, bound.shape), bound_march,
+                                 membership)  # fmt: skip
         return block_of.ravel(), view_bound
 
     def best_view(
         self,
         code: np.ndarray,
         origins: np.ndarray,
-        offsets: np.ndarray,
+        march: RayMarch,
         membership: np.ndarray,
-        total_weight: float,
-        mode: str,
-        eps: float,
-        min_range: float,
         first_batch: int = BEST_VIEW_FIRST_BATCH,
         block_size: int = BOUND_BLOCK,
         prune_views: bool = True,
-        variant: str = "paper",
-        options: MarchOptions | None = None,
     ) -> tuple[int, int, float, int]:
         """The first ``(origin, view)`` of largest ``G_W`` in origin-major order, exactly as the
         exhaustive ``run_views(...)`` argmax, without computing every origin's gains.
@@ -568,24 +489,26 @@ class OpenCLRayCaster:
         The original variant (:mod:`~nbv_prob_cnn.gain.variant`): the same bounds hold for its
         probabilistic modes (non-negative weights; every ray of a view has the same ``hits + miss``,
         so a view's gain is its bounded hits over a constant); its ``ig`` evaluates every origin.
-        ``options`` (:class:`MarchOptions`): the bounds are the paper's gain on the same samples up
-        to ``r_max`` (:meth:`MarchOptions.bound_options`), which bounds the ``"returns"`` gain too.
+        ``march.options`` (:class:`~nbv_prob_cnn.gain.march.MarchOptions`): the bounds are the
+        paper's gain on the same samples up to ``r_max``
+        (:meth:`~nbv_prob_cnn.gain.march.MarchOptions.bound_options`), which bounds the
+        ``"returns"`` gain too.
 
         Returns:
             ``(origin position, view, gain, origins evaluated exactly)``.
         """
-        n, dims = origins.shape[0], code.ndim
-        code_buf, padded, origin_index, offset_buf = self._common(code, origins, offsets,
-                                                                  _border(variant, mode, options))  # fmt: skip
+        n = origins.shape[0]
+        code_buf, padded, origin_index, offset_buf = self._common(code, origins, march)
+        options = march.options
         if options is None:
-            block_of, view_bound = self._block_bounds(padded, origins, offsets, membership, total_weight, mode,
-                                                      block_size, MIN_ORIGINS_PER_BLOCK, variant)  # fmt: skip
+            block_of, view_bound = self._block_bounds(padded, origins, march, membership, block_size,
+                                                      MIN_ORIGINS_PER_BLOCK)  # fmt: skip
         else:  # the paper's gain on the same samples, with the border occupied
-            bound_padded = padded if _border(variant, mode, options) == -1.0 else march_grid(code)
-            block_of, view_bound = self._block_bounds(
-                bound_padded, origins, offsets[:, : options.samples.weighted], membership, total_weight, mode,
-                block_size, MIN_ORIGINS_PER_BLOCK, variant, options.bound_options(),
-            )  # fmt: skip
+            bound_padded = padded if _border(march) == -1.0 else march_grid(code)
+            bound_march = dataclasses.replace(march, offsets=march.offsets[:, : options.samples.weighted],
+                                              options=options.bound_options())  # fmt: skip
+            block_of, view_bound = self._block_bounds(bound_padded, origins, bound_march, membership, block_size,
+                                                      MIN_ORIGINS_PER_BLOCK)  # fmt: skip
         sparse = view_bound is None
         if view_bound is None:  # sparse origins: evaluate them all at once
             block_of, view_bound, first_batch = np.zeros(n, dtype=np.int64), np.ones((1, 1), np.float32), n
@@ -607,10 +530,8 @@ class OpenCLRayCaster:
                 pattern, reach = reaching_views(view_bound, block_of[chosen], best[0])
                 by_pattern = np.argsort(pattern, kind="stable")  # work-groups of one view set
                 chosen, view_sets = chosen[by_pattern], reach[pattern[by_pattern]]
-            gains = self._views(
-                code_buf, padded, origin_index[chosen], offset_buf, offsets.shape, membership, dims - 1,
-                total_weight, mode, eps, min_range, view_sets=view_sets, variant=variant, options=options,
-            )  # fmt: skip
+            gains = self._views(code_buf, padded, origin_index[chosen], offset_buf, march, membership,
+                                view_sets=view_sets)  # fmt: skip
             top = float(gains.max())
             rows, cols = np.nonzero(gains == gains.max())
             first = np.lexsort((cols, chosen[rows]))[0]
@@ -621,11 +542,21 @@ class OpenCLRayCaster:
         return best[1], best[2], best[0], done
 
 
-def _border(variant: str, mode: str, options: MarchOptions | None = None) -> float:
+def _march_args(march: RayMarch) -> list:
+    """The kernels' arguments after the sample offsets: rays, samples per ray, ``nu``, the weight
+    normaliser's inverse and itself, ``eps``, mode and minimum range."""
+    r, n_samples, dims = march.offsets.shape
+    return [np.int32(r), np.int32(n_samples), np.int32(dims - 1), np.float32(1.0 / march.total_weight),
+            np.float32(march.total_weight), np.float32(march.eps), np.int32(MODES[march.mode]),
+            np.float32(march.min_range)]  # fmt: skip
+
+
+def _border(march: RayMarch) -> float:
     """Padding code of the marched grid: occupied, or the border code (in (-2, -1): stops a ray,
     no return) for the original ``ig`` and for the ``"returns"`` model without walls."""
-    if variant == "original" and mode == "ig":
+    if march.variant == "original" and march.mode == "ig":
         return ORIGINAL_BORDER_CODE
+    options = march.options
     if options is not None and options.sensor is not None and not options.sensor.walls:
         return ORIGINAL_BORDER_CODE
     return -1.0

@@ -12,7 +12,9 @@ from __future__ import annotations
 import numpy as np
 
 from nbv_prob_cnn.gain.directions import distance_weights, sample_offsets
+from nbv_prob_cnn.gain.march import MarchOptions
 from nbv_prob_cnn.gain.sampling import GainSensor, RaySamples, border_normal, occupancy_normals
+from nbv_prob_cnn.gain.settings import GainSettings
 from nbv_prob_cnn.gain.variant import ORIGINAL_IG_MIN_RANGE, ORIGINAL_NEAR_HIT, sample_count, sample_weights
 
 _CHUNK = 2048  # origins per block, bounds the (chunk, R, dims) temporaries
@@ -206,3 +208,52 @@ def sampled_ray_gains(
             measured = np.cumsum(q[..., ::-1], axis=2)[..., ::-1]  # Σ_{j >= k} q_j
         gains[start : start + chunk] = np.sum(unknown * samples.weights[None] * measured, axis=2)
     return (gains / samples.total).astype(np.float32)
+
+
+def reference_ray_gains(
+    state: np.ndarray,
+    prob: np.ndarray | None,
+    directions: np.ndarray,
+    r_max: int,
+    origins: np.ndarray,
+    settings: GainSettings,
+    options: MarchOptions | None = None,
+) -> np.ndarray:
+    """``(N, R)`` float32 ray gains of ``settings`` from the reference of its variant, mode and
+    optional modes (``options``, :func:`~nbv_prob_cnn.gain.march.march_options`)."""
+    if options is not None:
+        return sampled_ray_gains(state, prob, options.samples, origins, settings.mode, options.min_range,
+                                 options.sensor, directions)  # fmt: skip
+    if settings.variant == "original":
+        hits, totals = _original_terms(state, prob, directions, r_max, origins, settings)
+        return np.where(totals > 0, hits / np.where(totals > 0, totals, 1.0), 0.0).astype(np.float32)
+    if settings.mode == "ig":
+        return ig_gains_reference(state, directions, r_max, origins, settings.min_range)
+    if prob is None:
+        raise ValueError("prob: a probability map is required for mode='prob'")
+    return ray_gains_reference(state, prob, directions, r_max, origins)
+
+
+def reference_view_gains(
+    state: np.ndarray,
+    prob: np.ndarray | None,
+    directions: np.ndarray,
+    r_max: int,
+    membership: np.ndarray,
+    origins: np.ndarray,
+    settings: GainSettings,
+    options: MarchOptions | None = None,
+) -> np.ndarray:
+    """``(N, V)`` float32 view gains of ``settings``: equation (7) over the reference's ray gains,
+    or the original variant's ratio (:func:`original_view_gains_reference`)."""
+    if options is None and settings.variant == "original":
+        hits, totals = _original_terms(state, prob, directions, r_max, origins, settings)
+        return original_view_gains_reference(hits, totals, membership)
+    rays = reference_ray_gains(state, prob, directions, r_max, origins, settings, options)
+    return rays @ membership.astype(np.float32)
+
+
+def _original_terms(state, prob, directions, r_max, origins, settings: GainSettings):
+    """:func:`original_ray_terms` of ``settings``."""
+    return original_ray_terms(state, prob, directions, r_max, origins, settings.mode, settings.free_hits,
+                              settings.min_range)  # fmt: skip

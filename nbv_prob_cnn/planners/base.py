@@ -15,6 +15,7 @@ from nbv_prob_cnn.basics.view_pose import ViewPose, view_pose
 from nbv_prob_cnn.gain import best_origin_view, empty_origins, origin_view_gains, ray_directions, view_membership
 from nbv_prob_cnn.gain.original_sets import original_view_set
 from nbv_prob_cnn.gain.sampling import GainSensor, check_sampling, check_sensor_model
+from nbv_prob_cnn.gain.settings import GainSettings
 from nbv_prob_cnn.gain.variant import check_variant, ig_min_range, uses_free_hits
 
 #: Ray and orientation sets of :class:`PlanningContext`: the paper's, or the authors' code's.
@@ -114,6 +115,15 @@ class PlanningContext:
         """The sensor the gain knows: ``gain_sensor`` with ``sensor_model="returns"``, else None."""
         return self.gain_sensor if self.sensor_model == "returns" else None
 
+    def gain_settings(self, mode: str = "prob", probability: str | None = None) -> GainSettings:
+        """The gain settings of a view search in ``mode`` on a map from ``probability`` (``"constant"``,
+        ``"cnn"``, ``"oracle"``), which the ``original`` gain variant treats differently
+        (:func:`~nbv_prob_cnn.gain.variant.uses_free_hits`, :func:`~nbv_prob_cnn.gain.variant.ig_min_range`)."""
+        variant, min_range = self.gain_variant, self.active_sensor.min_range
+        free_hits = mode == "prob" and uses_free_hits(variant, probability)
+        min_range = ig_min_range(variant, min_range) if mode == "ig" else min_range
+        return GainSettings(mode, self.eps, min_range, variant, free_hits, self.returns_sensor, self.sampling)
+
     def view_quaternion(self, view_index: int) -> np.ndarray:
         """Quaternion (x, y, z, w) of a candidate orientation (2D: the yaw about +z)."""
         orientation = self.orientations[view_index]
@@ -204,16 +214,13 @@ def search_views(
     ``original`` gain variant treats differently (:func:`~nbv_prob_cnn.gain.variant.uses_free_hits`).
     """
     sensor = context.active_sensor
-    variant = context.gain_variant
-    free_hits = mode == "prob" and uses_free_hits(variant, probability)
-    min_range = ig_min_range(variant, sensor.min_range) if mode == "ig" else sensor.min_range
+    settings = context.gain_settings(mode, probability)
     if top_k == 1 and prune and view_mask is None and _uses_opencl(context.backend) and origins.shape[0] > 0:
         t0 = time.perf_counter()
         block = 2 * (context.origin_stride or context.defaults.origin_stride)  # about 2^dims origins per block
         index, view, gain = best_origin_view(
             state, prob, context.directions, sensor.r_max, context.membership, origins, "opencl",
-            mode=mode, eps=context.eps, min_range=min_range, block_size=block, prune_views=prune_views,
-            variant=variant, free_hits=free_hits, sensor=context.returns_sensor, sampling=context.sampling,
+            settings=settings, block_size=block, prune_views=prune_views,
         )  # fmt: skip
         times = {"cnn": 0.0, "raycast": time.perf_counter() - t0, "views": 0.0}
         return [ViewChoice(origins[index].copy(), int(view), float(gain), times)] if gain > 0.0 else []
@@ -226,10 +233,8 @@ def search_views(
         chunk = origins[start : start + block]
         t0 = time.perf_counter()
         views = origin_view_gains(
-            state, prob, context.directions, sensor.r_max, context.membership, chunk, context.backend,
-            mode=mode, eps=context.eps, min_range=min_range, variant=variant, free_hits=free_hits,
-            sensor=context.returns_sensor, sampling=context.sampling,
-        )  # fmt: skip
+            state, prob, context.directions, sensor.r_max, context.membership, chunk, context.backend, settings=settings
+        )
         if view_mask is not None:
             allowed = np.asarray(view_mask(chunk), dtype=bool)
             if allowed.shape != views.shape:

@@ -145,7 +145,7 @@ def omniscient_ray_gains(
     """``(N, R)`` gains of the rays from ``origins`` against the ground truth: the omniscient
     method's kernel call (``P = D`` in unknown cells)."""
     prob = probability_from_truth(state, truth)
-    return ray_gains(state, prob, geometry.directions, geometry.spec.sensor.r_max, origins, backend, mode="prob")
+    return ray_gains(state, prob, geometry.directions, geometry.spec.sensor.r_max, origins, backend)
 
 
 def city_targets(

@@ -149,7 +149,7 @@ def best_gain_per_origin(
     for start in range(0, origins.shape[0], block):
         gains = origin_view_gains(
             state, prob, context.directions, sensor.r_max, context.membership, origins[start : start + block],
-            context.backend, mode=gain_method.mode, eps=context.eps, min_range=sensor.min_range,
+            context.backend, settings=context.gain_settings(gain_method.mode),
         )  # fmt: skip
         best[start : start + block] = gains.max(axis=1)
     return origins, best

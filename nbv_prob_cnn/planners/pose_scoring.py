@@ -11,7 +11,7 @@ import numpy as np
 
 from nbv_prob_cnn.basics.camera import in_frustum, unit_quaternions
 from nbv_prob_cnn.basics.geometry import GridGeometry
-from nbv_prob_cnn.gain import ray_gains
+from nbv_prob_cnn.gain import GainSettings, ray_gains
 from nbv_prob_cnn.planners.base import PlanningContext
 
 VALID = 0
@@ -94,11 +94,10 @@ def score_poses(
     if ok.size:
         sensor = context.active_sensor
         unique_cells, which = np.unique(cells[ok], axis=0, return_inverse=True)
-        per_ray = ray_gains(
-            state, prob, context.directions, sensor.r_max, unique_cells, context.backend,
-            mode=mode, eps=context.eps, min_range=sensor.min_range, sensor=context.returns_sensor,
-            sampling=context.sampling,
-        )  # fmt: skip
+        settings = GainSettings(mode, context.eps, sensor.min_range, sensor=context.returns_sensor,
+                                sampling=context.sampling)  # fmt: skip
+        per_ray = ray_gains(state, prob, context.directions, sensor.r_max, unique_cells, context.backend,
+                            settings=settings)  # fmt: skip
         q = unit_quaternions(quats, tiny=1e-6)[0][ok]
         orientations = np.array([yaw_of(v) for v in q]) if state.ndim == 2 else q
         member = in_frustum(context.directions, orientations, sensor.hfov_deg, sensor.vfov_deg)  # (R, P)

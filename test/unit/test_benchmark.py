@@ -7,7 +7,7 @@ import pytest
 from nbv_prob_cnn.basics.camera import DatasetDefaults, Sensor
 from nbv_prob_cnn.basics.grid import probability_with_constant
 from nbv_prob_cnn.bench.planning import authors_ray_terms, authors_view_search, baseline_view_search
-from nbv_prob_cnn.gain import origin_view_gains, ray_directions, ray_gains
+from nbv_prob_cnn.gain import GainSettings, origin_view_gains, ray_directions, ray_gains
 from nbv_prob_cnn.gain.reference import original_ray_terms
 from nbv_prob_cnn.planners import PlanningContext, search_best_view
 
@@ -53,7 +53,7 @@ def test_authors_view_search_finds_the_original_best_view(rng):
     context = PlanningContext(SMALL_3D, backend="opencl", gain_variant="original")
     origins = np.argwhere(state == 0)
     reference = origin_view_gains(state, prob, context.directions, 8, context.membership, origins, "numpy",
-                                  variant="original").ravel()  # fmt: skip
+                                  settings=GainSettings(variant="original")).ravel()  # fmt: skip
     gain, index, _ = authors_view_search(state, prob, origins, context, free_hits=False)
     assert index == np.argmax(reference) and abs(gain - reference.max()) < 1e-5
     pruned = search_best_view(state, prob, origins, context)

@@ -4,8 +4,9 @@ import numpy as np
 import pytest
 
 from nbv_prob_cnn.basics.camera import orientations
-from nbv_prob_cnn.gain import best_origin_view, origin_view_gains, ray_directions, view_membership
+from nbv_prob_cnn.gain import GainSettings, best_origin_view, origin_view_gains, ray_directions, view_membership
 from nbv_prob_cnn.gain.directions import distance_weights, sample_offsets
+from nbv_prob_cnn.gain.march import RayMarch
 from nbv_prob_cnn.gain.opencl import encode_grid, get_ray_caster
 
 E, O, U = 0, 1, -1  # noqa: E741
@@ -35,6 +36,11 @@ def _setup(shape, n_rays):
     return d, member
 
 
+def _march(d, r_max, mode="prob", min_range=2.0):
+    """The paper's rounded samples of ``d`` up to ``r_max`` (exact: ``eps`` 0)."""
+    return RayMarch(sample_offsets(d, r_max), float(distance_weights(r_max, d.shape[1]).sum()), mode, 0.0, min_range)
+
+
 CASES = [((40, 36), 16, 24), ((41, 37), 4, 30), ((19, 17, 15), 4, 12), ((16, 15, 17), 4, 9), ((14, 13, 12), 16, 8)]
 
 
@@ -52,15 +58,15 @@ def test_best_view_equals_exhaustive_and_numpy(shape, n_rays, r_max, mode, seed,
     d, member = _setup(shape, n_rays)
     p = prob if mode == "prob" else None
     origins = np.argwhere(state == E)
-    exhaustive = origin_view_gains(state, p, d, r_max, member, origins, "opencl", mode=mode, min_range=2)
-    reference = origin_view_gains(state, p, d, r_max, member, origins, "numpy", mode=mode, min_range=2)
+    settings = GainSettings(mode=mode, min_range=2)
+    exhaustive = origin_view_gains(state, p, d, r_max, member, origins, "opencl", settings=settings)
+    reference = origin_view_gains(state, p, d, r_max, member, origins, "numpy", settings=settings)
     code = encode_grid(state, p)
-    total = float(distance_weights(r_max, len(shape)).sum())
     index, view, gain, _ = get_ray_caster().best_view(
-        code, origins, sample_offsets(d, r_max), member, total, mode, 0.0, 2.0, first_batch=16, block_size=block_size
+        code, origins, _march(d, r_max, mode), member, first_batch=16, block_size=block_size
     )
-    assert (index, view, gain) == best_origin_view(state, p, d, r_max, member, origins, "opencl", mode=mode,
-                                                   min_range=2) or block_size != 2  # fmt: skip
+    assert (index, view, gain) == best_origin_view(state, p, d, r_max, member, origins, "opencl",
+                                                   settings=settings) or block_size != 2  # fmt: skip
     assert reference.max() > 0.05
     flat = int(np.argmax(exhaustive))
     assert (index, view) == divmod(flat, exhaustive.shape[1])
@@ -81,12 +87,10 @@ def test_best_view_late_exploration(shape, n_rays, r_max, lanes):
     d, member = _setup(shape, n_rays)
     origins = np.argwhere(state == E)
     caster = get_ray_caster() if lanes is None else OpenCLRayCaster(lanes)
-    code, offsets = encode_grid(state, prob), sample_offsets(d, r_max)
-    total = float(distance_weights(r_max, len(shape)).sum())
-    exhaustive = caster.run_views(code, origins, offsets, member, total, "prob", 0.0, 2.0)
-    reference = origin_view_gains(state, prob, d, r_max, member, origins, "numpy", min_range=2)
-    index, view, gain, evaluated = caster.best_view(code, origins, offsets, member, total, "prob", 0.0, 2.0,
-                                                    first_batch=16)  # fmt: skip
+    code, march = encode_grid(state, prob), _march(d, r_max)
+    exhaustive = caster.run_views(code, origins, march, member)
+    reference = origin_view_gains(state, prob, d, r_max, member, origins, "numpy", settings=GainSettings(min_range=2))
+    index, view, gain, evaluated = caster.best_view(code, origins, march, member, first_batch=16)
     assert np.count_nonzero(state == U) < 0.25 * state.size and reference.max() > 0.01
     assert (index, view) == divmod(int(np.argmax(exhaustive)), exhaustive.shape[1])
     assert gain == exhaustive.max() and abs(gain - reference.max()) <= 1e-4
@@ -103,10 +107,11 @@ def test_block_bounds_bound_every_origin(shape, n_rays, r_max, mode, size):
     d, member = _setup(shape, n_rays)
     p = prob if mode == "prob" else None
     origins = np.argwhere(state == E)
-    exact = origin_view_gains(state, p, d, r_max, member, origins, "numpy", mode=mode, min_range=2)
+    exact = origin_view_gains(
+        state, p, d, r_max, member, origins, "numpy", settings=GainSettings(mode=mode, min_range=2)
+    )
     code = encode_grid(state, p)
-    total = float(distance_weights(r_max, len(shape)).sum())
-    block_of, bounds = get_ray_caster().block_bounds(code, origins, sample_offsets(d, r_max), member, total, mode, size)
+    block_of, bounds = get_ray_caster().block_bounds(code, origins, _march(d, r_max, mode), member, size)
     assert block_of.shape == (origins.shape[0],) and bounds.shape[1] == member.shape[1]
     assert bounds.shape[0] < origins.shape[0]  # blocks gather several origins
     assert np.all(bounds[block_of] >= exact - 1e-5)
@@ -128,9 +133,8 @@ def test_best_view_prunes_origins():
     d, member = _setup(shape, n_rays)
     origins = np.argwhere(state == E)
     code = encode_grid(state, prob)
-    total = float(distance_weights(r_max, 3).sum())
     index, view, gain, evaluated = get_ray_caster().best_view(
-        code, origins, sample_offsets(d, r_max), member, total, "prob", 0.0, 0.0, first_batch=64
+        code, origins, _march(d, r_max, min_range=0.0), member, first_batch=64
     )
     exhaustive = origin_view_gains(state, prob, d, r_max, member, origins, "opencl")
     assert (index, view) == divmod(int(np.argmax(exhaustive)), exhaustive.shape[1])
@@ -168,10 +172,7 @@ def test_best_view_sparse_origins_evaluated_exhaustively():
     d, member = _setup(shape, 4)
     origins = np.argwhere(state == E)[::9]
     code = encode_grid(state, prob)
-    total = float(distance_weights(r_max, 3).sum())
-    index, view, gain, evaluated = get_ray_caster().best_view(
-        code, origins, sample_offsets(d, r_max), member, total, "prob", 0.0, 0.0
-    )
+    index, view, gain, evaluated = get_ray_caster().best_view(code, origins, _march(d, r_max, min_range=0.0), member)
     reference = origin_view_gains(state, prob, d, r_max, member, origins, "numpy")
     assert evaluated == origins.shape[0]
     assert (index, view) == divmod(int(np.argmax(reference)), reference.shape[1])
@@ -188,17 +189,18 @@ def test_view_sets_give_exact_gains_of_their_views(shape, n_rays, r_max, mode):
     d, member = _setup(shape, n_rays)
     p = prob if mode == "prob" else None
     origins = np.argwhere(state == E)
-    reference = origin_view_gains(state, p, d, r_max, member, origins, "numpy", mode=mode, min_range=2)
-    code, offsets = encode_grid(state, p), sample_offsets(d, r_max)
-    total = float(distance_weights(r_max, len(shape)).sum())
+    reference = origin_view_gains(
+        state, p, d, r_max, member, origins, "numpy", settings=GainSettings(mode=mode, min_range=2)
+    )
+    code, march = encode_grid(state, p), _march(d, r_max, mode)
     rng = np.random.default_rng(6)
     keep = rng.random(member.shape[1]) < 0.3
     shared = np.repeat(keep[None], origins.shape[0], axis=0)
-    got = get_ray_caster().run_views(code, origins, offsets, member, total, mode, 0.0, 2.0, view_sets=shared)
+    got = get_ray_caster().run_views(code, origins, march, member, view_sets=shared)
     assert np.abs(got - reference * keep).max() <= 1e-4
     assert (reference * keep).max() > 0.05 and (reference * ~keep).max() > 0.05  # both parts meaningful
     own = rng.random((origins.shape[0], member.shape[1])) < 0.2
-    mixed = get_ray_caster().run_views(code, origins, offsets, member, total, mode, 0.0, 2.0, view_sets=own)
+    mixed = get_ray_caster().run_views(code, origins, march, member, view_sets=own)
     exact = np.abs(mixed - reference) <= 1e-4
     assert np.all(exact[own]) and np.all(exact | (mixed == 0.0))
     assert np.count_nonzero(~exact & (reference > 0)) > 0  # some views really left out
@@ -225,12 +227,11 @@ def test_best_view_evaluates_only_views_that_can_win(monkeypatch, mode):
 
     reaching_views = opencl.reaching_views
     monkeypatch.setattr(opencl, "reaching_views", spy)
-    code, total = encode_grid(state, p), float(distance_weights(r_max, 3).sum())
-    index, view, gain, _ = get_ray_caster().best_view(
-        code, origins, sample_offsets(d, r_max), member, total, mode, 0.0, 2.0, first_batch=8
-    )
-    reference = origin_view_gains(state, p, d, r_max, member, origins, "numpy", mode=mode, min_range=2)
-    exhaustive = origin_view_gains(state, p, d, r_max, member, origins, "opencl", mode=mode, min_range=2)
+    code = encode_grid(state, p)
+    index, view, gain, _ = get_ray_caster().best_view(code, origins, _march(d, r_max, mode), member, first_batch=8)
+    settings = GainSettings(mode=mode, min_range=2)
+    reference = origin_view_gains(state, p, d, r_max, member, origins, "numpy", settings=settings)
+    exhaustive = origin_view_gains(state, p, d, r_max, member, origins, "opencl", settings=settings)
     assert evaluated and max(evaluated) < 1.0 and min(evaluated) < 0.75  # view sets really shrink
     assert (index, view) == divmod(int(np.argmax(exhaustive)), exhaustive.shape[1])
     assert gain == exhaustive.max()

@@ -4,12 +4,14 @@ import numpy as np
 import pytest
 
 from nbv_prob_cnn.basics.camera import orientations
-from nbv_prob_cnn.gain import origin_view_gains, ray_directions, ray_gains, view_gains, view_membership
+from nbv_prob_cnn.gain import GainSettings, origin_view_gains, ray_directions, ray_gains, view_gains, view_membership
 from nbv_prob_cnn.gain.directions import distance_weights
+from nbv_prob_cnn.gain.march import RayMarch
 from nbv_prob_cnn.gain.reference import ray_terms
 
 BACKENDS = ["numpy", "opencl"]
 E, O, U = 0, 1, -1  # noqa: E741
+IG = GainSettings(mode="ig")
 
 
 def _row_world(values, probs, height=3):
@@ -69,12 +71,13 @@ def test_single_ray_3d_uses_squared_distance(backend):
 @pytest.mark.parametrize("backend", BACKENDS)
 def test_information_gain_stops_at_first_non_empty(backend):
     state, _ = _row_world([E, E, U, U, E, E], [0] * 6)
-    gains = ray_gains(state, None, np.array([[1.0, 0.0]]), 5, np.array([[0, 1]]), backend, mode="ig")
+    gains = ray_gains(state, None, np.array([[1.0, 0.0]]), 5, np.array([[0, 1]]), backend, settings=IG)
     assert gains[0, 0] == pytest.approx(2 / 15, abs=1e-6)  # first non-empty: unknown at t=2
-    gains = ray_gains(state, None, np.array([[1.0, 0.0]]), 5, np.array([[0, 1]]), backend, mode="ig", min_range=3)
+    beyond_3 = GainSettings(mode="ig", min_range=3)
+    gains = ray_gains(state, None, np.array([[1.0, 0.0]]), 5, np.array([[0, 1]]), backend, settings=beyond_3)
     assert gains[0, 0] == 0.0  # the unknown cell is closer than the minimum range
     occluded, _ = _row_world([E, O, U, U, U, U], [0] * 6)
-    assert ray_gains(occluded, None, np.array([[1.0, 0.0]]), 5, np.array([[0, 1]]), backend, mode="ig")[0, 0] == 0
+    assert ray_gains(occluded, None, np.array([[1.0, 0.0]]), 5, np.array([[0, 1]]), backend, settings=IG)[0, 0] == 0
 
 
 def test_ray_counts_and_unit_length():
@@ -107,8 +110,8 @@ def test_backends_agree_on_random_grids(rng, shape, n_rays, r_max):
     assert a.shape == (np.count_nonzero(state == E), d.shape[0])
     assert a.max() > 0.05  # a meaningful comparison, not all zeros
     np.testing.assert_allclose(a, b, atol=1e-5)
-    ig_a = ray_gains(state, None, d, r_max, backend="numpy", mode="ig")
-    ig_b = ray_gains(state, None, d, r_max, backend="opencl", mode="ig")
+    ig_a = ray_gains(state, None, d, r_max, backend="numpy", settings=IG)
+    ig_b = ray_gains(state, None, d, r_max, backend="opencl", settings=IG)
     np.testing.assert_allclose(ig_a, ig_b, atol=1e-6)
 
 
@@ -125,7 +128,7 @@ def test_tolerance_bound_holds(rng):
     prob[state == U] = 0.02  # long rays, Pr decays slowly
     d = ray_directions(3, 4)
     exact = ray_gains(state, prob, d, 12, backend="opencl")
-    approx = ray_gains(state, prob, d, 12, backend="opencl", eps=0.3)
+    approx = ray_gains(state, prob, d, 12, backend="opencl", settings=GainSettings(eps=0.3))
     assert np.all(approx <= exact + 1e-6)
     assert np.all(exact - approx <= 0.3 + 1e-6)
 
@@ -175,6 +178,26 @@ def test_bad_inputs_raise_value_error(kwargs, match):
 
 
 @pytest.mark.parametrize(
+    "fields,match",
+    [
+        ({"mode": "gain"}, "mode"),
+        ({"eps": 1.0}, "eps"),
+        ({"eps": float("nan")}, "eps"),
+        ({"min_range": np.inf}, "min_range"),
+    ],
+)
+def test_bad_settings_raise_value_error(fields, match):
+    with pytest.raises(ValueError, match=match):
+        GainSettings(**fields)
+
+
+def test_settings_must_be_gain_settings():
+    state = np.zeros((4, 4), dtype=np.int8)
+    with pytest.raises(ValueError, match="settings"):
+        ray_gains(state, np.zeros((4, 4), np.float32), ray_directions(2, 4), 3, settings={"mode": "ig"})  # type: ignore[arg-type]
+
+
+@pytest.mark.parametrize(
     "shape,n_rays,r_max",
     [((41, 37), 4, 20), ((41, 37), 16, 20), ((17, 15, 13), 4, 9), ((13, 12, 11), 16, 7)],
 )
@@ -189,17 +212,18 @@ def test_fused_view_gains_match_numpy_reference(rng, shape, n_rays, r_max, mode)
     member = view_membership(d, yaws_or_quats, 60.0, None if dims == 2 else 46.0)
     origins = np.argwhere(state == E)
     p = prob if mode == "prob" else None
-    expected = view_gains(ray_gains(state, p, d, r_max, origins, "numpy", mode=mode, min_range=2), d, yaws_or_quats,
+    settings = GainSettings(mode=mode, min_range=2)
+    expected = view_gains(ray_gains(state, p, d, r_max, origins, "numpy", settings=settings), d, yaws_or_quats,
                           60.0, None if dims == 2 else 46.0)  # fmt: skip
-    got = origin_view_gains(state, p, d, r_max, member, origins, "opencl", mode=mode, min_range=2)
+    got = origin_view_gains(state, p, d, r_max, member, origins, "opencl", settings=settings)
     assert got.shape == expected.shape == (origins.shape[0], yaws_or_quats.shape[0])
     assert expected.max() > 0.05  # a meaningful comparison, not all zeros
     np.testing.assert_allclose(got, expected, atol=1e-4, rtol=0)
     assert np.argmax(got) == np.argmax(expected)
     # the numpy backend of the same function is the reference itself (float32 products of
     # different shapes: BLAS may sum in another order, a few ulp)
-    np.testing.assert_allclose(origin_view_gains(state, p, d, r_max, member, origins[:50], "numpy", mode=mode,
-                                                 min_range=2), expected[:50], atol=1e-6, rtol=1e-6)  # fmt: skip
+    np.testing.assert_allclose(origin_view_gains(state, p, d, r_max, member, origins[:50], "numpy",
+                                                 settings=settings), expected[:50], atol=1e-6, rtol=1e-6)  # fmt: skip
 
 
 def test_fused_view_gains_hand_worked_2d():
@@ -241,15 +265,16 @@ def test_every_lane_width_matches_numpy_reference(rng, lane_casters, shape, n_ra
     member = view_membership(d, orientations(dims), 60.0, None if dims == 2 else 46.0)
     origins = np.argwhere(state == E)[:203]
     p = prob if mode == "prob" else None
-    expected_rays = ray_gains(state, p, d, r_max, origins, "numpy", mode=mode, min_range=2)
+    settings = GainSettings(mode=mode, min_range=2)
+    expected_rays = ray_gains(state, p, d, r_max, origins, "numpy", settings=settings)
     expected = expected_rays @ member
     code, offsets = encode_grid(state, p), sample_offsets(d, r_max)
     total = float(distance_weights(r_max, dims).sum())
     first: dict[float, tuple[np.ndarray, np.ndarray]] = {}  # per eps: the first width's gains
     for lanes, caster in lane_casters.items():
         for eps in (0.0, 0.05):
-            got_rays = caster.run(code, origins, offsets, total, mode, eps, 2.0)
-            got = caster.run_views(code, origins, offsets, member, total, mode, eps, 2.0)
+            march = RayMarch(offsets, total, mode, eps, 2.0)
+            got_rays, got = caster.run(code, origins, march), caster.run_views(code, origins, march, member)
             if eps == 0.0:
                 np.testing.assert_allclose(got_rays, expected_rays, atol=1e-5, rtol=0, err_msg=f"lanes {lanes}")
                 np.testing.assert_allclose(got, expected, atol=1e-4, rtol=0, err_msg=f"lanes {lanes}")

@@ -8,12 +8,19 @@ from nbv_prob_cnn.basics.camera import orientations
 from nbv_prob_cnn.basics.grid import probability_from_truth, probability_with_constant
 from nbv_prob_cnn.gain import best_origin_view, origin_view_gains, ray_directions, ray_gains, view_membership
 from nbv_prob_cnn.gain.opencl import OpenCLRayCaster
+from nbv_prob_cnn.gain.settings import GainSettings
 from nbv_prob_cnn.gain.variant import ig_min_range, sample_count, sample_weights, uses_free_hits
 from nbv_prob_cnn.planners import PlanningContext, make_planner
 
 BACKENDS = ["numpy", "opencl"]
 E, O, U = 0, 1, -1  # noqa: E741
 X = np.array([[1.0, 0.0]])
+ORIGINAL = GainSettings(variant="original")
+ORIGINAL_FREE = GainSettings(variant="original", free_hits=True)
+
+
+def _original_ig(min_range: float = 0.0) -> GainSettings:
+    return GainSettings(mode="ig", min_range=min_range, variant="original")
 
 
 def _row(values, probs):
@@ -43,8 +50,8 @@ def test_probabilistic_ray_2d_by_hand(backend):
     origin = np.array([[0, 0]])
     total = 28 / 8 + 2  # t = 0..9, weights 0, 1/8 .. 7/8, 1, 1
     paper = ray_gains(state, prob, X, 12, origin, backend)
-    constant = ray_gains(state, prob, X, 12, origin, backend, variant="original")
-    free = ray_gains(state, prob, X, 12, origin, backend, variant="original", free_hits=True)
+    constant = ray_gains(state, prob, X, 12, origin, backend, settings=ORIGINAL)
+    free = ray_gains(state, prob, X, 12, origin, backend, settings=ORIGINAL_FREE)
     assert paper[0, 0] == pytest.approx((3 * 1 + 4 * 0.5) / 78, abs=1e-6)  # t^1, t = 0..12
     assert constant[0, 0] == pytest.approx((0.375 * 1 + 0.5 * 0.5) / total, abs=1e-6)
     # item 3: (1 - p_t) Pr(r_t)
@@ -60,8 +67,8 @@ def test_probabilistic_ray_3d_range_and_saturation_by_hand(backend):
         state[0, 0, z], prob[0, 0, z] = U, p
     z_axis, origin = np.array([[0.0, 0.0, 1.0]]), np.array([[0, 0, 0]])
     total = 140 / 64 + 13
-    constant = ray_gains(state, prob, z_axis, 24, origin, backend, variant="original")
-    free = ray_gains(state, prob, z_axis, 24, origin, backend, variant="original", free_hits=True)
+    constant = ray_gains(state, prob, z_axis, 24, origin, backend, settings=ORIGINAL)
+    free = ray_gains(state, prob, z_axis, 24, origin, backend, settings=ORIGINAL_FREE)
     # weights (4/8)^2 = 0.25 and min((9/8)^2, 1) = 1; z 21 is not sampled
     assert constant[0, 0] == pytest.approx((0.25 + 1 * 0.75) / total, abs=1e-6)
     assert free[0, 0] == pytest.approx((0.25 * 0.75 + 1 * 0.5 * 0.75) / total, abs=1e-6)
@@ -72,12 +79,12 @@ def test_information_gain_ray_by_hand(backend):
     origin = np.array([[0, 0]])
     state, _ = _row([E, E, E, U, U, U, U, U, U, U], [0] * 10)
     # first non-empty at t = 3, inside the minimum range 5: 0.01 / (w0 + w1 + w2 + 1)
-    near = ray_gains(state, None, X, 12, origin, backend, mode="ig", min_range=5, variant="original")
+    near = ray_gains(state, None, X, 12, origin, backend, settings=_original_ig(5))
     assert near[0, 0] == pytest.approx(0.01 / 1.375, abs=1e-7)
-    far = ray_gains(state, None, X, 12, origin, backend, mode="ig", min_range=2, variant="original")
+    far = ray_gains(state, None, X, 12, origin, backend, settings=_original_ig(2))
     assert far[0, 0] == pytest.approx(0.375 / 1.375, abs=1e-6)
     blocked, _ = _row([E, E, O, U, U, U], [0] * 6)
-    assert ray_gains(blocked, None, X, 12, origin, backend, mode="ig", variant="original")[0, 0] == 0.0
+    assert ray_gains(blocked, None, X, 12, origin, backend, settings=_original_ig())[0, 0] == 0.0
 
 
 @pytest.mark.parametrize("backend", BACKENDS)
@@ -88,15 +95,15 @@ def test_view_gain_is_ratio_of_sums_by_hand(backend):
     state[6, 0] = U
     directions = np.array([[1.0, 0.0], [0.0, 1.0], [-1.0, 0.0]])
     member = np.array([[1, 1], [1, 0], [1, 0]], dtype=np.float32)  # view 0: all rays, view 1: +x only
-    gains = origin_view_gains(state, None, directions, 12, member, np.array([[0, 0]]), backend, mode="ig",
-                              min_range=5, variant="original")  # fmt: skip
+    gains = origin_view_gains(state, None, directions, 12, member, np.array([[0, 0]]), backend,
+                              settings=_original_ig(5))  # fmt: skip
     before = 0 + 0.125 + 0.25 + 0.375 + 0.5 + 0.625  # weights of t = 0..5
     hits, totals = 0.75, before + 1
     assert gains[0, 1] == pytest.approx(hits / totals, abs=1e-6)
     assert gains[0, 0] == pytest.approx(hits / (totals + 5.5 + 5.5), abs=1e-6)
     # probabilistic: every ray's total is the sum of the weights, so the view gain is the mean
     prob = probability_with_constant(state, 0.15)
-    views = origin_view_gains(state, prob, directions, 12, member, np.array([[0, 0]]), backend, variant="original")
+    views = origin_view_gains(state, prob, directions, 12, member, np.array([[0, 0]]), backend, settings=ORIGINAL)
     assert views[0, 0] == pytest.approx(0.75 / (3 * 5.5), abs=1e-6) and views[0, 1] == pytest.approx(0.75 / 5.5)
 
 
@@ -115,9 +122,9 @@ def test_kernel_matches_reference(dims, shape, n_rays, r_max, mode, free):
     state, prob = _random_case(np.random.default_rng(dims * 100 + n_rays), dims, shape)
     directions = ray_directions(dims, n_rays)
     member = view_membership(directions, orientations(dims), 60.0, None if dims == 2 else 46.0)
-    options = {"mode": mode, "variant": "original", "free_hits": free, "min_range": 5.0}
-    rays = [ray_gains(state, prob, directions, r_max, backend=b, **options) for b in BACKENDS]
-    views = [origin_view_gains(state, prob, directions, r_max, member, backend=b, **options) for b in BACKENDS]
+    settings = GainSettings(mode=mode, min_range=5.0, variant="original", free_hits=free)
+    rays = [ray_gains(state, prob, directions, r_max, backend=b, settings=settings) for b in BACKENDS]
+    views = [origin_view_gains(state, prob, directions, r_max, member, backend=b, settings=settings) for b in BACKENDS]
     assert rays[0].max() > 0.0 and np.abs(rays[1] - rays[0]).max() < 2e-6
     assert np.abs(views[1] - views[0]).max() < 2e-6
 
@@ -125,18 +132,18 @@ def test_kernel_matches_reference(dims, shape, n_rays, r_max, mode, free):
 @pytest.mark.parametrize("lanes", [1, 4, 16])
 @pytest.mark.parametrize("mode,free", KINDS)
 def test_lanes_give_the_same_original_gains(lanes, mode, free):
-    from nbv_prob_cnn.gain import _kernel_inputs, _kernel_mode
+    from nbv_prob_cnn.gain.march import ray_march
+    from nbv_prob_cnn.gain.opencl import encode_grid
 
     state, prob = _random_case(np.random.default_rng(7), 3, (15, 14, 16))
     directions = ray_directions(3, 4)
     member = view_membership(directions, orientations(3), 60.0, 46.0)
     origins = np.argwhere(state == E)
-    code, offsets, total = _kernel_inputs(state, prob, directions, 20, mode, "original")
-    kernel_mode = _kernel_mode(mode, "original", free)
+    settings = GainSettings(mode=mode, min_range=5.0, variant="original", free_hits=free)
+    code = encode_grid(state, prob if mode == "prob" else None)
     caster = OpenCLRayCaster(lanes=lanes)
-    got = caster.run_views(code, origins, offsets, member, total, kernel_mode, 0.0, 5.0, variant="original")
-    want = origin_view_gains(state, prob, directions, 20, member, origins, "numpy", mode=mode, min_range=5.0,
-                             variant="original", free_hits=free)  # fmt: skip
+    got = caster.run_views(code, origins, ray_march(3, directions, 20, settings), member)
+    want = origin_view_gains(state, prob, directions, 20, member, origins, "numpy", settings=settings)
     assert np.abs(got - want).max() < 2e-6
 
 
@@ -147,14 +154,14 @@ def test_pruned_search_is_exact(dims, shape, n_rays, r_max, mode, free, prune_vi
     state, prob = _random_case(np.random.default_rng(3 + dims + n_rays), dims, shape, p_unknown=0.3)
     directions = ray_directions(dims, n_rays)
     member = view_membership(directions, orientations(dims), 60.0, None if dims == 2 else 46.0)
-    options = {"mode": mode, "variant": "original", "free_hits": free, "min_range": 5.0}
-    exhaustive = origin_view_gains(state, prob, directions, r_max, member, backend="opencl", **options)
+    settings = GainSettings(mode=mode, min_range=5.0, variant="original", free_hits=free)
+    exhaustive = origin_view_gains(state, prob, directions, r_max, member, backend="opencl", settings=settings)
     flat = int(np.argmax(exhaustive))  # the first of equal maxima, origin-major
     found = best_origin_view(state, prob, directions, r_max, member, backend="opencl", prune_views=prune_views,
-                             block_size=2, **options)  # fmt: skip
+                             block_size=2, settings=settings)  # fmt: skip
     assert (found[0], found[1]) == divmod(flat, exhaustive.shape[1])
     assert found[2] == exhaustive.flat[flat]
-    reference = best_origin_view(state, prob, directions, r_max, member, backend="numpy", **options)
+    reference = best_origin_view(state, prob, directions, r_max, member, backend="numpy", settings=settings)
     assert reference[2] == pytest.approx(found[2], abs=2e-6)
 
 
@@ -173,8 +180,9 @@ def test_planners_use_the_context_variant():
         else:
             prob = probability_from_truth(state, world.ground_truth)
         origins = context.candidate_origins(state)
+        settings = GainSettings(variant="original", free_hits=probability == "oracle")
         gains = origin_view_gains(state, prob, directions, context.active_sensor.r_max, context.membership, origins,
-                                  "opencl", variant="original", free_hits=probability == "oracle")  # fmt: skip
+                                  "opencl", settings=settings)  # fmt: skip
         flat = int(np.argmax(gains))
         assert choice is not None and choice.gain == gains.flat[flat]
         index, view = divmod(flat, gains.shape[1])
@@ -184,11 +192,11 @@ def test_planners_use_the_context_variant():
 def test_bad_variant_and_free_hits():
     state, prob = _row([E, U, U], [0, 0.5, 0.5])
     with pytest.raises(ValueError, match="gain variant"):
-        ray_gains(state, prob, X, 4, variant="authors")
+        ray_gains(state, prob, X, 4, settings=GainSettings(variant="authors"))
     with pytest.raises(ValueError, match="free_hits"):
-        ray_gains(state, prob, X, 4, free_hits=True)
+        ray_gains(state, prob, X, 4, settings=GainSettings(free_hits=True))
     with pytest.raises(ValueError, match="free_hits"):
-        ray_gains(state, None, X, 4, mode="ig", variant="original", free_hits=True)
+        ray_gains(state, None, X, 4, settings=GainSettings(mode="ig", variant="original", free_hits=True))
     with pytest.raises(ValueError, match="gain variant"):
         PlanningContext.for_dataset("2d", gain_variant="Original")
 

@@ -10,6 +10,7 @@ import pytest
 from nbv_prob_cnn.basics.camera import orientations
 from nbv_prob_cnn.gain import (
     GainSensor,
+    GainSettings,
     best_origin_view,
     origin_view_gains,
     ray_directions,
@@ -39,7 +40,8 @@ def _row(length: int = 30) -> tuple[np.ndarray, np.ndarray]:
 
 def _gain(state, prob, backend, sensor=None, sampling="rounded") -> float:
     origin = np.array([[1, 1]])
-    return float(ray_gains(state, prob, PLUS_X, R_MAX, origin, backend, sensor=sensor, sampling=sampling)[0, 0])
+    settings = GainSettings(sensor=sensor, sampling=sampling)
+    return float(ray_gains(state, prob, PLUS_X, R_MAX, origin, backend, settings=settings)[0, 0])
 
 
 @pytest.mark.parametrize("backend", BACKENDS)
@@ -95,7 +97,11 @@ def test_grazing_incidence_has_no_return_by_hand(backend):
     wall = int(np.argmax(cells[:, 0] >= 6))  # first sample in the wall
     assert 0 < wall <= 40 and np.all(cells[:wall, 1] < 80)
     paper = sum(range(1, wall)) / sum(range(41))
-    gain = lambda sensor: float(ray_gains(state, prob, b, 40, np.array([[1, 2]]), backend, sensor=sensor)[0, 0])  # noqa: E731
+
+    def gain(sensor):
+        settings = GainSettings(sensor=sensor)
+        return float(ray_gains(state, prob, b, 40, np.array([[1, 2]]), backend, settings=settings)[0, 0])
+
     assert gain(None) == pytest.approx(paper, rel=1e-6)
     assert gain(GainSensor(0.0, 100.0, grazing_deg=85.0)) == pytest.approx(paper, rel=1e-6)
     assert gain(GainSensor(0.0, 100.0, grazing_deg=75.0)) == 0.0
@@ -167,11 +173,11 @@ def test_kernel_matches_reference(dims, shape, n_rays, sampling):
     origins = np.argwhere(state == 0)[::3][:120]
     for sensor in SENSORS:
         for mode in ("prob", "ig"):
-            kwargs = {"mode": mode, "sensor": sensor, "sampling": sampling}
-            ref = origin_view_gains(state, prob, d, 16, member, origins, "numpy", **kwargs)
-            cl = origin_view_gains(state, prob, d, 16, member, origins, "opencl", **kwargs)
+            settings = GainSettings(mode=mode, sensor=sensor, sampling=sampling)
+            ref = origin_view_gains(state, prob, d, 16, member, origins, "numpy", settings=settings)
+            cl = origin_view_gains(state, prob, d, 16, member, origins, "opencl", settings=settings)
             np.testing.assert_allclose(cl, ref, rtol=2e-5, atol=2e-6)
-            rays = ray_gains(state, prob, d, 16, origins, "opencl", **kwargs)
+            rays = ray_gains(state, prob, d, 16, origins, "opencl", settings=settings)
             np.testing.assert_allclose(rays @ member, ref, rtol=2e-5, atol=2e-6)
 
 
@@ -189,9 +195,9 @@ def test_every_lane_width_matches_the_reference(monkeypatch, lanes):
     member = view_membership(d, orientations(3), 60.0, 46.0)
     origins = np.argwhere(state == 0)[::4][:60]
     for sampling in ("rounded", "exact"):
-        sensor = GainSensor(2.0, 20.0, 72.0, False)
-        ref = origin_view_gains(state, prob, d, 14, member, origins, "numpy", sensor=sensor, sampling=sampling)
-        cl = origin_view_gains(state, prob, d, 14, member, origins, "opencl", sensor=sensor, sampling=sampling)
+        settings = GainSettings(sensor=GainSensor(2.0, 20.0, 72.0, False), sampling=sampling)
+        ref = origin_view_gains(state, prob, d, 14, member, origins, "numpy", settings=settings)
+        cl = origin_view_gains(state, prob, d, 14, member, origins, "opencl", settings=settings)
         np.testing.assert_allclose(cl, ref, rtol=2e-5, atol=2e-6)
 
 
@@ -216,12 +222,12 @@ def test_pruned_search_finds_the_exact_argmax(monkeypatch, dims, shape, n_rays, 
         state[rng.random(shape) < 0.9] = 0  # unknown space mostly in one corner: most origins are pruned
         state[corner] = np.where(rng.random(state[corner].shape) < 0.7, -1, state[corner])
         for sensor in SENSORS[:3]:
-            kwargs = {"sensor": sensor, "sampling": sampling}
-            every = origin_view_gains(state, prob, d, 16, member, None, "opencl", **kwargs)
+            settings = GainSettings(sensor=sensor, sampling=sampling)
+            every = origin_view_gains(state, prob, d, 16, member, None, "opencl", settings=settings)
             flat = int(np.argmax(every))
             for prune_views in (True, False):
                 best = best_origin_view(state, prob, d, 16, member, None, "opencl", prune_views=prune_views,
-                                        **kwargs)  # fmt: skip
+                                        settings=settings)  # fmt: skip
                 index, view, gain = best
                 assert (index, view) == divmod(flat, every.shape[1])
                 assert gain == every.flat[flat]
@@ -237,13 +243,12 @@ def test_sensor_from_the_preset_and_bad_inputs():
         GainSensor(5.0, 5.0)
     with pytest.raises(ValueError, match="grazing_deg"):
         GainSensor(0.0, 10.0, grazing_deg=0.0)
-    state, prob = _row()
     with pytest.raises(ValueError, match="sampling"):
-        ray_gains(state, prob, PLUS_X, R_MAX, np.array([[1, 1]]), "numpy", sampling="dense")
+        GainSettings(sampling="dense")
     with pytest.raises(ValueError, match="paper's gain variant"):
-        ray_gains(state, prob, PLUS_X, R_MAX, np.array([[1, 1]]), "numpy", variant="original", sampling="exact")
+        GainSettings(variant="original", sampling="exact")
     with pytest.raises(ValueError, match="GainSensor"):
-        ray_gains(state, prob, PLUS_X, R_MAX, np.array([[1, 1]]), "numpy", sensor=(0.0, 10.0))
+        GainSettings(sensor=(0.0, 10.0))  # type: ignore[arg-type]
     with pytest.raises(ValueError, match="needs gain_sensor"):
         PlanningContext.for_dataset("2d", sensor_model="returns")
     with pytest.raises(ValueError, match="gain_variant"):
@@ -268,7 +273,7 @@ def test_planner_context_passes_the_sensor_to_the_search():
     origins = context.candidate_origins(state)
     choice = search_best_view(state, prob, origins, context)
     gains = origin_view_gains(state, prob, context.directions, context.active_sensor.r_max, context.membership,
-                              origins, "numpy", sensor=sensor, sampling="exact")  # fmt: skip
+                              origins, "numpy", settings=GainSettings(sensor=sensor, sampling="exact"))  # fmt: skip
     flat = int(np.argmax(gains))
     assert choice is not None and choice.gain == pytest.approx(float(gains.flat[flat]), rel=1e-5)
     assert tuple(choice.cell) == tuple(origins[flat // gains.shape[1]])
