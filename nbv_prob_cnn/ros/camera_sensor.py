@@ -18,14 +18,19 @@ from __future__ import annotations
 
 import threading
 from dataclasses import dataclass
+from typing import Protocol
 
+import numpy as np
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import CameraInfo
 
 from nbv_prob_cnn.basics.camera import dataset_defaults
+from nbv_prob_cnn.basics.geometry import GridGeometry
 from nbv_prob_cnn.gain.sampling import SENSOR_MODELS, GainSensor
 from nbv_prob_cnn.perception.messages import camera_info_to_intrinsics
+from nbv_prob_cnn.planners.base import PlanningContext
+from nbv_prob_cnn.planners.requests import planning_context
 from nbv_prob_cnn.ros import names
 from nbv_prob_cnn.ros.parameters import param
 
@@ -80,6 +85,42 @@ class Frustum:
     vfov_deg: float = 0.0
     max_range_m: float = 0.0
     min_range_m: float = 0.0
+
+
+class PlanningParams(Protocol):
+    """What a planning node's config gives :func:`node_planning_context` (``gain_server``'s, ``nbv_planner``'s)."""
+
+    @property
+    def dataset(self) -> str: ...
+
+    @property
+    def backend(self) -> str: ...
+
+    @property
+    def n_rays(self) -> int: ...
+
+    @property
+    def gain_variant(self) -> str: ...
+
+    def apply_sensor_model(self, context, resolution_m: float) -> None: ...
+
+
+def node_planning_context(
+    params: PlanningParams, geometry: GridGeometry, frustum: Frustum, rng: np.random.Generator
+) -> PlanningContext:
+    """The planning set-up of one request on ``geometry``: the node's data set, backend, rays, gain
+    variant and sensor model, planned with ``frustum``.
+
+    Raises:
+        ValueError: the grid does not fit the data set, or bad frustum overrides.
+    """
+    context = planning_context(
+        params.dataset, geometry, params.backend, params.n_rays, rng,
+        frustum.hfov_deg, frustum.vfov_deg, frustum.max_range_m, frustum.min_range_m,
+    )  # fmt: skip
+    context.gain_variant = params.gain_variant
+    params.apply_sensor_model(context, geometry.resolution)
+    return context
 
 
 class CameraInfoSensor:

@@ -45,11 +45,10 @@ from nbv_prob_cnn.planners.requests import (
     allowed_origins_filter,
     gain_method,
     origin_filter,
-    planning_context,
     rank_for_request,
 )
 from nbv_prob_cnn.ros import names
-from nbv_prob_cnn.ros.camera_sensor import CameraInfoSensor, Frustum, SensorParams
+from nbv_prob_cnn.ros.camera_sensor import CameraInfoSensor, SensorParams, node_planning_context
 from nbv_prob_cnn.ros.conversions import (
     arrays_to_pose_stamped,
     grid_to_msg,
@@ -138,17 +137,6 @@ class GainServer(Node):
         solutions = reachable_poses(self._arm.feasibility(geometry), positions, quats, state, geometry, seed)
         return [joint_state_msg(self._arm.robot, q) for q in solutions]
 
-    def _planning_context(self, geometry: GridGeometry, frustum: Frustum) -> PlanningContext:
-        """The planning set-up of a request: this node's data set, backend, rays, gain and sensor model."""
-        cfg = self.config
-        context = planning_context(
-            cfg.dataset, geometry, cfg.backend, cfg.n_rays, self._rng,
-            frustum.hfov_deg, frustum.vfov_deg, frustum.max_range_m, frustum.min_range_m,
-        )  # fmt: skip
-        context.gain_variant = cfg.gain_variant
-        cfg.apply_sensor_model(context, geometry.resolution)
-        return context
-
     def _completion(self, header, geometry: GridGeometry):
         """The CNN probability source for this node's mode."""
         if self.config.completion == "in_process":
@@ -178,7 +166,7 @@ class GainServer(Node):
             frame = grid.header.frame_id or self.config.frame_id
             method = gain_method(request.method, self.config.method)
             frustum = self._sensor.frustum(request.hfov_deg, request.vfov_deg, request.max_range_m)
-            context = self._planning_context(geometry, frustum)
+            context = node_planning_context(self.config, geometry, frustum, self._rng)
             positions = np.array([[p.pose.position.x, p.pose.position.y, p.pose.position.z] for p in request.poses])
             o = [p.pose.orientation for p in request.poses]
             quats = np.array([[q.x, q.y, q.z, q.w] for q in o])
@@ -245,7 +233,7 @@ class GainServer(Node):
             grid = request.grid if request.grid.size_x else self._grid.latest()
             state, geometry = msg_to_grid(grid)
             frame = grid.header.frame_id or self.config.frame_id
-            context = self._planning_context(geometry, self._sensor.frustum())
+            context = node_planning_context(self.config, geometry, self._sensor.frustum(), self._rng)
             given = None
             if request.probability.size_x:
                 given, _ = msg_to_probability(request.probability)
