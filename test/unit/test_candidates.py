@@ -1,0 +1,71 @@
+"""Candidate origins that can gain (nbv_prob_cnn/planners/candidates.py): the frontier band against
+independent distance computations, and the best views over it against the dense search."""
+
+import numpy as np
+import pytest
+from scipy import ndimage
+
+from nbv_prob_cnn.basics.camera import DatasetDefaults, Sensor
+from nbv_prob_cnn.basics.grid import probability_with_constant
+from nbv_prob_cnn.gain import empty_origins
+from nbv_prob_cnn.planners import PlanningContext
+from nbv_prob_cnn.planners.base import search_views
+from nbv_prob_cnn.planners.candidates import frontier_band, grown_box, near_unknown, ray_reach, reach_region
+
+
+def _state(rng, shape, p_unknown):
+    return rng.choice(np.array([-1, 0, 1], dtype=np.int8), size=shape, p=[p_unknown, 0.95 - p_unknown, 0.05])
+
+
+@pytest.mark.parametrize("reach", [0, 1, 2, 5, 13, 40])
+def test_near_unknown_is_a_chebyshev_dilation(rng, reach):
+    state = _state(rng, (31, 22, 17), 0.003)
+    expected = ndimage.maximum_filter((state == -1).astype(np.uint8), size=2 * reach + 1, mode="constant") > 0
+    np.testing.assert_array_equal(near_unknown(state, reach), expected)
+    flat = _state(rng, (40, 33), 0.01)
+    expected = ndimage.maximum_filter((flat == -1).astype(np.uint8), size=2 * reach + 1, mode="constant") > 0
+    np.testing.assert_array_equal(near_unknown(flat, reach), expected)
+
+
+@pytest.mark.parametrize("stride", [1, 2, 3])
+def test_frontier_band_is_the_empty_cells_within_reach_of_unknown(rng, stride):
+    state = _state(rng, (30, 26, 20), 0.002)
+    reach = 4
+    distance = ndimage.distance_transform_cdt(state != -1, metric="chessboard")  # to the nearest unknown
+    every = empty_origins(state, stride)
+    expected = every[distance[tuple(every.T)] <= reach]
+    band = frontier_band(state, reach, stride)
+    np.testing.assert_array_equal(band, expected)  # the same cells, in the same (argwhere) order
+    assert 0 < band.shape[0] < every.shape[0]
+
+
+def test_regions_are_bounding_boxes_grown_and_clipped():
+    origins = np.array([[3, 4, 5], [10, 2, 7]])
+    assert reach_region(origins, 2, (12, 12, 12)) == ((1, 0, 3), (12, 7, 10))
+    assert grown_box(origins, (1, 0, 3), (20, 20, 20)) == ((2, 2, 2), (12, 5, 11))
+    assert reach_region(np.zeros((0, 3), dtype=np.int64), 2, (4, 4, 4)) is None
+    assert ray_reach(8) == 9
+    with pytest.raises(ValueError, match="r_max"):
+        ray_reach(0)
+    with pytest.raises(ValueError, match="stride"):
+        frontier_band(np.zeros((4, 4), dtype=np.int8), 2, 0)
+
+
+@pytest.mark.parametrize("mode", ["prob", "ig"])
+def test_the_band_keeps_the_dense_searchs_views(rng, mode):
+    """A grid larger than the sensor range with little unknown space: the band drops most empty cells,
+    and the best view and the top 20 are the dense search's (same cells, views and gains)."""
+    defaults = DatasetDefaults("3du", 3, (40, 36, 30), 0.01, Sensor(60.0, 46.0, 8), 4, 3)
+    context = PlanningContext(defaults, backend="opencl", origin_stride=1)
+    state = _state(rng, defaults.shape, 0.0)
+    state[28:34, 5:12, 20:26] = -1
+    prob = probability_with_constant(state, 0.15)
+    dense = empty_origins(state)
+    band = frontier_band(state, ray_reach(context.active_sensor.r_max), 1)
+    assert band.shape[0] < 0.5 * dense.shape[0]
+    for top_k in (1, 20):
+        want = search_views(state, prob, dense, context, mode, top_k)
+        got = search_views(state, prob, band, context, mode, top_k)
+        assert len(got) == len(want) == top_k
+        for a, b in zip(got, want, strict=True):
+            assert (tuple(a.cell), a.view_index, a.gain) == (tuple(b.cell), b.view_index, b.gain)
