@@ -40,11 +40,10 @@ import numpy as np
 import torch
 
 from nbv_prob_cnn.basics.grid import OCCUPIED, UNKNOWN, check_state
+from nbv_prob_cnn.basics.region import Region, check_region, region_slices
 from nbv_prob_cnn.completion.inference import complete, load_model, resolve_device
 from nbv_prob_cnn.completion.model import CompletionNet
 
-#: A box of cells: ``(lo, hi)``, ``lo`` inclusive and ``hi`` exclusive per axis.
-Region = tuple[tuple[int, ...], tuple[int, ...]]
 #: Default bound on the cells of one tile's window (about 1.2 GB of activations on a CPU).
 MAX_WINDOW_CELLS = 8_000_000
 #: Most tiles per axis :func:`plan_tiles` considers.
@@ -112,27 +111,6 @@ def halo_cells(model: CompletionNet) -> int:
     return -(-receptive_radius(model) // model.multiple) * model.multiple
 
 
-def check_region(region: Region | None, shape: tuple[int, ...], name: str = "region") -> Region:
-    """``region`` clipped to a grid of ``shape`` (None: the whole grid).
-
-    Raises:
-        ValueError: not a pair of per-axis bounds, or an empty box inside the grid.
-    """
-    if region is None:
-        return (0,) * len(shape), tuple(int(s) for s in shape)
-    try:
-        lo, hi = (tuple(int(v) for v in bound) for bound in region)
-    except (TypeError, ValueError):
-        raise ValueError(f"{name}: expected (lo, hi) cell bounds per axis, got {region!r}") from None
-    if len(lo) != len(shape) or len(hi) != len(shape):
-        raise ValueError(f"{name}: expected {len(shape)} bounds per side, got {region!r}")
-    lo = tuple(max(0, v) for v in lo)
-    hi = tuple(min(s, v) for s, v in zip(shape, hi, strict=True))
-    if any(a >= b for a, b in zip(lo, hi, strict=True)):
-        raise ValueError(f"{name}: {region!r} holds no cell of the grid of shape {shape}")
-    return lo, hi
-
-
 @dataclass(frozen=True)
 class Tile:
     """One pass of the network: the ``core`` it delivers and the ``window`` it reads."""
@@ -141,8 +119,7 @@ class Tile:
     window: Region
 
     def slices(self, which: str) -> tuple[slice, ...]:
-        lo, hi = self.core if which == "core" else self.window
-        return tuple(slice(a, b) for a, b in zip(lo, hi, strict=True))
+        return region_slices(self.core if which == "core" else self.window)
 
     def core_in_window(self) -> tuple[slice, ...]:
         return tuple(
@@ -279,8 +256,7 @@ def complete_window(
         ``float32`` array of the shape of ``state``.
     """
     state = check_state(state)
-    lo, hi = check_region(window, state.shape, "window")
-    crop = tuple(slice(a, b) for a, b in zip(lo, hi, strict=True))
+    crop = region_slices(check_region(window, state.shape, "window"))
     out = _known_probability(state, p0)
     inner = np.ascontiguousarray(state[crop])
     out[crop] = complete_region(inner, None, model, dataset, p0, device, max_window_cells)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -17,6 +18,7 @@ from nbv_prob_cnn.gain.original_sets import original_view_set
 from nbv_prob_cnn.gain.sampling import GainSensor, check_sampling, check_sensor_model
 from nbv_prob_cnn.gain.settings import GainSettings
 from nbv_prob_cnn.gain.variant import check_variant, ig_min_range, uses_free_hits
+from nbv_prob_cnn.planners.candidates import crop_to_reach
 
 #: Ray and orientation sets of :class:`PlanningContext`: the paper's, or the authors' code's.
 VIEW_SETS = ("spec", "original")
@@ -64,6 +66,9 @@ class PlanningContext:
             with ``sensor_model="returns"`` only, which needs it.
         sampling: ``"rounded"`` (docs/method.md, the default) or ``"exact"`` voxel traversal of the
             gain's rays (docs/sensing.md).
+        cnn_window: None (the default): the completion CNN runs, exactly, over the cells the candidates'
+            rays can read; a margin in cells: only over the candidates' box grown by it, with ``p0``
+            outside (:mod:`nbv_prob_cnn.planners.local_completion`, docs/performance.md#scale).
     """
 
     defaults: DatasetDefaults
@@ -81,6 +86,7 @@ class PlanningContext:
     sensor_model: str = "paper"
     gain_sensor: GainSensor | None = None
     sampling: str = "rounded"
+    cnn_window: int | None = None
 
     def __post_init__(self) -> None:
         check_variant(self.gain_variant)
@@ -93,6 +99,8 @@ class PlanningContext:
             raise ValueError(f"view_set: expected one of {VIEW_SETS} ('original': no n_rays), got {self.view_set!r}")
         if self.origin_stride is not None and (not isinstance(self.origin_stride, int) or self.origin_stride < 1):
             raise ValueError(f"origin_stride: expected a positive integer, got {self.origin_stride!r}")
+        if self.cnn_window is not None and (not isinstance(self.cnn_window, int) or self.cnn_window < 0):
+            raise ValueError(f"cnn_window: expected a margin in cells >= 0 or None, got {self.cnn_window!r}")
         sensor = self.active_sensor
         self.directions = ray_directions(self.defaults.dims, self.n_rays or self.defaults.n_rays)
         self.orientations = orientations(self.defaults.dims)
@@ -212,9 +220,14 @@ def search_views(
     gives the orientations allowed at each origin; the others count as zero gain (never returned).
     ``probability``: the source of ``prob`` (``"constant"``, ``"cnn"``, ``"oracle"``), which the
     ``original`` gain variant treats differently (:func:`~nbv_prob_cnn.gain.variant.uses_free_hits`).
+    The rays read only the box the origins' reach spans (:func:`~nbv_prob_cnn.planners.candidates.crop_to_reach`):
+    the search runs on that part of the grid, with the same result.
     """
     sensor = context.active_sensor
     settings = context.gain_settings(mode, probability)
+    state, prob, origins, shift = crop_to_reach(state, prob, origins, sensor.r_max)
+    if view_mask is not None and np.any(shift):
+        view_mask = functools.partial(_shifted_mask, view_mask, shift)
     if top_k == 1 and prune and view_mask is None and _uses_opencl(context.backend) and origins.shape[0] > 0:
         t0 = time.perf_counter()
         block = 2 * (context.origin_stride or context.defaults.origin_stride)  # about 2^dims origins per block
@@ -223,7 +236,7 @@ def search_views(
             settings=settings, block_size=block, prune_views=prune_views,
         )  # fmt: skip
         times = {"cnn": 0.0, "raycast": time.perf_counter() - t0, "views": 0.0}
-        return [ViewChoice(origins[index].copy(), int(view), float(gain), times)] if gain > 0.0 else []
+        return [ViewChoice(origins[index] + shift, int(view), float(gain), times)] if gain > 0.0 else []
     n_views = context.membership.shape[1]
     block = max(1, MAX_VIEWS_PER_CALL // n_views)
     kept_gain = np.zeros(0, dtype=np.float32)
@@ -259,11 +272,16 @@ def search_views(
     times = {"cnn": 0.0, "raycast": t_ray, "views": t_view}
     positive = kept_gain > 0.0
     kept_gain, kept_index = kept_gain[positive], kept_index[positive]
-    cells = origins[kept_index // n_views]  # a copy: one row per choice
+    cells = origins[kept_index // n_views] + shift  # a copy: one row per choice
     return [
         ViewChoice(cell, int(view), float(g), dict(times))
         for cell, view, g in zip(cells, (kept_index % n_views).tolist(), kept_gain.tolist(), strict=True)
     ]
+
+
+def _shifted_mask(view_mask: ViewMask, shift: np.ndarray, cells: np.ndarray) -> np.ndarray:
+    """``view_mask`` of cells of a cropped grid (``shift``: the crop's corner in the whole grid)."""
+    return view_mask(cells + shift)
 
 
 def _uses_opencl(backend: str) -> bool:

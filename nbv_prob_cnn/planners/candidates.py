@@ -18,7 +18,7 @@ from __future__ import annotations
 import numpy as np
 
 from nbv_prob_cnn.basics.grid import EMPTY, UNKNOWN, lattice_index
-from nbv_prob_cnn.completion.tiled import Region
+from nbv_prob_cnn.basics.region import Region, region_slices
 
 
 def ray_reach(r_max: int) -> int:
@@ -55,6 +55,14 @@ def near_unknown(state: np.ndarray, reach: int) -> np.ndarray:
     return np.asarray(near)
 
 
+def near_unknown_origins(state: np.ndarray, origins: np.ndarray, reach: int) -> np.ndarray:
+    """The ``origins`` (``(N, dims)`` cells, order kept) within Chebyshev distance ``reach`` of an
+    unknown cell: the ones that can have a positive gain."""
+    if origins.shape[0] == 0:
+        return origins
+    return origins[near_unknown(state, reach)[tuple(np.asarray(origins).T)]]
+
+
 def frontier_band(state: np.ndarray, reach: int, stride: int = 1) -> np.ndarray:
     """Empty cells within Chebyshev distance ``reach`` of an unknown cell, on the ``stride`` lattice
     (every coordinate a multiple of ``stride``), ``(N, dims)`` in ``np.argwhere`` order: the empty
@@ -82,3 +90,23 @@ def grown_box(origins: np.ndarray, margin: tuple[int, ...], shape: tuple[int, ..
     lo = np.maximum(origins.min(axis=0) - np.asarray(margin), 0)
     hi = np.minimum(origins.max(axis=0) + np.asarray(margin) + 1, shape)
     return tuple(int(v) for v in lo), tuple(int(v) for v in hi)
+
+
+def crop_to_reach(
+    state: np.ndarray, prob: np.ndarray | None, origins: np.ndarray, r_max: int
+) -> tuple[np.ndarray, np.ndarray | None, np.ndarray, np.ndarray]:
+    """The grid, map and origins cut to the box the rays from ``origins`` can read
+    (:func:`reach_region`), and the box's corner ``shift`` (cells in the whole grid = cells in the box
+    + ``shift``). A search on the box reads the same cells as on the whole grid. The inputs
+    unchanged (``shift`` 0) when the box is the whole grid or the origins are not ``(N, dims)``."""
+    shift = np.zeros(state.ndim, dtype=np.int64)
+    origins = np.asarray(origins)
+    if origins.ndim != 2 or origins.shape[1] != state.ndim or not np.issubdtype(origins.dtype, np.integer):
+        return state, prob, origins, shift
+    region = reach_region(origins, ray_reach(r_max), state.shape)
+    if region is None or region == ((0,) * state.ndim, tuple(state.shape)):
+        return state, prob, origins, shift
+    crop = region_slices(region)
+    shift[:] = region[0]
+    cropped_prob = None if prob is None else np.ascontiguousarray(prob[crop])
+    return np.ascontiguousarray(state[crop]), cropped_prob, origins - shift, shift

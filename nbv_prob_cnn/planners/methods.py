@@ -33,6 +33,7 @@ from nbv_prob_cnn.planners.base import (
     ViewMask,
     search_views,
 )
+from nbv_prob_cnn.planners.candidates import near_unknown_origins, ray_reach
 
 #: Origins evaluated by the downsampled method, per dimensionality (docs/method.md#candidate-views-and-view-gain).
 DOWNSAMPLED_ORIGINS = {2: 2000, 3: 500}
@@ -68,9 +69,12 @@ def cnn_completion(state: np.ndarray, context: PlanningContext) -> np.ndarray:
     return complete(state, dataset=context.defaults.name)
 
 
-def probability_map(method: GainMethod, state: np.ndarray, context: PlanningContext) -> np.ndarray | None:
+def probability_map(
+    method: GainMethod, state: np.ndarray, context: PlanningContext, origins: np.ndarray | None = None
+) -> np.ndarray | None:
     """The probabilistic map ``P`` the method ray-casts on (None for ``ig``); CNN maps come from
-    ``context.completion`` when set, else from the CNN in this process."""
+    ``context.completion`` when set, else from the CNN in this process: with ``origins``, only over
+    what their rays read (:func:`~nbv_prob_cnn.planners.local_completion.local_completion`)."""
     if method.probability is None:
         return None
     if method.probability == "constant":
@@ -79,6 +83,10 @@ def probability_map(method: GainMethod, state: np.ndarray, context: PlanningCont
         if context.ground_truth is None:
             raise ValueError(f"{method.name}: needs the ground truth (context.ground_truth)")
         return probability_from_truth(state, context.ground_truth)
+    if context.completion is None and origins is not None:
+        from nbv_prob_cnn.planners.local_completion import local_completion
+
+        return local_completion(state, context, origins)
     return (context.completion or cnn_completion)(state, context)
 
 
@@ -120,13 +128,17 @@ class GainPlanner(RankingPlanner):
         ``view_mask``: orientations allowed per origin (local search only; a remote ranker
         ignores it)."""
         uses_cnn = self.method.probability == "cnn"
+        origins = None
+        if context.ranker is None:  # only origins within the rays' reach of unknown space can gain
+            origins = method_origins(self.method, state, context, origin_filter)
+            origins = near_unknown_origins(state, origins, ray_reach(context.active_sensor.r_max))
         start = time.perf_counter()
-        prob = probability_map(self.method, state, context) if (uses_cnn or context.ranker is None) else None
+        prob = probability_map(self.method, state, context, origins) if (uses_cnn or origins is not None) else None
         t_prob = time.perf_counter() - start
-        if context.ranker is not None:
+        if origins is None:
+            assert context.ranker is not None
             found = context.ranker(self.name, state, prob, top_k)
         else:
-            origins = method_origins(self.method, state, context, origin_filter)
             found = search_views(
                 state, prob, origins, context, self.method.mode, top_k, view_mask=view_mask,
                 probability=self.method.probability,

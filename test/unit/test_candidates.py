@@ -69,3 +69,32 @@ def test_the_band_keeps_the_dense_searchs_views(rng, mode):
         assert len(got) == len(want) == top_k
         for a, b in zip(got, want, strict=True):
             assert (tuple(a.cell), a.view_index, a.gain) == (tuple(b.cell), b.view_index, b.gain)
+
+
+def test_a_search_from_a_corner_reads_only_its_reach(rng):
+    """search_views cuts the grid to the origins' reach: the gains of a corner's origins, their best
+    views and a view mask are those of the whole grid (origin_view_gains on it, no cut)."""
+    from nbv_prob_cnn.gain import origin_view_gains
+
+    defaults = DatasetDefaults("3du", 3, (44, 40, 30), 0.01, Sensor(60.0, 46.0, 8), 4, 3)
+    context = PlanningContext(defaults, backend="opencl", origin_stride=1)
+    state = _state(rng, defaults.shape, 0.3)
+    prob = probability_with_constant(state, 0.15)
+    every = empty_origins(state)
+    corner = every[(every[:, 0] >= 30) & (every[:, 1] < 12)]
+    gains = origin_view_gains(state, prob, context.directions, 8, context.membership, corner, "opencl")
+
+    def mask(cells):
+        return (cells[:, :1] + np.arange(gains.shape[1])[None]) % 3 == 0
+
+    masked = np.where(mask(corner), gains, 0.0)
+    for allowed, table in ((None, gains), (mask, masked)):
+        flat = np.argsort(-table.ravel(), kind="stable")[:5]
+        got = search_views(state, prob, corner, context, "prob", 5, view_mask=allowed)
+        assert [(tuple(c.cell), c.view_index) for c in got] == [
+            (tuple(corner[i // table.shape[1]]), int(i % table.shape[1])) for i in flat
+        ]
+        np.testing.assert_allclose([c.gain for c in got], table.ravel()[flat], rtol=1e-6)
+    best = search_views(state, prob, corner, context, "prob", 1)[0]
+    first = int(np.argmax(gains))
+    assert (tuple(best.cell), best.view_index) == (tuple(corner[first // gains.shape[1]]), first % gains.shape[1])

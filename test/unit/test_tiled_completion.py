@@ -1,15 +1,15 @@
 """Tiled and region-restricted completion (nbv_prob_cnn/completion/tiled.py): the receptive field
-against autograd, tiles against whole-grid inference (a tiny network and the shipped 3DT weights),
-and the alignment and halo that equality needs."""
+against autograd, tiles against whole-grid inference on a tiny network, and the alignment and halo
+that equality needs (the shipped 3DT weights: test_local_planning.py)."""
 
 import numpy as np
 import pytest
 import torch
 
+from nbv_prob_cnn.basics.region import check_region
 from nbv_prob_cnn.completion import complete
 from nbv_prob_cnn.completion.model import CompletionNet
 from nbv_prob_cnn.completion.tiled import (
-    check_region,
     complete_region,
     complete_window,
     halo_cells,
@@ -131,36 +131,3 @@ def test_bad_regions_are_named(rng):
         complete_window(state, ((2, 2, 2), (2, 5, 5)), 0.15, model=net)
     with pytest.raises(ValueError, match="halo"):
         complete_region(state, model=net, halo=3)
-
-
-@pytest.fixture(scope="module")
-def state_3dt():
-    """A 3DT held-out world (seed 120) seen from 6 random views."""
-    from nbv_prob_cnn.basics.camera import orientations
-    from nbv_prob_cnn.basics.datasets import DATASET_SPECS
-    from nbv_prob_cnn.sensing.observe import observe
-    from nbv_prob_cnn.worlds import load_or_generate
-
-    world = load_or_generate("3dt", 120)
-    rng = np.random.default_rng(120)
-    state = np.full(world.shape, -1, dtype=np.int8)
-    free = np.argwhere(world.ground_truth == 0)
-    views = orientations(3)
-    for _ in range(6):
-        observe(state, world.ground_truth, free[rng.integers(free.shape[0])], views[rng.integers(len(views))],
-                DATASET_SPECS["3dt"].sensor)  # fmt: skip
-    return state
-
-
-def test_tiles_equal_whole_grid_inference_on_the_shipped_3dt_weights(state_3dt):
-    """The shipped 3DT CNN on its 128×128×96 grid: 6 tiles (48-cell halos) equal one pass within 1e-4."""
-    from nbv_prob_cnn.completion.inference import load_model
-
-    net = load_model(dataset="3dt", device="cpu")
-    assert receptive_radius(net) == 45 and halo_cells(net) == 48
-    whole = complete(state_3dt, model=net, device="cpu")
-    tiled = complete_region(state_3dt, model=net, device="cpu", max_window_cells=700_000)
-    assert len(plan_tiles(state_3dt.shape, check_region(None, state_3dt.shape), 16, 48, 700_000)) > 1
-    assert np.abs(tiled - whole).max() <= 1e-4
-    one = complete_region(state_3dt, model=net, device="cpu")  # fits one window: the same call as complete()
-    np.testing.assert_array_equal(one, whole)

@@ -1,0 +1,36 @@
+"""The completion CNN of a view search, over what the search reads (docs/performance.md#scale).
+
+The rays from the candidate origins read only the box of the origins grown by the rays' reach
+(:func:`~nbv_prob_cnn.planners.candidates.reach_region`): :func:`local_completion` runs the CNN
+there only, by tiles (:func:`~nbv_prob_cnn.completion.tiled.complete_region`), which equals the
+whole-grid map on every cell a ray reads (to float rounding). With ``context.cnn_window`` (a margin
+in cells) the CNN completes only a window, the origins' box grown by that margin, and the unknown
+cells outside it take the constant prior ``p0`` of Prob. IG
+(:func:`~nbv_prob_cnn.completion.tiled.complete_window`): a cost that follows the workspace instead
+of the room, at the price measured in docs/performance.md#scale.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from nbv_prob_cnn.basics.grid import probability_with_constant
+from nbv_prob_cnn.planners.base import PlanningContext
+from nbv_prob_cnn.planners.candidates import grown_box, ray_reach, reach_region
+
+
+def local_completion(state: np.ndarray, context: PlanningContext, origins: np.ndarray) -> np.ndarray:
+    """The probabilistic map for a view search from ``origins`` (``(N, dims)`` cells): the context's
+    data set's CNN over the cells the rays can read (``context.cnn_window`` None), or over the window
+    around the origins, ``p0`` on the other unknown cells."""
+    from nbv_prob_cnn.completion.tiled import complete_region, complete_window
+
+    p0, dataset = context.defaults.p0, context.defaults.name
+    if origins.shape[0] == 0:
+        return probability_with_constant(state, p0)
+    if context.cnn_window is None:
+        region = reach_region(origins, ray_reach(context.active_sensor.r_max), state.shape)
+        return complete_region(state, region, dataset=dataset, fill=p0)
+    window = grown_box(origins, (context.cnn_window,) * state.ndim, state.shape)
+    assert window is not None
+    return complete_window(state, window, p0, dataset=dataset)

@@ -1,0 +1,89 @@
+"""The planners' local path on 3DT data (docs/performance.md#scale): tiles of the shipped 3DT CNN against
+one whole-grid pass, and the planner's views (frontier band, CNN over the rays' reach, search on the
+reach) against the dense search (every empty cell, whole-grid CNN)."""
+
+import numpy as np
+import pytest
+
+from nbv_prob_cnn.basics.camera import Sensor
+from nbv_prob_cnn.basics.region import check_region
+from nbv_prob_cnn.completion import complete
+from nbv_prob_cnn.completion.tiled import complete_region, halo_cells, plan_tiles, receptive_radius
+from nbv_prob_cnn.planners import PlanningContext, make_planner
+from nbv_prob_cnn.planners.base import search_views
+
+
+@pytest.fixture(scope="module")
+def state_3dt():
+    """A 3DT held-out world (seed 120) seen from 6 random views."""
+    from nbv_prob_cnn.basics.camera import orientations
+    from nbv_prob_cnn.basics.datasets import DATASET_SPECS
+    from nbv_prob_cnn.sensing.observe import observe
+    from nbv_prob_cnn.worlds import load_or_generate
+
+    world = load_or_generate("3dt", 120)
+    rng = np.random.default_rng(120)
+    state = np.full(world.shape, -1, dtype=np.int8)
+    free = np.argwhere(world.ground_truth == 0)
+    views = orientations(3)
+    for _ in range(6):
+        observe(state, world.ground_truth, free[rng.integers(free.shape[0])], views[rng.integers(len(views))],
+                DATASET_SPECS["3dt"].sensor)  # fmt: skip
+    return state
+
+
+def test_tiles_equal_whole_grid_inference_on_the_shipped_3dt_weights(state_3dt):
+    """The shipped 3DT CNN on its 128×128×96 grid: 6 tiles (48-cell halos) equal one pass within 1e-4."""
+    from nbv_prob_cnn.completion.inference import load_model
+
+    net = load_model(dataset="3dt", device="cpu")
+    assert receptive_radius(net) == 45 and halo_cells(net) == 48
+    whole = complete(state_3dt, model=net, device="cpu")
+    tiled = complete_region(state_3dt, model=net, device="cpu", max_window_cells=700_000)
+    assert len(plan_tiles(state_3dt.shape, check_region(None, state_3dt.shape), 16, 48, 700_000)) > 1
+    assert np.abs(tiled - whole).max() <= 1e-4
+    one = complete_region(state_3dt, model=net, device="cpu")  # fits one window: the same call as complete()
+    np.testing.assert_array_equal(one, whole)
+
+
+def _same_views(got, want):
+    assert len(got) == len(want) > 0
+    for a, b in zip(got, want, strict=True):
+        assert (tuple(a.cell), a.view_index) == (tuple(b.cell), b.view_index)
+        assert a.gain == pytest.approx(b.gain, rel=1e-5)
+
+
+@pytest.mark.parametrize("top_k", [1, 5])
+def test_the_planner_finds_the_dense_searchs_views_on_3dt(state_3dt, top_k):
+    """cnn_prob on a 3DT held-out state: the views of the dense search over every empty cell on the
+    data set's stride, with the CNN over the whole grid."""
+    context = PlanningContext.for_dataset("3dt", backend="opencl")
+    prob = complete(state_3dt, dataset="3dt")
+    dense = search_views(state_3dt, prob, context.candidate_origins(state_3dt), context, "prob", top_k,
+                         probability="cnn")  # fmt: skip
+    _same_views(make_planner("cnn_prob").rank(state_3dt, context, top_k), dense)
+
+
+def test_a_workspace_plans_on_the_cnn_of_its_reach(state_3dt, monkeypatch):
+    """A short-range sensor (40 cells) and a workspace in a corner: the CNN runs on the workspace's
+    reach only, the search on that part of the grid; the views are the dense search's over the
+    workspace (whole-grid CNN)."""
+    sensor = Sensor(60.0, 46.0, 40)
+    context = PlanningContext.for_dataset("3dt", backend="opencl", sensor=sensor)
+
+    def workspace(origins):
+        return origins[(origins[:, 0] < 24) & (origins[:, 1] < 30) & (origins[:, 2] > 20)]
+
+    import nbv_prob_cnn.completion.tiled as tiled
+
+    prob = complete(state_3dt, dataset="3dt")
+    origins = workspace(context.candidate_origins(state_3dt))
+    dense = search_views(state_3dt, prob, origins, context, "prob", 5, probability="cnn")
+    windows = []
+    monkeypatch.setattr(tiled, "complete", lambda s, **k: windows.append(s.shape) or complete(s, **k))
+    _same_views(make_planner("cnn_prob").rank(state_3dt, context, 5, workspace), dense)
+    # the reach of the workspace grown by the 48-cell halo: less than the grid on x and y
+    assert len(windows) == 1 and windows[0][0] < 128 and windows[0][1] < 128
+    windowed = PlanningContext.for_dataset("3dt", backend="opencl", sensor=sensor, cnn_window=16)
+    found = make_planner("cnn_prob").rank(state_3dt, windowed, 5, workspace)
+    assert found and all(c.cell[0] < 24 and c.cell[1] < 30 and c.cell[2] > 20 for c in found)
