@@ -21,7 +21,7 @@ interruption or in a later session.
 A machine without the checkpoints (a new session's machine keeps nothing outside git) starts each
 network from its shipped weights when an earlier run of this job made them (:func:`shipped_run`:
 the card's note is :data:`NOTE`): a warm start at the epoch of those weights, with their history
-and a new optimizer state (``train(warm_start=...)``); a shipped run that finished (its card has
+and a new optimizer state (``TrainConfig(warm_start=...)``); a shipped run that finished (its card has
 test scores) counts as done.
 """
 
@@ -118,7 +118,8 @@ def main(argv: list[str] | None = None) -> int:
 
     from nbv_prob_cnn.basics.datasets import dataset_spec
     from nbv_prob_cnn.commands.train import CITY_PATIENCE, paper_epochs
-    from nbv_prob_cnn.completion.train import side_paths, train
+    from nbv_prob_cnn.completion.train import TrainConfig, train
+    from nbv_prob_cnn.completion.train_files import side_paths
 
     networks = _parse_only(args.only)
     budget = None if args.slice_min is None else 60.0 * args.slice_min
@@ -143,16 +144,18 @@ def main(argv: list[str] | None = None) -> int:
                       f"(epoch {shipped[1].get('best_epoch')})", flush=True)  # fmt: skip
             print(f"== {dataset} {method}: turn starts", flush=True)
             result = train(
-                dataset,
-                paper_epochs(dataset, method),
-                weights_path(dataset, method),
-                crop=dataset_spec(dataset).training.crop,  # as `nbv train` (and the card's command)
-                method=method,
-                threads=args.threads,
-                patience=CITY_PATIENCE,
-                time_budget_s=budget,
-                note=NOTE,
-                warm_start=warm_start,
+                TrainConfig(
+                    dataset,
+                    paper_epochs(dataset, method),
+                    weights_path(dataset, method),
+                    crop=dataset_spec(dataset).training.crop,  # as `nbv train` (and the card's command)
+                    method=method,
+                    threads=args.threads,
+                    patience=CITY_PATIENCE,
+                    time_budget_s=budget,
+                    note=NOTE,
+                    warm_start=warm_start,
+                )
             )
             state = "finished" if result.finished else "paused"
             print(

@@ -21,7 +21,7 @@ from nbv_prob_cnn.basics.datasets import dataset_spec
 from nbv_prob_cnn.completion.city_cache import CachedCityExamples, CacheLayout, ensure_chunks
 from nbv_prob_cnn.completion.data import crop_box, load_or_generate_sample, rotations
 from nbv_prob_cnn.completion.tasks import TrainingTask
-from nbv_prob_cnn.completion.train import start_at_mean_target, train_step
+from nbv_prob_cnn.completion.train_steps import start_at_mean_target, train_step
 
 
 def time_steps(dataset: str, method: str, steps: int, envs: int, cached: bool, seed: int = 0) -> dict[str, float]:

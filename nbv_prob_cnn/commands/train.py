@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import argparse
 import math
-from collections.abc import Callable
 from pathlib import Path
 
 from nbv_prob_cnn.basics.datasets import DATASET_SPECS, LR_SCHEDULES, SPEC_LEARNING_RATE
@@ -123,18 +122,13 @@ def _city_epochs_text() -> str:
 
 
 def run(args: argparse.Namespace) -> int:
-    from nbv_prob_cnn.completion.train import TrainResult, train
+    from nbv_prob_cnn.completion.train import TrainConfig, train
 
     training = DATASET_SPECS[args.dataset].training
     patience = args.patience if args.patience is not None else (None if args.method == "cnn_prob" else CITY_PATIENCE)
     if args.address and not args.ray:
         raise SystemExit("--address needs --ray")
-    trainer: Callable[..., TrainResult] = train
-    if args.ray:
-        from nbv_prob_cnn.completion.ray_train import train_with_ray
-
-        trainer = train_with_ray
-    result = trainer(
+    config = TrainConfig(
         args.dataset,
         args.epochs or paper_epochs(args.dataset, args.method),
         args.out,
@@ -154,8 +148,13 @@ def run(args: argparse.Namespace) -> int:
         lr_schedule=args.lr_schedule,
         cache=not args.no_cache,
         patience=patience,
-        **({"address": args.address} if args.ray else {}),
     )
+    if args.ray:
+        from nbv_prob_cnn.completion.ray_train import train_with_ray
+
+        result = train_with_ray(config, address=args.address)
+    else:
+        result = train(config)
     ece = f", test ECE {result.ece:.4f}" if result.ece is not None else ""
     print(
         f"weights: {result.weights} (best validation MSE {result.validation_mse:.5f}, "

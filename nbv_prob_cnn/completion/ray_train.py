@@ -24,6 +24,7 @@ The environment variables of :data:`FORWARDED_ENV` are passed to the workers.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import os
@@ -31,7 +32,7 @@ import tempfile
 from pathlib import Path
 from typing import Any
 
-from nbv_prob_cnn.completion.train import TrainResult, side_paths
+from nbv_prob_cnn.completion.train import TrainConfig, TrainResult
 
 #: Environment variables the workers get from the driver.
 FORWARDED_ENV = ("NBV_CACHE_DIR", "NBV_WEIGHTS_DIR", "NBV_OPENCL_DEVICE", "OCL_ICD_VENDORS", "PYTHONPATH")
@@ -52,8 +53,7 @@ def _worker_loop(config: dict[str, Any]) -> None:
 
     from nbv_prob_cnn.completion.train import train
 
-    device = ray.train.torch.get_device()
-    result = train(config["dataset"], config["epochs"], config["out"], device=device, **config["kwargs"])
+    result = train(TrainConfig(**{**config, "device": ray.train.torch.get_device()}))
     metrics: dict[str, Any] = {k: float(getattr(result, k)) for k in _RESULT_FLOATS}
     metrics["ece"] = float("nan") if result.ece is None else float(result.ece)
     metrics["epochs_done"] = int(result.epochs_done)
@@ -67,20 +67,17 @@ def _worker_loop(config: dict[str, Any]) -> None:
 
 
 def train_with_ray(
-    dataset: str,
-    epochs: int,
-    out: str | Path | None = None,
+    config: TrainConfig,
     *,
-    workers: int = 1,
     address: str | None = None,
     use_gpu: bool | None = None,
     storage: str | Path | None = None,
-    **kwargs: Any,
 ) -> TrainResult:
-    """Train like :func:`~nbv_prob_cnn.completion.train.train` (same keyword arguments; ``device``
-    is Ray Train's per worker), on ``workers`` Ray Train workers.
+    """Train like :func:`~nbv_prob_cnn.completion.train.train` on ``config.workers`` Ray Train workers
+    (``config.device`` is Ray Train's per worker).
 
     Args:
+        config: the run (:class:`~nbv_prob_cnn.completion.train.TrainConfig`).
         address: Ray cluster ``HOST:PORT`` (None: a local Ray instance started here).
         use_gpu: one GPU per worker with NCCL (default: when the cluster has ``workers`` GPUs).
         storage: Ray Train's run directory (default ``<out's folder>/ray``).
@@ -91,13 +88,14 @@ def train_with_ray(
 
     from nbv_prob_cnn.completion.inference import default_weights_path
 
+    workers, dataset, method = config.workers, config.dataset, config.method
     if workers < 1:
         raise ValueError(f"workers: expected >= 1, got {workers}")
-    method = kwargs.get("method", "cnn_prob")
-    out = Path(out).expanduser().resolve() if out is not None else default_weights_path(dataset, method)
-    if kwargs.pop("device", None) not in (None, "cpu", "cuda"):
+    out = Path(config.out).expanduser().resolve() if config.out is not None else default_weights_path(dataset, method)
+    if config.device not in (None, "cpu", "cuda"):
         raise ValueError("device: with Ray each worker uses the device Ray Train gives it (its GPU, or the CPU)")
-    kwargs = {**kwargs, "workers": 1}  # inside a worker: no extra data-generation processes
+    # inside a worker: no extra data-generation processes
+    worker_config = {**dataclasses.asdict(config), "out": str(out), "device": None, "workers": 1}
     env = {k: os.environ[k] for k in FORWARDED_ENV if k in os.environ}
     started_here = not ray.is_initialized()
     if started_here:
@@ -107,7 +105,7 @@ def train_with_ray(
             use_gpu = ray.cluster_resources().get("GPU", 0) >= workers
         trainer = TorchTrainer(
             _worker_loop,
-            train_loop_config={"dataset": dataset, "epochs": epochs, "out": str(out), "kwargs": kwargs},
+            train_loop_config=worker_config,
             torch_config=TorchConfig(backend="nccl" if use_gpu else "gloo"),
             scaling_config=ScalingConfig(num_workers=workers, use_gpu=use_gpu, resources_per_worker={"CPU": 1}),
             run_config=RunConfig(name=f"nbv_train_{dataset}_{method}", storage_path=str(storage or out.parent / "ray")),
@@ -120,25 +118,8 @@ def train_with_ray(
     finally:
         if started_here:
             ray.shutdown()
-    paths = side_paths(out)
     ece = metrics.get("ece")
+    ece = None if ece is None or math.isnan(ece) else float(ece)
     values = {k: float(metrics.get(k, math.nan)) for k in _RESULT_FLOATS}
-    return TrainResult(
-        out,
-        paths["last"],
-        paths["csv"],
-        paths["png"],
-        paths["card"],
-        values["validation_mse"],
-        values["test_mse"],
-        None if ece is None or math.isnan(ece) else float(ece),
-        int(metrics.get("epochs_done", 0)),
-        values["validation_zero_mse"],
-        values["test_zero_mse"],
-        values["validation_mean_mse"],
-        values["test_mean_mse"],
-        values["validation_rho"],
-        values["test_rho"],
-        validation_cell_rho=values["validation_cell_rho"],
-        test_cell_rho=values["test_cell_rho"],
-    )
+    return TrainResult.for_weights(out, values.pop("validation_mse"), values.pop("test_mse"), ece,
+                                   int(metrics.get("epochs_done", 0)), **values)  # fmt: skip

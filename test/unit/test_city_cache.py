@@ -64,7 +64,7 @@ def test_cached_2d_examples_equal_the_ones_ray_cast_on_the_fly(tiny_worlds):
             )
             _assert_same(region.example(method, spec), reference)
     # validation/test: the fixed crop of fixed_examples (seeded by the environment), unrotated
-    from nbv_prob_cnn.completion.train import fixed_examples
+    from nbv_prob_cnn.completion.train_sources import fixed_examples
 
     held_out = load_or_generate_sample("2d", 101)
     for method in METHODS:
@@ -163,14 +163,14 @@ def test_missing_or_corrupt_chunks_give_clear_errors(tiny_worlds):
 def test_cached_training_never_ray_casts_and_matches_the_on_the_fly_run(tiny_worlds, monkeypatch):
     """One epoch on 3D grids (crops cut from whole regions, so the same examples as on the fly):
     the same weights as the on-the-fly run; with the kernel disabled after the cache is made."""
-    from nbv_prob_cnn.completion.train import train
+    from nbv_prob_cnn.completion.train import TrainConfig, train
     from nbv_prob_cnn.planners import city_cnn
 
     kwargs = {
         "n_train_envs": 2, "n_val_envs": 1, "n_test_envs": 1, "crop": 16, "test_crop": None, "progress": False,
         "threads": 1, "device": "cpu", "first_channels": 2, "backend": "numpy", "batch_size": 2,
     }  # fmt: skip
-    fly = train("3dt", 1, tiny_worlds / "fly" / "w.pt", method="flat_city_cnn", cache=False, **kwargs)
+    fly = train(TrainConfig("3dt", 1, tiny_worlds / "fly" / "w.pt", method="flat_city_cnn", cache=False, **kwargs))
     layout = CacheLayout.for_training("3dt", 16, None)
     city_cache.ensure_chunks(layout, {"train": [0, 1], "eval": [100, 120]}, "numpy", progress=False)
 
@@ -178,7 +178,7 @@ def test_cached_training_never_ray_casts_and_matches_the_on_the_fly_run(tiny_wor
         raise AssertionError("a cached training step ray-cast")
 
     monkeypatch.setattr(city_cnn, "omniscient_ray_gains", no_ray_casting)
-    cached = train("3dt", 1, tiny_worlds / "cached" / "w.pt", method="flat_city_cnn", **kwargs)
+    cached = train(TrainConfig("3dt", 1, tiny_worlds / "cached" / "w.pt", method="flat_city_cnn", **kwargs))
     a = torch.load(tiny_worlds / "fly" / "w.last.ckpt", weights_only=True)["model"]
     b = torch.load(tiny_worlds / "cached" / "w.last.ckpt", weights_only=True)["model"]
     for key in a:
@@ -195,20 +195,20 @@ def test_warm_start_takes_over_weights_and_history_of_an_earlier_run(tiny_worlds
     rate its weights stay the earlier ones exactly; a file of another architecture is refused."""
     import csv
 
-    from nbv_prob_cnn.completion.train import train
+    from nbv_prob_cnn.completion.train import TrainConfig, train
 
     kwargs = {
         "n_train_envs": 2, "n_val_envs": 1, "n_test_envs": 1, "crop": 16, "test_crop": None, "progress": False,
         "threads": 1, "device": "cpu", "first_channels": 2, "backend": "numpy", "batch_size": 2,
     }  # fmt: skip
     first = tiny_worlds / "first" / "w.pt"
-    train("3dt", 2, first, method="flat_city_cnn", **kwargs)
+    train(TrainConfig("3dt", 2, first, method="flat_city_cnn", **kwargs))
     payload = torch.load(first, weights_only=True)
     best_epoch = payload["card"]["best_epoch"]
     with open(first.with_suffix(".csv"), newline="") as fh:
         earlier = list(csv.DictReader(fh))[:best_epoch]
     second = tiny_worlds / "second" / "w.pt"
-    train("3dt", best_epoch + 1, second, method="flat_city_cnn", warm_start=first, lr=1e-30, **kwargs)
+    train(TrainConfig("3dt", best_epoch + 1, second, method="flat_city_cnn", warm_start=first, lr=1e-30, **kwargs))
     with open(second.with_suffix(".csv"), newline="") as fh:
         rows = list(csv.DictReader(fh))
     assert len(rows) == best_epoch + 1
@@ -222,8 +222,8 @@ def test_warm_start_takes_over_weights_and_history_of_an_earlier_run(tiny_worlds
     assert float(rows[-1]["validation_mse"]) == pytest.approx(float(earlier[-1]["validation_mse"]), rel=1e-5)
     assert f"Warm start at epoch {best_epoch} from w.pt" in second.with_suffix(".md").read_text()
     with pytest.raises(ValueError, match="architecture"):
-        train("3dt", 3, tiny_worlds / "third" / "w.pt", method="flat_city_cnn", warm_start=first,
-              **{**kwargs, "first_channels": 3})  # fmt: skip
+        train(TrainConfig("3dt", 3, tiny_worlds / "third" / "w.pt", method="flat_city_cnn", warm_start=first,
+              **{**kwargs, "first_channels": 3}))  # fmt: skip
 
 
 def test_mean_target_and_spearman_by_hand():
@@ -339,17 +339,17 @@ def test_cli_ray_path_calls_ray_train(monkeypatch, tmp_path):
 
     calls = []
 
-    def fake(dataset, epochs, out, **kwargs):
-        calls.append((dataset, epochs, out, kwargs))
+    def fake(config, **ray):
+        calls.append((config, ray))
         return TrainResult(tmp_path / "w.pt", tmp_path / "l", tmp_path / "c", tmp_path / "p", tmp_path / "m", 0.1, 0.2,
-                           None, epochs)  # fmt: skip
+                           None, config.epochs)  # fmt: skip
 
     monkeypatch.setattr(ray_train, "train_with_ray", fake)
     parser = argparse.ArgumentParser()
     cmd.add_arguments(parser)
     argv = ["--dataset", "3dt", "--method", "flat_city_cnn", "--ray", "--address", "h:6379", "--workers", "3"]
     assert cmd.run(parser.parse_args(argv)) == 0
-    ((dataset, epochs, out, kwargs),) = calls
-    assert (dataset, epochs, out) == ("3dt", 120, None)
-    assert (kwargs["address"], kwargs["workers"], kwargs["patience"], kwargs["crop"]) == ("h:6379", 3, 10, 64)
-    assert kwargs["cache"] is True and kwargs["device"] is None
+    ((config, ray),) = calls
+    assert (config.dataset, config.epochs, config.out) == ("3dt", 120, None)
+    assert (ray["address"], config.workers, config.patience, config.crop) == ("h:6379", 3, 10, 64)
+    assert config.cache is True and config.device is None

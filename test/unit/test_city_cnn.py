@@ -151,7 +151,7 @@ def test_train_and_plan_with_a_tiny_city_cnn(tmp_path, monkeypatch, method):
     weights name the training command."""
     from nbv_prob_cnn.completion import WeightsError, inference
     from nbv_prob_cnn.completion import data as data_mod
-    from nbv_prob_cnn.completion.train import train
+    from nbv_prob_cnn.completion.train import TrainConfig, train
     from nbv_prob_cnn.planners import PlanningContext, make_planner
 
     def boxes(dataset, seed):
@@ -169,7 +169,7 @@ def test_train_and_plan_with_a_tiny_city_cnn(tmp_path, monkeypatch, method):
         "n_train_envs": 2, "n_val_envs": 1, "n_test_envs": 1, "crop": 16, "test_crop": 24, "progress": False,
         "threads": 2,
     }  # fmt: skip
-    result = train("2d", 1, out, method=method, device="cpu", first_channels=2, backend="numpy", **kwargs)
+    result = train(TrainConfig("2d", 1, out, method=method, device="cpu", first_channels=2, backend="numpy", **kwargs))
     assert result.ece is None and np.isfinite(result.test_mse) and out.is_file()
     assert f"nbv train --dataset 2d --method {method} --epochs 1" in out.with_suffix(".md").read_text()
 
@@ -199,7 +199,7 @@ def test_city_networks_learn_a_tiny_dataset(rng, method):
     """A few hundred steps on four tiny grids bring the masked MSE well below that of the
     all-zero output (the trivial solution a sparse target invites)."""
     from nbv_prob_cnn.completion.tasks import TrainingTask
-    from nbv_prob_cnn.completion.train import train_step
+    from nbv_prob_cnn.completion.train_steps import train_step
 
     torch.manual_seed(0)
     spec = DatasetSpec("2d", 2, (32, 32), 1.0, Sensor(60.0, None, 12), 4, 2, city_n_rays=4)
@@ -252,7 +252,7 @@ def test_untrained_gain_heads_start_near_the_typical_gain(method):
 
 def test_zero_output_mse_by_hand():
     from nbv_prob_cnn.completion.tasks import Example
-    from nbv_prob_cnn.completion.train import zero_output_mse
+    from nbv_prob_cnn.completion.train_steps import zero_output_mse
 
     inputs, mask = np.zeros((2, 2, 2), np.float32), np.ones((1, 2, 2), np.float32)
     one_cell = Example(inputs, np.array([[[2.0, 0.0], [0.0, 0.0]]], np.float32), mask)  # (4 + 0 + 0 + 0) / 4 = 1
@@ -264,7 +264,7 @@ def test_zero_output_mse_by_hand():
 def test_gain_head_starts_at_the_mean_masked_target():
     """By hand: targets 0.2 and 0.0 on kept cells (0.9 on a masked one is ignored): mean 0.1."""
     from nbv_prob_cnn.completion.tasks import Example
-    from nbv_prob_cnn.completion.train import mean_masked_target, start_at_mean_target
+    from nbv_prob_cnn.completion.train_steps import mean_masked_target, start_at_mean_target
     from nbv_prob_cnn.planners.city_cnn import build_network
 
     inputs = np.zeros((2, 1, 3), np.float32)

@@ -21,7 +21,9 @@ from nbv_prob_cnn.completion.data import ROTATIONS, crop_box, rotations
 from nbv_prob_cnn.completion.inference import save_weights
 from nbv_prob_cnn.completion.model import encode_state
 from nbv_prob_cnn.completion.tasks import TrainingTask
-from nbv_prob_cnn.completion.train import side_paths, train, train_step
+from nbv_prob_cnn.completion.train import TrainConfig, train
+from nbv_prob_cnn.completion.train_files import side_paths
+from nbv_prob_cnn.completion.train_steps import train_step
 
 torch.set_num_threads(2)
 
@@ -406,7 +408,7 @@ def _tiny_2d_training(tmp_path, monkeypatch, **overrides) -> dict:
 def test_train_end_to_end_and_resume(tmp_path, monkeypatch):
     kwargs = _tiny_2d_training(tmp_path, monkeypatch)
     out = tmp_path / "w" / "2d_cnn_prob.pt"
-    result = train("2d", 1, out, **kwargs)
+    result = train(TrainConfig("2d", 1, out, **kwargs))
     paths = side_paths(out)
     for key in ("weights", "last", "csv", "png", "card", "calibration"):
         assert paths[key].is_file(), key
@@ -416,24 +418,24 @@ def test_train_end_to_end_and_resume(tmp_path, monkeypatch):
     assert model.card["epochs"] == 1 and model.card["test_mse"] == pytest.approx(result.test_mse, abs=1e-6)
     assert model.card["validation_mse"] == pytest.approx(result.validation_mse, abs=1e-6)
     assert 0.0 <= model.card["ece"] <= 1.0 and model.card["ece"] == pytest.approx(result.ece, abs=1e-5)
-    result = train("2d", 2, out, **kwargs)  # resumes after epoch 1
+    result = train(TrainConfig("2d", 2, out, **kwargs))  # resumes after epoch 1
     with open(paths["csv"]) as fh:
         rows = list(csv.DictReader(fh))
     assert [r["epoch"] for r in rows] == ["1", "2"] and result.epochs_done == 2
     with pytest.raises(ValueError, match="no-resume"):
-        train("2d", 3, out, **{**kwargs, "crop": 16})
+        train(TrainConfig("2d", 3, out, **{**kwargs, "crop": 16}))
 
     # `out` overwritten by another run: a resumed run scores and re-writes its own best epoch
     best = torch.load(paths["last"], map_location="cpu", weights_only=True)["best_model"]
     other = tmp_path / "other" / "2d_cnn_prob.pt"
-    train("2d", 1, other, **{**kwargs, "seed": 5})
+    train(TrainConfig("2d", 1, other, **{**kwargs, "seed": 5}))
     shutil.copyfile(other, out)
-    again = train("2d", 2, out, **kwargs)  # nothing left to train: scoring and card only
+    again = train(TrainConfig("2d", 2, out, **kwargs))  # nothing left to train: scoring and card only
     assert again.epochs_done == 2 and again.test_mse == pytest.approx(result.test_mse, abs=1e-7)
     restored = load_model(out, dataset="2d", device="cpu")
     for key, value in restored.state_dict().items():
         assert torch.equal(value, best[key]), key
-    assert train("2d", 1, out, **{**kwargs, "crop": 16}, resume=False).epochs_done == 1
+    assert train(TrainConfig("2d", 1, out, **{**kwargs, "crop": 16}, resume=False)).epochs_done == 1
 
 
 def test_learning_rate_schedules():
@@ -457,7 +459,7 @@ def test_train_with_a_cosine_schedule(tmp_path, monkeypatch):
     spec = dataset_spec("2d")
     training = dataclasses.replace(spec.training, lr=4e-4, lr_schedule="cosine")
     monkeypatch.setitem(DATASET_SPECS, "2d", dataclasses.replace(spec, training=training))
-    train("2d", 2, out, **kwargs)
+    train(TrainConfig("2d", 2, out, **kwargs))
     paths = side_paths(out)
     with open(paths["csv"]) as fh:
         assert [float(r["lr"]) for r in csv.DictReader(fh)] == pytest.approx([4e-4, 2e-4])
@@ -466,14 +468,14 @@ def test_train_with_a_cosine_schedule(tmp_path, monkeypatch):
     card = paths["card"].read_text()
     assert "Adam, lr 0.0004, cosine decay" in card and "--lr 0.0004 --lr-schedule cosine" in card
     with pytest.raises(ValueError, match="no-resume"):  # another schedule is another run
-        train("2d", 2, out, **{**kwargs, "lr_schedule": "constant"})
+        train(TrainConfig("2d", 2, out, **{**kwargs, "lr_schedule": "constant"}))
     with pytest.raises(ValueError, match="no-resume"):  # so is another length of a cosine run
-        train("2d", 3, out, **kwargs)
+        train(TrainConfig("2d", 3, out, **kwargs))
 
 
 def test_retrain_command_omits_default_out(tmp_path):
     from nbv_prob_cnn.completion.inference import default_weights_path
-    from nbv_prob_cnn.completion.train import retrain_args
+    from nbv_prob_cnn.completion.train_card import retrain_args
 
     assert retrain_args("3dt", 25, default_weights_path("3dt"), None, None, 64, 4) == (
         "nbv train --dataset 3dt --epochs 25 --crop 64"

@@ -34,7 +34,7 @@ ray = pytest.importorskip("ray")
 
 from nbv_prob_cnn.completion import city_cache  # noqa: E402
 from nbv_prob_cnn.completion import data as data_mod  # noqa: E402
-from nbv_prob_cnn.completion.train import train  # noqa: E402
+from nbv_prob_cnn.completion.train import TrainConfig, train  # noqa: E402
 from nbv_prob_cnn.exploration.evaluation import evaluate, read_run, run_path  # noqa: E402
 
 
@@ -147,11 +147,13 @@ def test_ray_train_matches_the_single_process_run(ray_cluster, tmp_path, monkeyp
     }  # fmt: skip
     # the single-process run also fills the cache (the Ray workers only read it: they do not
     # see this test's stand-in environments)
-    local = train("2d", 1, tmp_path / "local" / "w.pt", device="cpu", **kwargs)
+    local = train(TrainConfig("2d", 1, tmp_path / "local" / "w.pt", device="cpu", **kwargs))
     assert city_cache.CacheLayout.for_training("2d", 16, 24).chunk_path(0, "train").is_file()
 
     ray_out = tmp_path / "ray" / "w.pt"
-    result = train_with_ray("2d", 1, ray_out, workers=2, address=ray_cluster, device=None, **kwargs)  # as the CLI
+    result = train_with_ray(
+        TrainConfig("2d", 1, ray_out, workers=2, device=None, **kwargs), address=ray_cluster
+    )  # as the CLI
 
     a = torch.load(tmp_path / "local" / "w.last.ckpt", weights_only=True)
     b = torch.load(tmp_path / "ray" / "w.last.ckpt", weights_only=True)
