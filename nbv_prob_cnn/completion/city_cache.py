@@ -1,4 +1,4 @@
-"""Cached City-CNN training sets (issue #21): every example's input channels and omniscient ray
+"""Cached City-CNN training sets (docs/training.md): every example's input channels and omniscient ray
 gains computed once, so that a training step only reads files and never ray-casts.
 
 What is cached, per data set and environment (one *chunk*, one compressed ``.npz`` per seed):

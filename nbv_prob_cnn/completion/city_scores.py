@@ -1,4 +1,4 @@
-"""Scores of a City-CNN on validation/test examples (issue #21), streamed one batch at a time
+"""Scores of a City-CNN on validation/test examples, streamed one batch at a time
 (outputs are not kept: a 3DU D-City-CNN output is 67 MB):
 
 * **MSE** of ``output · mask`` against the target (the training loss), per example, averaged;

@@ -1,4 +1,4 @@
-"""The ray and orientation sets of the authors' host code (issue 23 items 5–6; docs/original_code.md),
+"""The ray and orientation sets of the authors' host code (differences 5–6 of docs/original_code.md),
 for ``PlanningContext(view_set="original")``; the paper's sets are :func:`~nbv_prob_cnn.gain.ray_directions`
 and :func:`~nbv_prob_cnn.basics.camera.orientations`.
 

@@ -1,4 +1,4 @@
-"""How the gain samples its rays, and the sensor it may know (issue 19, docs/sensing.md).
+"""How the gain samples its rays, and the sensor it may know (docs/sensing.md).
 
 Two optional modes of the one gain kernel (``raycast.cl``), both off by default so that the
 paper's comparison is unchanged:

@@ -1,7 +1,7 @@
 """Gain variants: the paper's equations (``"paper"``, docs/method.md: gain, candidate views, the default) and the host
 choices of the authors' published code (``"original"``), for the same kernel.
 
-``"original"`` reproduces items 1–4 and 7 of issue 23 (docs/original_code.md explains each,
+``"original"`` reproduces differences 1–4 and 7 of docs/original_code.md (which explains each,
 with the paper's equation beside the code's choice):
 
 1. range: samples ``t = 0 .. N - 1`` with ``N = floor((1 - 2π/64) · R_max)`` (21 on 3DU, 115 on
@@ -17,7 +17,7 @@ with the paper's equation beside the code's choice):
    unknown (``0.01 / (Σ_{i<t} w_i + 1)`` below the minimum range of 5 cells, 0 if occupied);
    a ray that leaves the grid or ends unblocked has ``hits + miss = Σ_t w_t``.
 
-Items 5–6 (the authors' ray and orientation sets) are not part of the variant; in 3D their
+Differences 5–6 (the authors' ray and orientation sets) are not part of the variant; in 3D their
 ray set is the paper's ``N_rays = 16`` cube (``--n-rays 16``).
 """
 

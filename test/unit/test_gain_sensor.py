@@ -1,4 +1,4 @@
-"""The optional gain modes of issue 19 (docs/sensing.md): the "returns" sensor model and the
+"""The optional gain modes (docs/sensing.md): the "returns" sensor model and the
 exact-traversal sampling, on the one gain kernel, against hand-worked rays, the numpy reference,
 a slow ray-box traversal, and the exhaustive argmax for the pruned search."""
 
