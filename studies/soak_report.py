@@ -400,8 +400,8 @@ def write_report(report: SoakReport, out_dir: Path, title: str, context: list[st
         (
             f"{total} requests, {errors} answered with an error. A valid request may be answered with an error for "
             "a reason of the moment (e.g. a plan while the grid was just reset); `integrator_diagnostics` answers "
-            "`success: false` once any frame was dropped (its documented meaning: the drops are in the frames "
-            "section below); `explore_goal` errors are rejected goals."
+            "`success: true` whenever the call worked (the integrator's drops are in the frames section below); "
+            "`explore_goal` errors are rejected goals."
         ),
         "",
     ]

@@ -1,8 +1,11 @@
 """Shared test set-up: an isolated cache directory per test session, the DDS environment of ROS
 tests, and the default robot of the arm tests."""
 
+import fcntl
 import os
 import tempfile
+from pathlib import Path
+from typing import IO
 
 import pytest
 
@@ -21,19 +24,52 @@ def rng():
 DDS_KEYS = ("ROS_AUTOMATIC_DISCOVERY_RANGE", "RMW_IMPLEMENTATION", "FASTRTPS_DEFAULT_PROFILES_FILE", "ROS_DOMAIN_ID")
 
 
+#: Lock files of the ROS domains in use by a test on this machine (one per domain).
+DOMAIN_LOCKS = Path(tempfile.gettempdir()) / "nbv_ros_domain_locks"
+#: Domains 1..232 (0 is everyone's default; above 232 the RTPS ports overflow).
+MAX_DOMAIN = 232
+
+
+def reserve_domain(preferred: int) -> tuple[int, IO[str]]:
+    """``preferred``, or the next domain that no other test process on this machine holds, locked
+    until the returned file is closed: test sessions that run at the same time (several on one
+    machine) never meet in a domain, where one graph's nodes would answer the other's calls and
+    publish into its topics (a foreign camera's frames in a test's /camera/pose)."""
+    DOMAIN_LOCKS.mkdir(exist_ok=True)
+    for offset in range(MAX_DOMAIN):
+        domain = 1 + (preferred - 1 + offset) % MAX_DOMAIN
+        handle = open(DOMAIN_LOCKS / f"{domain}.lock", "w")  # held until the test ends
+        try:
+            fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            handle.close()
+            continue
+        return domain, handle
+    raise RuntimeError(f"no free ROS domain in 1..{MAX_DOMAIN} (locks in {DOMAIN_LOCKS})")
+
+
 @pytest.fixture
 def ros_domain(monkeypatch):
-    """Factory: ``ros_domain(domain_id)`` returns the environment for our nodes on that domain
-    and gives this test process the same DDS settings (restored after the test)."""
+    """Factory: ``ros_domain(domain_id)`` returns the environment for our nodes on that domain (or
+    the next one free on this machine: :func:`reserve_domain`) and gives this test process the same
+    DDS settings (restored after the test, when the domain is released)."""
     from nbv_prob_cnn.ros.graph import ros_environment
 
+    held: dict[int, IO[str]] = {}  # requested domain -> lock of the domain it got
+
     def use(domain_id: int) -> dict[str, str]:
-        env = ros_environment(domain_id)
+        if domain_id not in held:
+            domain, held[domain_id] = reserve_domain(domain_id)
+        else:
+            domain = int(Path(held[domain_id].name).stem)
+        env = ros_environment(domain)
         for key in DDS_KEYS:
             monkeypatch.setenv(key, env[key])
         return env
 
-    return use
+    yield use
+    for handle in held.values():
+        handle.close()
 
 
 # ------------------------------------------------------------------ the arm (test_arm, test_arm_unstall)

@@ -8,6 +8,12 @@ logged as they happen and listed in the shutdown summary. The log time of a mess
 reception time on the node's clock (the rosbag2 convention); the header stamps inside the
 messages are kept as published.
 
+Whether the camera's messages reach the recorder is on ``/diagnostics``: status ``<node>: inputs``
+(:class:`~nbv_prob_cnn.ros.readiness.InputReadiness`, also logged once as ``ready: ...``) turns OK
+when every publisher of the camera topics that the node knows of is matched and has delivered a
+message; from then on every message they publish is recorded or counted as lost. Wait for it
+before the part of a run that must be in the bag.
+
 The bag is created when the node starts (an existing ``output`` is never overwritten: the node
 exits with status 1) and closed cleanly on SIGINT/SIGTERM, so the bag is complete and indexed.
 
@@ -17,6 +23,7 @@ Run: ``nbv node bag_record --ros-args -p output:=/tmp/run1``
 from __future__ import annotations
 
 from collections import Counter
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -50,6 +57,7 @@ from nbv_prob_cnn.ros import names
 from nbv_prob_cnn.ros.conversions import msg_to_grid
 from nbv_prob_cnn.ros.parameters import declare_config, param
 from nbv_prob_cnn.ros.qos import GRID_QOS, RELIABILITY, lost_message_counter, subscription_qos
+from nbv_prob_cnn.ros.readiness import InputReadiness
 from nbv_prob_cnn.ros.runtime import run_node
 
 NODE_NAME = "bag_record"
@@ -94,15 +102,19 @@ class BagRecord(Node):
         self.path = Path(output).expanduser()
         self.counts: Counter[str] = Counter()
         self.lost_in_transport: dict[str, int] = {}  # topic -> messages DDS reported lost before delivery
-        self._writer = self._open_writer()
+        self._writer: Any = self._open_writer()
         self._connections: dict[str, Any] = {}
         store = typestore()
+        # recorded under its resolved name
+        resolved = {default_topic: self.resolve_topic_name(names.relative(default_topic)) for default_topic in TOPICS}
+        #: ``/diagnostics`` ``<node>: inputs``: OK once every camera publisher's messages arrive
+        self.inputs = InputReadiness(self, list(resolved.values()))
         for default_topic, (msg_class, msgtype) in TOPICS.items():
-            topic = self.resolve_topic_name(names.relative(default_topic))  # recorded under its resolved name
+            topic = resolved[default_topic]
             self._connections[topic] = self._writer.add_connection(topic, msgtype, typestore=store)
             self.create_subscription(
-                msg_class, names.relative(default_topic), self._callback(topic), qos, raw=True,
-                event_callbacks=lost_message_counter(self, self.lost_in_transport, topic),
+                msg_class, names.relative(default_topic), self._callback(topic, camera=True), qos, raw=True,
+                event_callbacks=self.inputs.events(topic, lost_message_counter(self, self.lost_in_transport, topic)),
             )  # fmt: skip
         if self.config.planning:
             for topic, (msg_class, msgtype) in PLANNING_TOPICS.items():
@@ -150,7 +162,7 @@ class BagRecord(Node):
             raise BagError(f"{self.path}: cannot create the bag ({exc})") from exc
         return writer
 
-    def _callback(self, topic: str):
+    def _callback(self, topic: str, camera: bool = False) -> Callable[[bytes], None]:
         connection = self._connections[topic]
 
         def write(raw: bytes) -> None:
@@ -158,6 +170,8 @@ class BagRecord(Node):
                 return
             self._writer.write(connection, self.get_clock().now().nanoseconds, raw)
             self.counts[topic] += 1
+            if camera:
+                self.inputs.received(topic)
 
         return write
 

@@ -45,9 +45,12 @@ REP-118), ``size_mismatch`` (image data vs. its sizes, or image vs. camera_info)
 (``pose_source:=tf``), ``bad_joint_states``,
 ``too_many_pending``, ``behind``, ``reset``, ``integration_error``), logged (at most every 5 s
 per reason) and reported on ``/diagnostics`` (``diagnostic_msgs/DiagnosticArray`` every
-``diagnostics_period_s``: WARN when frames were dropped in the last period, one key per reason)
-and by ``/integrator/diagnostics`` (``std_srvs/Trigger``: ``message`` is a JSON object with the
-counts and the last drop's text per reason; ``success`` is false once anything was dropped).
+``diagnostics_period_s``, status ``<node>: depth frames``: ERROR when frames were dropped in the
+last period for bad input or a failure (the reasons logged as errors: ``bad_message``,
+``bad_encoding``, ``size_mismatch``, ``non_finite_pose``, ``bad_joint_states``,
+``integration_error``), WARN for the other reasons, OK otherwise; one key per reason)
+and by ``/integrator/diagnostics`` (``std_srvs/Trigger``: ``success`` says that the call worked,
+``message`` is a JSON object with the counts and the last drop's text per reason).
 The node keeps running. When integration falls behind, ``drop_when_behind`` (default)
 keeps only the newest waiting frame; with ``drop_when_behind:=false``
 every paired frame is integrated in stamp order (deterministic: a bag replayed this way gives the
@@ -70,6 +73,11 @@ Messages are taken as serialized CDR (raw subscriptions) and decoded and paired 
 :mod:`nbv_prob_cnn.perception.messages` (no rclpy), the same code that reads bags offline
 (and ~50x faster than rclpy's conversion of a 640x480 image).
 
+Whether the camera's messages reach the node is on ``/diagnostics`` as well: status
+``<node>: inputs`` (:class:`~nbv_prob_cnn.ros.readiness.InputReadiness`) turns OK once every
+publisher of the image, camera_info (and, by topic, pose) topics is matched and has delivered a
+message; from then on every frame the camera publishes is integrated or counted.
+
 Services: ``/integrator/reset`` (``std_srvs/Trigger``, every cell unknown again, waiting frames
 discarded) and ``/integrator/save`` (``nbv_prob_cnn_msgs/SaveGrid``: ``.npz`` with keys ``grid``,
 ``origin``, ``resolution``, ``frames`` written on the node's machine, relative paths from its
@@ -86,6 +94,7 @@ import math
 import threading
 import time
 from collections import deque
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -96,6 +105,7 @@ from geometry_msgs.msg import TransformStamped
 from nbv_prob_cnn_msgs.msg import VoxelGrid
 from nbv_prob_cnn_msgs.srv import SaveGrid
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
+from rclpy.event_handler import SubscriptionEventCallbacks
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy
 from sensor_msgs.msg import CameraInfo, Image, JointState
@@ -136,6 +146,7 @@ from nbv_prob_cnn.ros import names
 from nbv_prob_cnn.ros.conversions import grid_to_msg, time_msg
 from nbv_prob_cnn.ros.parameters import declare_config, param
 from nbv_prob_cnn.ros.qos import GRID_QOS, RELIABILITY, lost_message_counter, subscription_qos
+from nbv_prob_cnn.ros.readiness import InputReadiness
 from nbv_prob_cnn.ros.robot_params import RobotParams, merged_joint_state
 from nbv_prob_cnn.ros.runtime import run_node
 from nbv_prob_cnn.ros.stream_node import StreamNode
@@ -268,10 +279,12 @@ class Integrator(Node):
         self.config = cfg = declare_config(self, IntegratorConfig)  # also sets self.<name> per parameter
         camera_qos = subscription_qos(cfg.queue_size, cfg.qos_reliability)
         origin, shape, voxel, tolerance = cfg.origin, cfg.shape, cfg.voxel_size, cfg.sync_tolerance_s
-        self.geometry = GridGeometry(tuple(float(v) for v in origin), float(voxel), tuple(int(v) for v in shape))
+        x0, y0, z0 = (float(v) for v in origin)  # 3 of each: checked by the parameters
+        nx, ny, nz = (int(v) for v in shape)
+        self.geometry = GridGeometry((x0, y0, z0), float(voxel), (nx, ny, nz))
         self._tsdf = TsdfIntegrator(
             origin_m=np.array(self.geometry.origin),
-            shape_cells=self.geometry.shape,
+            shape_cells=(nx, ny, nz),
             voxel_size_m=voxel,
             trunc_voxels=cfg.trunc_voxels,
             empty_margin_voxels=cfg.empty_margin_voxels,
@@ -312,7 +325,8 @@ class Integrator(Node):
         if cfg.self_filter:
             self.counts["self_filtered_pixels"] = 0
         self.drops = DropCounts()  # every frame not integrated is counted here under its reason
-        self._drops_reported = 0
+        self._drops_reported: dict[str, int] = {}  # reason -> drops published on /diagnostics so far
+        self._error_reasons: set[str] = set()  # reasons of drops that were errors (bad input, a failure)
         self._last_drop_log: dict[DropReason, float] = {}
         self._last_drop_text: dict[str, str] = {}  # reason -> why its last frame was dropped
         self._store = typestore()
@@ -320,13 +334,20 @@ class Integrator(Node):
         self._grid_pub = self.create_publisher(VoxelGrid, TOPIC_GRID, GRID_QOS)
         inputs = MutuallyExclusiveCallbackGroup()
         services = MutuallyExclusiveCallbackGroup()
+        image, info, pose = (
+            self.resolve_topic_name(n) for n in (names.DEPTH_IMAGE, names.CAMERA_INFO, names.CAMERA_POSE)
+        )
+        #: ``/diagnostics`` ``<node>: inputs``: OK once every camera publisher's messages arrive
+        self.inputs = InputReadiness(
+            self, [image, info] if cfg.pose_source == "tf" else [image, info, pose], callback_group=services
+        )
         self.create_subscription(
-            Image, names.DEPTH_IMAGE, self._on_image, camera_qos, callback_group=inputs, raw=True,
-            event_callbacks=lost_message_counter(self, self.lost_in_transport, names.DEPTH_IMAGE),
+            Image, names.DEPTH_IMAGE, self._counted(image, self._on_image), camera_qos, callback_group=inputs,
+            raw=True, event_callbacks=self._input_events(names.DEPTH_IMAGE, image),
         )  # fmt: skip
         self.create_subscription(
-            CameraInfo, names.CAMERA_INFO, self._on_info, camera_qos, callback_group=inputs, raw=True,
-            event_callbacks=lost_message_counter(self, self.lost_in_transport, names.CAMERA_INFO),
+            CameraInfo, names.CAMERA_INFO, self._counted(info, self._on_info), camera_qos, callback_group=inputs,
+            raw=True, event_callbacks=self._input_events(names.CAMERA_INFO, info),
         )  # fmt: skip
         # /tf and joint_states come at the robot's rate: a side node with its own thread, where they are used
         self._streams = StreamNode(self) if cfg.pose_source == "tf" or cfg.self_filter else None
@@ -335,18 +356,20 @@ class Integrator(Node):
         if cfg.pose_source == "tf":
             if not cfg.fixed_frame:
                 raise ValueError("fixed_frame must not be empty")
+            assert self._streams is not None  # made for pose_source tf
             self._tf = TfListener(self._streams.node)
             # runs only while an image waits for its transform (a 50 Hz timer wakes the executor for nothing)
             self._tf_retry = self.create_timer(TF_RETRY_PERIOD_S, self._on_tf_retry_timer, callback_group=inputs)
             self._tf_retry.cancel()
         else:
             self.create_subscription(
-                TransformStamped, names.CAMERA_POSE, self._on_pose, camera_qos, callback_group=inputs, raw=True,
-                event_callbacks=lost_message_counter(self, self.lost_in_transport, names.CAMERA_POSE),
+                TransformStamped, names.CAMERA_POSE, self._counted(pose, self._on_pose), camera_qos,
+                callback_group=inputs, raw=True, event_callbacks=self._input_events(names.CAMERA_POSE, pose),
             )  # fmt: skip
         if cfg.self_filter:
             # the filter needs the joint state of each frame's stamp: keep a few seconds of them (they are small)
             joints_qos = subscription_qos(max(cfg.queue_size, JOINT_STATES_QUEUE), cfg.qos_reliability)
+            assert self._streams is not None  # made for self_filter
             self._streams.node.create_subscription(
                 JointState, names.JOINT_STATES, self._on_joints, joints_qos, raw=True
             )
@@ -355,7 +378,7 @@ class Integrator(Node):
         self.create_service(SaveGrid, SERVICE_SAVE, self._on_save, callback_group=services)
         self.create_service(Trigger, SERVICE_DIAGNOSTICS, self._on_diagnostics, callback_group=services)
         self._diagnostics_pub = self.create_publisher(DiagnosticArray, TOPIC_DIAGNOSTICS, 10)
-        self.create_timer(self.diagnostics_period, self._publish_diagnostics, callback_group=services)
+        self.create_timer(cfg.diagnostics_period_s, self._publish_diagnostics, callback_group=services)
         self._last_grid: VoxelGrid | None = None  # the latest grid published, and when (time.monotonic)
         self._last_grid_at = 0.0
         if cfg.republish_period_s > 0:
@@ -365,16 +388,32 @@ class Integrator(Node):
         poses = f"by TF ({self._tf.backend})" if self._tf else f"from {names.CAMERA_POSE}"
         self.get_logger().info(
             f"grid {self.geometry.shape} voxel {voxel:g} m origin {list(self.geometry.origin)} "
-            f"in {self.fixed_frame!r}; poses {poses}; sync ±{tolerance:g} s, publish <= {self.publish_rate:g} Hz, "
-            f"drop_when_behind={self.drop_when_behind}"
+            f"in {cfg.fixed_frame!r}; poses {poses}; sync ±{tolerance:g} s, publish <= {cfg.publish_rate_hz:g} Hz, "
+            f"drop_when_behind={cfg.drop_when_behind}"
             + (f"; self-filter: {cfg.self_filter_bodies} bodies" if self._self_filter else "")
         )
 
     # -------------------------------------------------------------- callbacks
+    def _input_events(self, name: str, topic: str) -> SubscriptionEventCallbacks:
+        """The events of camera input ``name`` (resolved: ``topic``): DDS losses counted under
+        ``name``, matches tracked by :attr:`inputs`."""
+        return self.inputs.events(topic, lost_message_counter(self, self.lost_in_transport, name))
+
+    def _counted(self, topic: str, callback: Callable[[bytes], None]) -> Callable[[bytes], None]:
+        """``callback`` that first tells :attr:`inputs` that a message of ``topic`` arrived."""
+
+        def on_message(raw: bytes) -> None:
+            self.inputs.received(topic)
+            callback(raw)
+
+        return on_message
+
     def _drop(self, reason: DropReason, text: str, n: int = 1, error: bool = False) -> None:
         """Count ``n`` dropped frames under ``reason`` and log why (at most every 5 s per reason)."""
         self.drops.add(reason, n)
         self._last_drop_text[reason.value] = text
+        if error:
+            self._error_reasons.add(reason.value)
         now = time.monotonic()
         if now - self._last_drop_log.get(reason, -np.inf) < 5.0:
             return
@@ -433,10 +472,10 @@ class Integrator(Node):
         msg = self._decode(raw, MSG_TRANSFORM, names.CAMERA_POSE)
         if msg is None:
             return
-        if msg.header.frame_id != self.fixed_frame:
+        if msg.header.frame_id != self.config.fixed_frame:
             self._drop(
                 DropReason.POSE_FRAME,
-                f"pose in frame {msg.header.frame_id!r}, expected the grid frame {self.fixed_frame!r} "
+                f"pose in frame {msg.header.frame_id!r}, expected the grid frame {self.config.fixed_frame!r} "
                 "(pose_source:=tf looks poses up in any frame); ignored",
             )
             return
@@ -451,14 +490,14 @@ class Integrator(Node):
         try:
             if not frame:
                 raise TransformError("the image has no header.frame_id (its optical frame) to look up in TF")
-            matrix, _ = self._tf.lookup(self.fixed_frame, frame, stamp)
+            matrix, _ = self._tf.lookup(self.config.fixed_frame, frame, stamp)
         except TransformError as exc:
             self._tf_errors[stamp] = exc
             if self._tf_retry.is_canceled():
                 self._tf_retry.reset()
             return []
         self._tf_errors.pop(stamp, None)
-        return self._sync.add_pose(stamp, pose_to_transform_msg(matrix, stamp, self.fixed_frame, frame))
+        return self._sync.add_pose(stamp, pose_to_transform_msg(matrix, stamp, self.config.fixed_frame, frame))
 
     def _on_tf_retry_timer(self) -> None:
         """Retry the TF lookup of every image still waiting for its pose."""
@@ -482,14 +521,16 @@ class Integrator(Node):
 
     def _on_expire_timer(self) -> None:
         with self._cv:
-            dropped = self._sync.expire(time.monotonic(), self.pose_timeout)
+            dropped = self._sync.expire(time.monotonic(), self.config.pose_timeout_s)
             tf_errors = {stamp: self._tf_errors.pop(stamp) for stamp, _, _ in dropped if stamp in self._tf_errors}
         for stamp, reason, text in dropped:
             error = tf_errors.get(stamp)
             if error is not None and reason == DropReason.NO_POSE:
                 reason = TF_DROP_REASONS.get(error.reason, DropReason.TF_UNKNOWN_FRAME)
-                text = f"no transform from {self.fixed_frame!r} in TF: {error}"
-            self._drop(reason, f"image stamped {stamp * 1e-9:.3f} dropped: {text} after {self.pose_timeout:g} s")
+                text = f"no transform from {self.config.fixed_frame!r} in TF: {error}"
+            self._drop(
+                reason, f"image stamped {stamp * 1e-9:.3f} dropped: {text} after {self.config.pose_timeout_s:g} s"
+            )
 
     def diagnostics(self) -> dict[str, Any]:
         """Frame counts, drops per reason and the last drop's text per reason (what ``/diagnostics``
@@ -516,13 +557,18 @@ class Integrator(Node):
         if not self.context.ok():
             return
         report = self.diagnostics()
-        new_drops = report["dropped_total"] - self._drops_reported
-        self._drops_reported = report["dropped_total"]
+        new = {k: n - self._drops_reported.get(k, 0) for k, n in report["dropped"].items()}
+        new = {k: n for k, n in new.items() if n}
+        self._drops_reported = dict(report["dropped"])
+        level = DiagnosticStatus.OK
+        if new:
+            level = DiagnosticStatus.ERROR if self._error_reasons & set(new) else DiagnosticStatus.WARN
+        reasons = ", ".join(f"{k} {n}" for k, n in new.items())
         status = DiagnosticStatus(
-            level=DiagnosticStatus.WARN if new_drops else DiagnosticStatus.OK,
+            level=level,
             name=f"{self.get_fully_qualified_name()}: depth frames",
-            message=f"{new_drops} frame(s) dropped in the last period" if new_drops else "integrating",
-            hardware_id=self.fixed_frame,
+            message=f"{sum(new.values())} frame(s) dropped in the last period ({reasons})" if new else "integrating",
+            hardware_id=self.config.fixed_frame,
         )
         values = {k: v for k, v in report.items() if k not in ("dropped", "last_drop", "lost_in_transport")}
         values.update({f"lost_in_transport_{k}": v for k, v in report["lost_in_transport"].items()})
@@ -534,10 +580,10 @@ class Integrator(Node):
         self._diagnostics_pub.publish(array)
 
     def _on_diagnostics(self, request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
-        """``message`` is the JSON of :meth:`diagnostics`; ``success`` is false when frames were dropped."""
-        report = self.diagnostics()
-        response.success = report["dropped_total"] == 0
-        response.message = json.dumps(report, sort_keys=True)
+        """``success``: the call worked (always; drops are in the report, not a failed call);
+        ``message``: the JSON of :meth:`diagnostics`."""
+        response.success = True
+        response.message = json.dumps(self.diagnostics(), sort_keys=True)
         return response
 
     def _enqueue(self, frames: list[PairedFrame]) -> None:
@@ -547,7 +593,7 @@ class Integrator(Node):
         dropped = 0
         for frame in frames:
             frame.generation = self._generation
-            if self.drop_when_behind:
+            if self.config.drop_when_behind:
                 dropped += len(self._queue)
                 self._queue.clear()
                 self._queue.append(frame)
@@ -656,7 +702,7 @@ class Integrator(Node):
                 if frame.generation != self._generation:
                     self.drops.add(DropReason.RESET)  # queued before a reset
                     return
-                self._tsdf.integrate(depth, intrinsics, pose, depth_max=self.depth_max)
+                self._tsdf.integrate(depth, intrinsics, pose, depth_max=self.config.depth_max_m)
                 self._ternary = None
                 self._newest_stamp_ns = max(self._newest_stamp_ns, frame.stamp_ns)
                 self._dirty = True
@@ -688,14 +734,15 @@ class Integrator(Node):
     def _publish_grid(self) -> None:
         if not self.context.ok():
             return  # shutting down (SIGINT): the publisher is no longer usable
+        rate = self.config.publish_rate_hz
         with self._tsdf_lock:
             if self._ternary is None:  # else only the stamp is new (frames of a still camera skipped)
                 self._ternary = self._tsdf.ternary()
             grid = self._ternary
             stamp_ns = self._newest_stamp_ns
             self._dirty = False
-            self._next_publish = time.monotonic() + (1.0 / self.publish_rate if self.publish_rate > 0 else 0.0)
-        msg = grid_to_msg(grid, self.geometry, self.fixed_frame, time_msg(stamp_ns))
+            self._next_publish = time.monotonic() + (1.0 / rate if rate > 0 else 0.0)
+        msg = grid_to_msg(grid, self.geometry, self.config.fixed_frame, time_msg(stamp_ns))
         self._grid_pub.publish(msg)
         self._last_grid, self._last_grid_at = msg, time.monotonic()
         self.counts["grids"] += 1

@@ -150,7 +150,7 @@ def load_meshes(dataset: str, seed: int, mesh_file: str, room_margin_m: float = 
             mesh = trimesh.load(path, force="mesh")
         except Exception as exc:  # trimesh raises many types on unreadable files
             raise ValueError(f"mesh_file: cannot read {str(path)!r} ({exc})") from exc
-        if len(mesh.faces) == 0:
+        if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
             raise ValueError(f"mesh_file: {str(path)!r} has no triangles")
         return [mesh], f"mesh {path}"
     if dataset not in ("3dt", "3du"):
@@ -221,7 +221,7 @@ class SimCamera(Node):
 
     def __init__(self) -> None:
         super().__init__(NODE_NAME)
-        self.config = cfg = declare_config(self, SimCameraConfig)  # also sets self.<name> per parameter
+        self.config = cfg = declare_config(self, SimCameraConfig)
         dataset, seed, mesh_file, width, height = cfg.dataset, cfg.seed, cfg.mesh_file, cfg.width, cfg.height
         hfov, rate, initial, depth_min, depth_max = (
             cfg.hfov_deg,
@@ -237,9 +237,9 @@ class SimCamera(Node):
             cfg.noise_seed,
         )
 
-        if not self.frame_id or not self.camera_frame:
+        if not cfg.frame_id or not cfg.camera_frame:
             raise ValueError("frame_id and camera_frame must not be empty")
-        if self.follow_arm and not rate > 0:
+        if cfg.follow_arm and not rate > 0:
             raise ValueError("follow_arm: needs rate_hz > 0 (the timer renders frames at the arm's latest pose)")
         if not depth_max > depth_min:
             raise ValueError(f"depth_max_m ({depth_max}) must be greater than depth_min_m ({depth_min})")
@@ -269,6 +269,7 @@ class SimCamera(Node):
         uses_streams = cfg.render_arm or (cfg.follow_arm and cfg.pose_source == "tf")
         self._streams = StreamNode(self) if uses_streams else None
         if cfg.render_arm:
+            assert self._streams is not None  # uses_streams
             from nbv_prob_cnn.arm.robot import RobotModel
             from nbv_prob_cnn.arm.robot_scene import RobotScene
 
@@ -289,10 +290,10 @@ class SimCamera(Node):
         self._info_pub = self.create_publisher(CameraInfo, names.CAMERA_INFO, qos)
         # a real camera driver publishes no pose: on the arm (TF) only the image and camera_info
         self._pose_pub = None
-        if not (self.follow_arm and self.pose_source == "tf"):
+        if not (cfg.follow_arm and cfg.pose_source == "tf"):
             self._pose_pub = self.create_publisher(TransformStamped, names.CAMERA_POSE, qos)
         self._tf_pub = None
-        if not self.follow_arm and self.pose_source == "tf":
+        if not cfg.follow_arm and cfg.pose_source == "tf":
             from tf2_msgs.msg import TFMessage
 
             self._tf_message = TFMessage
@@ -300,16 +301,17 @@ class SimCamera(Node):
         self._tf: TfListener | None = None
         self.create_service(MoveCamera, SERVICE_MOVE_TO, self._on_move_to)
         self.create_subscription(PoseStamped, TOPIC_GOAL_POSE, self._on_goal_pose, 10)
-        if self.follow_arm and self.pose_source == "tf":
+        if cfg.follow_arm and cfg.pose_source == "tf":
+            assert self._streams is not None  # uses_streams
             self._tf = TfListener(self._streams.node)
-        elif self.follow_arm:
+        elif cfg.follow_arm:
             self.create_subscription(PoseStamped, names.ARM_CAMERA_POSE, self._on_arm_pose, 10)
         self._timer = self.create_timer(1.0 / rate, self._on_timer) if rate > 0 else None
         self.get_logger().info(
             f"{source}: {self._camera.n_meshes} mesh(es), {width}x{height} px, hfov {hfov:g} deg, "
-            f"{self.encoding}, {rate:g} Hz, pose {np.round(self._pose[:3, 3], 3).tolist()}"
-            + (f"; pose of {self.camera_frame!r} in {self.frame_id!r} from TF ({self._tf.backend})" if self._tf else "")
-            + (f"; broadcasting {self.frame_id!r} -> {self.camera_frame!r} on {TOPIC_TF}" if self._tf_pub else "")
+            f"{cfg.encoding}, {rate:g} Hz, pose {np.round(self._pose[:3, 3], 3).tolist()}"
+            + (f"; pose of {cfg.camera_frame!r} in {cfg.frame_id!r} from TF ({self._tf.backend})" if self._tf else "")
+            + (f"; broadcasting {cfg.frame_id!r} -> {cfg.camera_frame!r} on {TOPIC_TF}" if self._tf_pub else "")
             + (f"; rendering the arm ({len(self._arm.meshes)} visual meshes) at joint_states" if self._arm else "")
         )
 
@@ -346,13 +348,13 @@ class SimCamera(Node):
             self._last_stamp_ns = stamp_ns
             depth = self._camera.render(self._pose, occluders)
             store = typestore()
-            info = intrinsics_to_camera_info(self.intrinsics, stamp_ns, self.camera_frame)
-            image = depth_to_image_msg(depth, stamp_ns, self.encoding, self.camera_frame)
+            info = intrinsics_to_camera_info(self.intrinsics, stamp_ns, self.config.camera_frame)
+            image = depth_to_image_msg(depth, stamp_ns, self.config.encoding, self.config.camera_frame)
             if self._tf_pub is not None:  # before the image, so a TF listener has the pose when the image comes
-                pose_tf = transform_stamped_msg(self._pose, stamp_ns, self.frame_id, self.camera_frame)
+                pose_tf = transform_stamped_msg(self._pose, stamp_ns, self.config.frame_id, self.config.camera_frame)
                 self._tf_pub.publish(self._tf_message(transforms=[pose_tf]))
             if self._pose_pub is not None:
-                pose = pose_to_transform_msg(self._pose, stamp_ns, self.frame_id, self.camera_frame)
+                pose = pose_to_transform_msg(self._pose, stamp_ns, self.config.frame_id, self.config.camera_frame)
                 self._pose_pub.publish(bytes(store.serialize_cdr(pose, MSG_TRANSFORM)))
             self._info_pub.publish(bytes(store.serialize_cdr(info, MSG_CAMERA_INFO)))
             self._image_pub.publish(bytes(store.serialize_cdr(image, MSG_IMAGE)))
@@ -366,8 +368,8 @@ class SimCamera(Node):
 
     def _target_pose(self, msg: PoseStamped) -> np.ndarray:
         frame = msg.header.frame_id
-        if frame not in ("", self.frame_id):
-            raise ValueError(f"target frame {frame!r} is not the camera's fixed frame {self.frame_id!r}")
+        if frame not in ("", self.config.frame_id):
+            raise ValueError(f"target frame {frame!r} is not the camera's fixed frame {self.config.frame_id!r}")
         position, quat = pose_to_arrays(msg.pose)  # raises on NaN / zero quaternion
         pose = np.eye(4)
         pose[:3, :3] = matrix_from_quaternion(quat)
@@ -375,7 +377,7 @@ class SimCamera(Node):
         return pose
 
     def _move(self, msg: PoseStamped) -> int:
-        if self.follow_arm:
+        if self.config.follow_arm:
             raise ValueError("follow_arm is set: the camera moves with the arm (arm_sim/move_to_joints)")
         pose = self._target_pose(msg)
         with self._lock:
@@ -390,7 +392,7 @@ class SimCamera(Node):
             self.get_logger().warning(str(exc), throttle_duration_sec=5.0)
 
     def _publish_timer_frame(self) -> None:
-        if not self.follow_arm:
+        if not self.config.follow_arm:
             self.publish_frame()
             return
         if self._tf is not None:
@@ -430,7 +432,7 @@ class SimCamera(Node):
         """``follow_arm`` + TF: the newest pose of ``camera_frame`` in ``frame_id`` becomes the arm pose."""
         assert self._tf is not None
         try:
-            pose, stamp = self._tf.lookup(self.frame_id, self.camera_frame)
+            pose, stamp = self._tf.lookup(self.config.frame_id, self.config.camera_frame)
         except TransformError as exc:
             self.get_logger().warning(f"no frame: no camera pose in TF yet ({exc})", throttle_duration_sec=5.0)
             return

@@ -22,6 +22,7 @@ from nbv_prob_cnn_msgs.action import Explore  # noqa: E402
 from nbv_prob_cnn_msgs.msg import VoxelGrid  # noqa: E402
 from nbv_prob_cnn_msgs.srv import EvaluateViews, PlanNextBestView  # noqa: E402
 from rclpy.action import ActionClient  # noqa: E402
+from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy  # noqa: E402
 from sensor_msgs.msg import JointState  # noqa: E402
 from test_ros_explore import spun_node  # noqa: E402
 from test_ros_explore import wait as wait_future  # noqa: E402
@@ -344,12 +345,19 @@ def test_sim_camera_follows_the_arm(ros):
     graph.start_node("sim_camera", "sim_camera", {"follow_arm": True, "pose_source": "topic", "rate_hz": 5.0,
                                                   "width": 64, "height": 48})  # fmt: skip
     arm_poses: dict[int, PoseStamped] = {}
+    newest_pose = [0]  # stamp of the newest arm pose received
+    sequence: list[int] = []  # arm_sim's publication sequence numbers of the poses received
     frames: list[TransformStamped] = []
 
-    def on_arm_pose(msg: PoseStamped) -> None:
-        arm_poses[msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec] = msg
+    def on_arm_pose(msg: PoseStamped, info) -> None:
+        stamp = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+        arm_poses[stamp] = msg
+        newest_pose[0] = max(newest_pose[0], stamp)
+        sequence.append(info["publication_sequence_number"])
 
-    node.create_subscription(PoseStamped, "/arm/camera_pose", on_arm_pose, 100)
+    # keep all: the test's own queue never drops an arm pose however late its executor takes them
+    keep_all = QoSProfile(history=HistoryPolicy.KEEP_ALL, reliability=ReliabilityPolicy.RELIABLE)
+    node.create_subscription(PoseStamped, "/arm/camera_pose", on_arm_pose, keep_all)
     node.create_subscription(TransformStamped, "/camera/pose", frames.append, 10)
     deadline = time.monotonic() + 120
     while len(frames) < 2 and time.monotonic() < deadline:
@@ -373,12 +381,18 @@ def test_sim_camera_follows_the_arm(ros):
     seen = len(frames)
     while len(frames) < seen + 3 and time.monotonic() < deadline + 10:
         time.sleep(0.05)
+    # one camera and one arm in this domain (a graph of another test process would publish its frames here)
+    assert node.count_publishers("/camera/pose") == 1 and node.count_publishers("/arm/camera_pose") == 1
     for frame in frames[seen : seen + 3]:  # frames long after both subscriptions matched
         stamp = frame.header.stamp.sec * 1_000_000_000 + frame.header.stamp.nanosec
-        # the arm pose of that stamp may still be queued for this node's own subscription
-        settle = time.monotonic() + 5.0
-        while stamp not in arm_poses and time.monotonic() < settle:
+        # arm_sim's poses arrive in the order it published them: once one stamped at or after the
+        # frame has arrived, the pose of the frame's stamp has too, if arm_sim published one
+        deadline = time.monotonic() + 60
+        while newest_pose[0] < stamp and time.monotonic() < deadline:
             time.sleep(0.02)
+        assert newest_pose[0] >= stamp, "no arm pose as new as the frame arrived"
+        lost = [(a, b) for a, b in zip(sequence, sequence[1:], strict=False) if b != a + 1]
+        assert not lost, f"arm poses lost on the way to the test (sequence numbers {lost})"
         assert stamp in arm_poses, "a frame's stamp is not the stamp of an arm camera pose"
         p, t = arm_poses[stamp].pose.position, frame.transform.translation
         np.testing.assert_allclose([t.x, t.y, t.z], [p.x, p.y, p.z], atol=1e-9)

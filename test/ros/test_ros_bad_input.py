@@ -25,7 +25,7 @@ pytest.importorskip("rosbags")
 rclpy = pytest.importorskip("rclpy")
 pytest.importorskip("nbv_prob_cnn_msgs")
 
-from diagnostic_msgs.msg import DiagnosticArray  # noqa: E402
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus  # noqa: E402
 from geometry_msgs.msg import TransformStamped  # noqa: E402
 from sensor_msgs.msg import CameraInfo, Image  # noqa: E402
 from std_srvs.srv import Trigger  # noqa: E402
@@ -121,8 +121,16 @@ def test_integrator_battery(ros_env: dict, tmp_path: Path) -> None:  # noqa: F81
             arrays: list[DiagnosticArray] = []
             client.node.create_subscription(DiagnosticArray, "/diagnostics", arrays.append, 10)
 
+            def frame_statuses() -> list[DiagnosticStatus]:
+                return [s for a in arrays for s in a.status if s.name == "/integrator: depth frames"]
+
+            # the integrator's statuses reach the test before the first drop (to see its period's level)
+            assert client.spin_until(lambda: bool(frame_statuses()), START_TIMEOUT_S), "no /diagnostics"
+
             def report() -> dict:
-                return json.loads(client.call(diagnostics_client, Trigger.Request()).message)
+                reply = client.call(diagnostics_client, Trigger.Request())
+                assert reply.success, reply.message  # the call worked; the drops are in its report
+                return json.loads(reply.message)
 
             def drops() -> dict[str, int]:
                 return report()["dropped"]
@@ -173,13 +181,17 @@ def test_integrator_battery(ros_env: dict, tmp_path: Path) -> None:  # noqa: F81
 
             # the drops are on /diagnostics too, one key per reason
             def reported() -> dict[str, str]:
-                values = [{kv.key: kv.value for kv in a.status[0].values} for a in arrays if a.status]
+                values = [{kv.key: kv.value for kv in s.values} for s in frame_statuses()]
                 return values[-1] if values else {}
 
             assert client.spin_until(lambda: reported().get("dropped_pose_frame") == "1", 10.0), reported()
             last = reported()
             assert last["dropped_bad_encoding"] == "1" and last["dropped_size_mismatch"] == "2"
             assert last["dropped_non_finite_pose"] == "2" and last["dropped_no_pose"] == "1"
+            # ERROR in the periods of bad input (encoding, sizes, poses), WARN in those of the other
+            # reasons (no pose in time, a pose in another frame)
+            levels = {s.level for s in frame_statuses()}
+            assert {DiagnosticStatus.ERROR, DiagnosticStatus.WARN} <= levels, levels
             # still serving: reset answers, and a good frame is integrated and published
             reply = client.call(client.node.create_client(Trigger, "/integrator/reset"), Trigger.Request())
             assert reply.success, reply.message

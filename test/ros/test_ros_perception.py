@@ -23,6 +23,7 @@ pytest.importorskip("rosbags")
 rclpy = pytest.importorskip("rclpy")
 pytest.importorskip("nbv_prob_cnn_msgs")
 
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus  # noqa: E402
 from geometry_msgs.msg import PoseStamped  # noqa: E402
 from nbv_prob_cnn_msgs.msg import VoxelGrid  # noqa: E402
 from nbv_prob_cnn_msgs.srv import MoveCamera, SaveGrid  # noqa: E402
@@ -33,9 +34,6 @@ from nbv_prob_cnn.basics.camera import look_rotation, quaternion_from_matrix  # 
 from nbv_prob_cnn.basics.grid import EMPTY, OCCUPIED, UNKNOWN  # noqa: E402
 from nbv_prob_cnn.perception import load_grid  # noqa: E402
 from nbv_prob_cnn.perception.bags import (  # noqa: E402
-    TOPIC_CAMERA_INFO,
-    TOPIC_IMAGE,
-    TOPIC_POSE,
     BagWarning,
     read_frames,
 )
@@ -48,6 +46,7 @@ from nbv_prob_cnn.ros.graph import (  # noqa: E402
     wait_for,
 )
 from nbv_prob_cnn.ros.qos import GRID_QOS  # noqa: E402
+from nbv_prob_cnn.ros.readiness import input_readiness  # noqa: E402
 
 pytestmark = pytest.mark.slow  # multi-process ROS graphs
 
@@ -113,6 +112,10 @@ class RosClient:
         self.grid: VoxelGrid | None = None
         self.grids = 0
         self.node.create_subscription(VoxelGrid, "/nbv/grid", self._on_grid, GRID_QOS)
+        self.inputs: dict[str, tuple[bytes, str]] = {}  # node -> its input readiness (level, message)
+        self.node.create_subscription(
+            DiagnosticArray, "/diagnostics", lambda msg: self.inputs.update(input_readiness(msg)), 50
+        )
 
     def _on_grid(self, msg: VoxelGrid) -> None:
         self.grid = msg
@@ -129,6 +132,13 @@ class RosClient:
     def call(self, client, request, timeout_s: float = 20.0):
         """An idempotent call on a fresh client (see :func:`call_with_resend`)."""
         return call_with_resend(client, request, START_TIMEOUT_S + timeout_s, executor=self.executor)
+
+    def wait_inputs_ready(self, nodes: list[str], timeout_s: float) -> None:
+        """Until each node's input readiness is OK: every camera publisher's messages reach it."""
+        ok = self.spin_until(
+            lambda: all(self.inputs.get(n, (None,))[0] == DiagnosticStatus.OK for n in nodes), timeout_s
+        )
+        assert ok, f"inputs not ready within {timeout_s} s: { {n: self.inputs.get(n) for n in nodes} }"
 
     def wait_grid(self, min_stamp_ns: int, timeout_s: float = 20.0) -> VoxelGrid:
         ok = self.spin_until(
@@ -168,14 +178,10 @@ def test_sim_camera_to_integrator(ros_env: dict, tmp_path: Path) -> None:
         graph.start_node("bag_record", "bag_record", {"output": str(tmp_path / "recorded")})
         with RosClient(int(ros_env["ROS_DOMAIN_ID"])) as client:
             move = client.node.create_client(MoveCamera, "/sim_camera/move_to")
-            assert client.spin_until(
-                lambda: (
-                    all(client.node.count_subscribers(t) >= 2 for t in (TOPIC_IMAGE, TOPIC_CAMERA_INFO))
-                    and client.node.count_subscribers(TOPIC_POSE) >= 1  # bag_record; the integrator poses by TF
-                    and client.node.count_subscribers("/tf") >= 1
-                ),
-                START_TIMEOUT_S,
-            ), "integrator and bag_record did not subscribe"
+            # the recorders say when the camera's messages reach them (its timer publishes a frame a
+            # second): from then on each frame is recorded or counted (the graph view that both have
+            # subscribed did not say that the camera's publishers had matched them)
+            client.wait_inputs_ready(["/integrator", "/bag_record"], 2 * START_TIMEOUT_S)
             # invalid targets are refused with a reason; the next valid one works
             bad = look_at([0.7, 0.1, 0.8])
             bad.pose.position.x = math.nan
@@ -187,12 +193,6 @@ def test_sim_camera_to_integrator(ros_env: dict, tmp_path: Path) -> None:
             reply = client.call(move, MoveCamera.Request(target=zero))
             assert not reply.success and "quaternion" in reply.message
 
-            # a first frame fused (from the first target's pose, so the counts below keep falling): the
-            # camera's publisher has matched the integrator's reader and, a grid round later, most
-            # likely bag_record's too (the graph view above does not say that the readers matched)
-            reply = client.call(move, MoveCamera.Request(target=look_at([0.74, 0.15, 0.80])))
-            assert reply.success, reply.message
-            client.wait_grid(stamp_ns(reply.frame_stamp))
             unknown, moved = [], []
             for position in ([0.74, 0.15, 0.80], [1.30, 0.90, 0.70], [0.20, 1.20, 0.75]):
                 reply = client.call(move, MoveCamera.Request(target=look_at(position)))
@@ -210,6 +210,7 @@ def test_sim_camera_to_integrator(ros_env: dict, tmp_path: Path) -> None:
         assert_clean_stop(graph)
     assert "published" in log_text(tmp_path, "sim_camera")  # shutdown summary: it exited through main()
     assert "integrated" in log_text(tmp_path, "integrator")
+    assert "ready: receiving from every publisher" in log_text(tmp_path, "bag_record")
     # bag_record closed its bag on SIGINT: complete, readable, with the frames taken at the targets
     with warnings.catch_warnings(record=True) as skipped:
         warnings.simplefilter("always", BagWarning)  # a frame cut in half by the shutdown is skipped
