@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import functools
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -208,12 +209,7 @@ def traverse_opencl(
     runtime, kernel, real = _traverse_kernel()
     cl = runtime.cl
     mf = cl.mem_flags
-    shape3 = tuple(shape) + (1,) * (3 - len(shape))
-    p = np.zeros(3)
-    p[: len(shape)] = np.asarray(origin, dtype=np.float64) + 0.5
-    p[len(shape) :] = 0.5
-    dirs = np.zeros((directions.shape[0], 3), dtype=real)
-    dirs[:, : directions.shape[1]] = directions
+    shape3, p, dirs = _kernel_geometry(shape, origin, directions, real)
     stop_buf = cl.Buffer(runtime.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=np.ascontiguousarray(stop, np.uint8))
     dir_buf = cl.Buffer(runtime.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=dirs)
     seen = np.zeros(int(np.prod(shape)), dtype=np.uint8)
@@ -289,7 +285,9 @@ def observe(
         if rng is None or resolution_m is None or not resolution_m > 0:
             raise ValueError("observe: a noise model needs rng and a positive resolution_m")
         margin = None if room_margin_m is None else float(room_margin_m) / float(resolution_m)
-        return _observe_noisy(state, truth, pos, rays, noise, rng, float(resolution_m), margin, backend)
+        measure = functools.partial(measure_rays, truth, pos, noise=noise, rng=rng, resolution_m=float(resolution_m),
+                                    margin_cells=margin, backend=backend)  # fmt: skip
+        return _observe_measured(state, rays, measure)
     if backend == "opencl":
         cells = traverse_opencl(state.shape, pos, rays, sensor.r_max, flat_truth)
     else:
@@ -300,24 +298,17 @@ def observe(
     return newly
 
 
-def _observe_noisy(
+def _observe_measured(
     state: np.ndarray,
-    truth: np.ndarray,
-    pos: np.ndarray,
     rays: np.ndarray,
-    noise: SensorNoise,
-    rng: np.random.Generator,
-    resolution_m: float,
-    margin_cells: float | None = None,
-    backend: str = "numpy",
+    measure: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]],
     chunk: int = 16384,
 ) -> int:
-    """:func:`observe` with a noise model, ``chunk`` rays at a time (see :func:`measure_rays`)."""
+    """:func:`observe` with a noise model: label ``state`` with the empty and occupied cells that
+    ``measure`` (:func:`measure_rays` of the view) gives for ``rays``, ``chunk`` rays at a time."""
     empty_parts, occupied_parts = [], []
     for first_ray in range(0, len(rays), chunk):
-        empty, occupied = measure_rays(
-            truth, pos, rays[first_ray : first_ray + chunk], noise, rng, resolution_m, margin_cells, backend
-        )
+        empty, occupied = measure(rays[first_ray : first_ray + chunk])
         empty_parts.append(empty)
         occupied_parts.append(occupied)
     empty_cells = np.unique(np.concatenate(empty_parts))

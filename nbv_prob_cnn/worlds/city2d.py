@@ -48,64 +48,19 @@ class Style:
     deep: float  # probability that a building takes the whole depth of its lot
 
 
-STYLES: tuple[Style, ...] = (
-    Style(
-        name="downtown",
-        block_m=(60, 130),
-        street_m=(14, 24),
-        lot_m=(14, 32),
-        depth_m=(14, 24),
-        setback_m=(0, 1.5),
-        side_gap_m=(0, 1.5),
-        fill=0.92,
-        perimeter=0.55,
-        park=0.04,
-        shapes=(0.45, 0.25, 0.1, 0.2),
-        deep=0.5,
-    ),
-    Style(
-        name="residential",
-        block_m=(50, 120),
-        street_m=(10, 16),
-        lot_m=(12, 24),
-        depth_m=(10, 18),
-        setback_m=(2, 6),
-        side_gap_m=(2, 6),
-        fill=0.85,
-        perimeter=0.1,
-        park=0.05,
-        shapes=(0.6, 0.3, 0.1, 0.0),
-        deep=0.1,
-    ),
-    Style(
-        name="suburb",
-        block_m=(45, 110),
-        street_m=(8, 12),
-        lot_m=(14, 24),
-        depth_m=(10, 16),
-        setback_m=(3, 7),
-        side_gap_m=(3, 7),
-        fill=0.8,
-        perimeter=0.0,
-        park=0.05,
-        shapes=(0.7, 0.3, 0.0, 0.0),
-        deep=0.0,
-    ),
-    Style(
-        name="industrial",
-        block_m=(110, 240),
-        street_m=(15, 26),
-        lot_m=(40, 100),
-        depth_m=(25, 80),
-        setback_m=(4, 12),
-        side_gap_m=(6, 18),
-        fill=0.75,
-        perimeter=0.0,
-        park=0.1,
-        shapes=(0.8, 0.15, 0.05, 0.0),
-        deep=0.3,
-    ),
-)
+# fmt: off
+STYLES: tuple[Style, ...] = tuple(Style(*row) for row in (
+    # name, block_m, street_m, lot_m, depth_m, setback_m, side_gap_m, fill, perimeter, park, shapes, deep
+    ("downtown", (60, 130), (14, 24), (14, 32), (14, 24), (0, 1.5), (0, 1.5), 0.92, 0.55, 0.04,
+     (0.45, 0.25, 0.1, 0.2), 0.5),
+    ("residential", (50, 120), (10, 16), (12, 24), (10, 18), (2, 6), (2, 6), 0.85, 0.1, 0.05,
+     (0.6, 0.3, 0.1, 0.0), 0.1),
+    ("suburb", (45, 110), (8, 12), (14, 24), (10, 16), (3, 7), (3, 7), 0.8, 0.0, 0.05,
+     (0.7, 0.3, 0.0, 0.0), 0.0),
+    ("industrial", (110, 240), (15, 26), (40, 100), (25, 80), (4, 12), (6, 18), 0.75, 0.0, 0.1,
+     (0.8, 0.15, 0.05, 0.0), 0.3),
+))
+# fmt: on
 STYLE_WEIGHTS: tuple[float, ...] = (0.3, 0.35, 0.2, 0.15)
 
 # A rectangle: centre (u, v) and half sizes (a, b) along u and v, in a district frame, metres.

@@ -129,15 +129,4 @@ def generate(seed: int, generator_version: int) -> World:
     rng = np.random.default_rng([seed, 4])
     grid, table = make_table(rng)
     meshes = place_objects(rng, table["height_m"])
-    origin = np.zeros(3)
-    ycb.paint_meshes(grid, meshes, RESOLUTION, origin)
-    return World(
-        dataset="3dt",
-        seed=seed,
-        generator_version=generator_version,
-        ground_truth=grid,
-        resolution=RESOLUTION,
-        origin=origin,
-        meshes=meshes,
-        table=table,
-    )
+    return ycb.mesh_world("3dt", seed, generator_version, grid, meshes, RESOLUTION, table)

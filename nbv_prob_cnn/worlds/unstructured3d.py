@@ -52,15 +52,4 @@ def generate(seed: int, generator_version: int) -> World:
     """The 3DU world of ``seed``."""
     rng = np.random.default_rng([seed, 3])
     meshes = place_objects(rng)
-    grid = np.zeros(SHAPE, dtype=np.uint8)
-    origin = np.zeros(3)
-    ycb.paint_meshes(grid, meshes, RESOLUTION, origin)
-    return World(
-        dataset="3du",
-        seed=seed,
-        generator_version=generator_version,
-        ground_truth=grid,
-        resolution=RESOLUTION,
-        origin=origin,
-        meshes=meshes,
-    )
+    return ycb.mesh_world("3du", seed, generator_version, np.zeros(SHAPE, dtype=np.uint8), meshes, RESOLUTION)
