@@ -38,7 +38,7 @@ def reserve_domain(preferred: int) -> tuple[int, IO[str]]:
     DOMAIN_LOCKS.mkdir(exist_ok=True)
     for offset in range(MAX_DOMAIN):
         domain = 1 + (preferred - 1 + offset) % MAX_DOMAIN
-        handle = open(DOMAIN_LOCKS / f"{domain}.lock", "w")  # held until the test ends
+        handle = open(DOMAIN_LOCKS / f"{domain}.lock", "w")  # noqa: SIM115  # held until the test ends
         try:
             fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:
@@ -96,3 +96,27 @@ def checker(robot):
     from nbv_prob_cnn.basics.camera import DATASETS
 
     return CollisionChecker(robot, spacing=0.75 * DATASETS["3dt"].resolution_m)
+
+
+# ------------------------------------------------------------------ tiny City-CNN worlds (test_city_cache, studies)
+def _boxes(dataset: str, seed: int):
+    """Small environments: 2D 40×40, 3D (3DT layout, 8× lattice) 24×24×16, a few boxes each."""
+    import numpy as np
+
+    r = np.random.default_rng(seed)
+    shape = (40, 40) if dataset == "2d" else (24, 24, 16)
+    grid = np.zeros(shape, dtype=np.uint8)
+    for corner in r.integers(0, min(shape) - 4, size=(6, len(shape))):
+        grid[tuple(slice(c, c + 4) for c in corner)] = 1
+    return grid, 1
+
+
+@pytest.fixture
+def tiny_worlds(tmp_path, monkeypatch):
+    """The training data of a temporary cache come from :func:`_boxes` instead of the generators."""
+    from nbv_prob_cnn.completion import data as data_mod
+
+    monkeypatch.setenv("NBV_CACHE_DIR", str(tmp_path / "cache"))
+    monkeypatch.setattr(data_mod, "load_environment", _boxes)
+    monkeypatch.setattr(data_mod, "current_generator_version", lambda: 1)
+    return tmp_path

@@ -414,7 +414,7 @@ def test_a_view_behind_a_pillar_is_reached_by_a_planned_path_over_follow_joint_t
     FollowJointTrajectory is the OMPL path around it. Checked by the independent dense sampler
     of test_arm_path_planning (0.005 rad, ten times finer than the planner's validation) on the
     polyline of the trajectory's points, against the grid the planner got."""
-    from test_arm_path_planning import dense_free
+    from arm_checks import dense_free
     from test_ros_arm_planning import GEOMETRY
 
     from nbv_prob_cnn.arm.collision import CollisionChecker

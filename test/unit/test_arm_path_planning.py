@@ -19,6 +19,7 @@ import pytest
 pytest.importorskip("pinocchio")
 pytest.importorskip("ompl")
 
+from arm_checks import dense_free  # noqa: E402
 from scipy import ndimage  # noqa: E402
 
 from nbv_prob_cnn.arm.collision import CollisionChecker, GridObstacles  # noqa: E402
@@ -36,7 +37,6 @@ from nbv_prob_cnn.basics.grid import EMPTY, OCCUPIED  # noqa: E402
 
 RESOLUTION = 0.04  # cell edge (m) of the hand-built grids
 RESOLUTION_RAD = 0.05  # the planner's motion-validation resolution
-DENSE_STEP = 0.005  # the independent sampler's step (rad, per joint)
 TIMEOUT = 2.0
 
 
@@ -56,23 +56,6 @@ def scene():
     state = np.full(geometry.shape, EMPTY, dtype=np.int8)
     state[lo[0] : hi[0] + 1, lo[1] : hi[1] + 1, : hi[2] + 1] = OCCUPIED  # a pillar from the floor to above the camera
     return robot, checker, geometry, state, q_start, q_goal, halfway
-
-
-def dense_free(robot, checker, geometry, state, waypoints) -> bool:
-    """The independent dense check of a polyline of configurations."""
-    origin = np.asarray(geometry.origin)
-    for a, b in zip(waypoints[:-1], waypoints[1:], strict=True):
-        count = max(1, math.ceil(np.abs(b - a).max() / DENSE_STEP))
-        for t in np.linspace(0.0, 1.0, count + 1):
-            q = a + t * (b - a)
-            if np.any(q < robot.lower - 1e-9) or np.any(q > robot.upper + 1e-9) or checker.self_collision(q):
-                return False
-            cells = np.floor((checker.body_points(q) - origin) / geometry.resolution).astype(int)
-            inside = np.all((cells >= 0) & (cells < np.array(geometry.shape)), axis=1)
-            c = cells[inside]
-            if np.any(state[c[:, 0], c[:, 1], c[:, 2]] != EMPTY):
-                return False
-    return True
 
 
 @pytest.fixture(scope="module")

@@ -12,30 +12,11 @@ import torch
 
 from nbv_prob_cnn.basics.datasets import dataset_spec
 from nbv_prob_cnn.completion import city_cache
-from nbv_prob_cnn.completion import data as data_mod
 from nbv_prob_cnn.completion.city_cache import CachedCityExamples, CacheLayout, ChunkReader, CityCacheError
 from nbv_prob_cnn.completion.data import crop_box, load_or_generate_sample, rotations
 from nbv_prob_cnn.completion.tasks import Example, TrainingTask
 
 METHODS = ("flat_city_cnn", "b_city_cnn", "d_city_cnn")
-
-
-def _boxes(dataset: str, seed: int) -> tuple[np.ndarray, int]:
-    """Small environments: 2D 40×40, 3D (3DT layout, 8× lattice) 24×24×16, a few boxes each."""
-    r = np.random.default_rng(seed)
-    shape = (40, 40) if dataset == "2d" else (24, 24, 16)
-    grid = np.zeros(shape, dtype=np.uint8)
-    for corner in r.integers(0, min(shape) - 4, size=(6, len(shape))):
-        grid[tuple(slice(c, c + 4) for c in corner)] = 1
-    return grid, 1
-
-
-@pytest.fixture
-def tiny_worlds(tmp_path, monkeypatch):
-    monkeypatch.setenv("NBV_CACHE_DIR", str(tmp_path / "cache"))
-    monkeypatch.setattr(data_mod, "load_environment", _boxes)
-    monkeypatch.setattr(data_mod, "current_generator_version", lambda: 1)
-    return tmp_path
 
 
 def _assert_same(cached: Example, reference: Example) -> None:
