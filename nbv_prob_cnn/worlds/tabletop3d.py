@@ -24,7 +24,7 @@ import trimesh
 
 from nbv_prob_cnn.basics.datasets import DATASET_SPECS
 from nbv_prob_cnn.worlds import ycb
-from nbv_prob_cnn.worlds.world import PlacedMesh, World
+from nbv_prob_cnn.worlds.world import PlacedMesh, World, mesh_world
 
 SHAPE: tuple[int, ...] = DATASET_SPECS["3dt"].shape
 RESOLUTION: float = DATASET_SPECS["3dt"].resolution_m
@@ -129,4 +129,4 @@ def generate(seed: int, generator_version: int) -> World:
     rng = np.random.default_rng([seed, 4])
     grid, table = make_table(rng)
     meshes = place_objects(rng, table["height_m"])
-    return ycb.mesh_world("3dt", seed, generator_version, grid, meshes, RESOLUTION, table)
+    return mesh_world("3dt", seed, generator_version, grid, meshes, RESOLUTION, table)

@@ -16,7 +16,7 @@ import numpy as np
 
 from nbv_prob_cnn.basics.datasets import DATASET_SPECS
 from nbv_prob_cnn.worlds import ycb
-from nbv_prob_cnn.worlds.world import PlacedMesh, World
+from nbv_prob_cnn.worlds.world import PlacedMesh, World, mesh_world
 
 SHAPE: tuple[int, ...] = DATASET_SPECS["3du"].shape
 RESOLUTION: float = DATASET_SPECS["3du"].resolution_m
@@ -52,4 +52,4 @@ def generate(seed: int, generator_version: int) -> World:
     """The 3DU world of ``seed``."""
     rng = np.random.default_rng([seed, 3])
     meshes = place_objects(rng)
-    return ycb.mesh_world("3du", seed, generator_version, np.zeros(SHAPE, dtype=np.uint8), meshes, RESOLUTION)
+    return mesh_world("3du", seed, generator_version, np.zeros(SHAPE, dtype=np.uint8), meshes, RESOLUTION)

@@ -122,3 +122,17 @@ class World:
             meshes=meshes,
             table=meta.get("table", {}),
         )
+
+
+def mesh_world(
+    dataset: str, seed: int, generator_version: int, grid: np.ndarray, meshes: list[PlacedMesh], resolution: float,
+    table: dict | None = None,
+) -> World:  # fmt: skip
+    """The :class:`~nbv_prob_cnn.worlds.world.World` of ``meshes`` painted into ``grid`` (its cell 0 at the
+    origin of the world frame)."""
+    from nbv_prob_cnn.worlds.ycb import paint_meshes  # trimesh only when asked
+
+    origin = np.zeros(3)
+    paint_meshes(grid, meshes, resolution, origin)
+    return World(dataset=dataset, seed=seed, generator_version=generator_version, ground_truth=grid,
+                 resolution=resolution, origin=origin, meshes=meshes, table=table or {})  # fmt: skip

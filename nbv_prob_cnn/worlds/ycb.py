@@ -23,8 +23,6 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
-from nbv_prob_cnn.worlds.world import PlacedMesh, World
-
 #: Objects left out of every data set, with the reason.
 EXCLUDED: dict[str, str] = {
     # 1.7 cm cube: at the ~1.2 cm cells of 3DU/3DT it is 1-2 voxels, indistinguishable from noise.
@@ -174,18 +172,6 @@ def paint_meshes(grid: np.ndarray, meshes, resolution: float, origin: np.ndarray
     for m in meshes:
         lo, mask = voxelize(m.name, m.transform, grid.shape, resolution, origin)
         paint(grid, lo, mask)
-
-
-def mesh_world(
-    dataset: str, seed: int, generator_version: int, grid: np.ndarray, meshes: list[PlacedMesh], resolution: float,
-    table: dict | None = None,
-) -> World:  # fmt: skip
-    """The :class:`~nbv_prob_cnn.worlds.world.World` of ``meshes`` painted into ``grid`` (its cell 0 at the
-    origin of the world frame)."""
-    origin = np.zeros(3)
-    paint_meshes(grid, meshes, resolution, origin)
-    return World(dataset=dataset, seed=seed, generator_version=generator_version, ground_truth=grid,
-                 resolution=resolution, origin=origin, meshes=meshes, table=table or {})  # fmt: skip
 
 
 def random_rotation(rng: np.random.Generator) -> np.ndarray:
