@@ -18,7 +18,9 @@ the bag carries its poses on ``/camera/pose``):
   ``wait_for_subscribers`` (default 1) matched subscribers; after ``wait_timeout_s`` without
   them it logs an error naming the topics and exits with status 1, having published nothing
   (``wait_for_subscribers:=0`` publishes regardless).
-* ``pace_by_integrator`` (default true): before each depth image (``/camera/depth/image``) the
+* ``pace_by_integrator`` (default true): first the replay waits until the integrator's own
+  subscriptions report a matched publisher on the replayed topics (``inputs`` of its
+  diagnostics; matching happens on each side on its own). Then, before each depth image (``/camera/depth/image``) the
   replay waits until the integrator (its ``integrator/diagnostics`` service, in the node's
   namespace) has received every image sent so far and has none pending (each one integrated or
   dropped under a reason), at most ``frame_timeout_s`` per frame. A slow or loaded integrator
@@ -212,7 +214,9 @@ class BagReplay(Node):
         """Take the integrator's counts before the first frame (or warn that there is none)."""
         name = self.resolve_service_name(self._diagnostics.srv_name)
         if self._diagnostics.wait_for_service(timeout_sec=self.config.wait_timeout_s):
-            self._baseline = self._integrator_report(executor, self.config.wait_timeout_s)
+            self._baseline = self._readers_matched(
+                executor, self._integrator_report(executor, self.config.wait_timeout_s)
+            )
         if self._baseline is None:
             self.get_logger().warning(
                 f"no integrator diagnostics at {name} within {self.config.wait_timeout_s:g} s: paced by bag time only, "
@@ -220,6 +224,24 @@ class BagReplay(Node):
             )
         else:
             self.get_logger().info(f"pacing by {name}: each depth image waits until the integrator finished the last")
+
+    def _readers_matched(self, executor: SingleThreadedExecutor, report: dict | None) -> dict | None:
+        """The integrator's report once its subscriptions of the replayed topics have matched a
+        publisher (its ``inputs``; at most ``wait_timeout_s``): that the replay's writers matched
+        them is not enough, a reader that has not matched the writer yet drops what it sends."""
+        topics = {self.resolve_topic_name(names.relative(t)) for t in self.topics}
+        deadline = time.monotonic() + self.config.wait_timeout_s
+        while report is not None:
+            inputs = report.get("inputs", {})
+            waiting = sorted(t for t in topics & set(inputs) if inputs[t].get("matched", 0) < 1)
+            if not waiting:
+                return report
+            if time.monotonic() >= deadline:
+                self.get_logger().warning(f"the integrator has not matched a publisher on {waiting}; starting anyway")
+                return report
+            self._sleep(executor, 0.05)
+            report = self._integrator_report(executor, max(deadline - time.monotonic(), DIAGNOSTICS_RESEND_S))
+        return report
 
     def _update_delta(self, executor: SingleThreadedExecutor, timeout_s: float) -> ReplayDelta | None:
         assert self._baseline is not None

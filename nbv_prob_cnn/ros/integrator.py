@@ -538,7 +538,9 @@ class Integrator(Node):
         yet (waiting for their pose / camera_info, queued or being integrated);
         ``image_rate_hz``: images received per second over the last few seconds (compare it with
         the camera's rate: best-effort messages lost on the way are invisible otherwise);
-        ``lost_in_transport``: messages per topic that DDS reported lost."""
+        ``lost_in_transport``: messages per topic that DDS reported lost; ``inputs``: per camera
+        topic the publishers in the graph, those the subscription matched and the messages
+        received (:meth:`InputReadiness.snapshot`: a replay waits for ``matched`` before it starts)."""
         with self._cv:
             pending = len(self._sync.images) + len(self._queue) + self._integrating
             times = list(self._image_times)
@@ -551,6 +553,7 @@ class Integrator(Node):
             "dropped": self.drops.as_dict(),
             "dropped_total": self.drops.total(),
             "last_drop": dict(self._last_drop_text),
+            "inputs": self.inputs.snapshot(),
         }
 
     def _publish_diagnostics(self) -> None:
@@ -570,7 +573,7 @@ class Integrator(Node):
             message=f"{sum(new.values())} frame(s) dropped in the last period ({reasons})" if new else "integrating",
             hardware_id=self.config.fixed_frame,
         )
-        values = {k: v for k, v in report.items() if k not in ("dropped", "last_drop", "lost_in_transport")}
+        values = {k: v for k, v in report.items() if k not in ("dropped", "last_drop", "lost_in_transport", "inputs")}
         values.update({f"lost_in_transport_{k}": v for k, v in report["lost_in_transport"].items()})
         values.update({f"dropped_{k}": v for k, v in report["dropped"].items()})
         values.update({f"last_drop_{k}": v for k, v in report["last_drop"].items()})

@@ -180,6 +180,14 @@ class InputReadiness:
                 entry.reached = True
             self.update()
 
+    def snapshot(self) -> dict[str, dict[str, int]]:
+        """Per topic: ``publishers`` (graph), ``matched`` (by the subscription) and ``received``."""
+        with self._lock:
+            return {
+                topic: {"publishers": e.publishers, "matched": e.matched, "received": e.received}
+                for topic, e in self._topics.items()
+            }
+
     def update(self) -> None:
         """Refresh the graph's publisher counts and publish the state."""
         if not self._node.context.ok():

@@ -249,19 +249,13 @@ def test_bag_replay_matches_offline_integration(ros_env: dict, tmp_path: Path) -
         }
         graph.start_node("integrator", "integrator", integrator)
         with RosClient(int(ros_env["ROS_DOMAIN_ID"])) as client:
-            # the replay waits for the integrator's subscriptions, then 2 s more: the integrator's
-            # readers may match the replay's writers later than the writers see them (volatile QoS
-            # loses what is published before)
+            # the replay waits until its writers matched the integrator's subscriptions and those
+            # matched its writers (the integrator's diagnostics say so): volatile QoS loses what is
+            # published before either side has matched
             replay = graph.start_node(
                 "bag_replay",
                 "bag_replay",
-                {
-                    "bag": str(SAMPLE_BAG),
-                    "rate": 10.0,
-                    "wait_for_subscribers": 1,
-                    "start_delay_s": 2.0,
-                    "queue_size": 200,
-                },
+                {"bag": str(SAMPLE_BAG), "rate": 10.0, "wait_for_subscribers": 1, "queue_size": 200},
             )
             grid_msg = client.wait_grid(frames[-1].stamp_ns, timeout_s=START_TIMEOUT_S)
             assert stamp_ns(grid_msg.header.stamp) == frames[-1].stamp_ns
