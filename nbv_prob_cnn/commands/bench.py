@@ -10,12 +10,26 @@ from nbv_prob_cnn.bench.planning import DEFAULT_CASES, format_table, run_case
 NAME = "bench"
 HELP = (
     "Benchmarks: planning iterations on half-explored grids (OpenCL vs numpy), CNN inference, TSDF "
-    "integration, the transport overhead of the ROS node split, the CPU cost of a high-rate stream (ros_streams), "
+    "integration, dense against sparse fusion on the 3DT box and a real room-sized recording (fusion), "
+    "the transport overhead of the ROS node split, the CPU cost of a high-rate stream (ros_streams), "
     "the arm (capability map, IK, added cost) and "
     "the cost of rendering the arm into depth frames and filtering it out, and the arm's planning step through the ROS "
-    "nodes against the in-process core (arm_loop)."
+    "nodes against the in-process core (arm_loop), and one planning step against the size of the grid and of the "
+    "workspace, today's path beside the local one (scale)."
 )
-SUITES = ("planning", "sweep", "cnn", "integrator", "ros", "ros_streams", "arm", "arm_render", "arm_loop")
+SUITES = (
+    "planning",
+    "sweep",
+    "cnn",
+    "integrator",
+    "fusion",
+    "ros",
+    "ros_streams",
+    "arm",
+    "arm_render",
+    "arm_loop",
+    "scale",
+)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -28,10 +42,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="origins the authors'-scheme baseline is timed on (then extrapolated to all)",
     )  # fmt: skip
     parser.add_argument("--views", type=int, default=20, help="sweep: views of the timed exploration")
-    parser.add_argument("--out", default="docs", help="sweep: folder of the CSV and PNG")
+    parser.add_argument("--out", default="docs", help="sweep, scale: folder of the CSV and PNG")
     parser.add_argument("--every", type=int, default=1, help="sweep: time every N-th planned view")
     parser.add_argument("--loop-views", type=int, default=6, help="arm_loop: planning steps timed (first included)")
     parser.add_argument("--log-dir", default="", help="arm_loop: folder of the nodes' logs (default: none)")
+    parser.add_argument(
+        "--recording", default="", help="fusion: 7-Scenes folder (default: ../shared/data/rgbd/7scenes_redkitchen)"
+    )
+    parser.add_argument("--fusion-frames", type=int, default=200, help="fusion: frames of the recording fused")
     parser.add_argument(
         "--cases",
         nargs="*",
@@ -48,15 +66,23 @@ def run(args: argparse.Namespace) -> int:
             "sweep": run_sweep,
             "cnn": run_cnn,
             "integrator": run_integrator,
+            "fusion": run_fusion,
             "ros": run_ros,
             "ros_streams": run_ros_streams,
             "arm": run_arm,
             "arm_render": run_arm_render,
             "arm_loop": run_arm_loop,
+            "scale": run_scale,
         }
         runners[suite](args)
         print(flush=True)
     return 0
+
+
+def run_scale(args: argparse.Namespace) -> None:
+    from nbv_prob_cnn.bench.scale import scale_benchmark
+
+    print(scale_benchmark(seed=args.seed, out_dir=args.out), flush=True)
 
 
 def run_ros_streams(args: argparse.Namespace) -> None:
@@ -95,6 +121,14 @@ def run_integrator(args: argparse.Namespace) -> None:
             f"{q['occupied_precision']:.4f} | {q['observed_fraction']:.4f} |",
             flush=True,
         )
+
+
+def run_fusion(args: argparse.Namespace) -> None:
+    from nbv_prob_cnn.bench.fusion import fusion_suite
+
+    if args.fusion_frames < 1:
+        raise ValueError(f"--fusion-frames: must be >= 1, got {args.fusion_frames}")
+    print(fusion_suite(recording=args.recording or None, frames=args.fusion_frames), flush=True)
 
 
 def run_arm(args: argparse.Namespace) -> None:
