@@ -70,14 +70,15 @@ def run_launch_script(cmd: list[str], timeout: float, env: dict | None = None) -
     return subprocess.CompletedProcess(cmd, proc.returncode, out, err)
 
 
-def _domain(offset: int) -> str:  # 200..219, away from the other tests' domains
-    return str(200 + (os.getpid() + offset) % 20)
+def _domain(ros_domain, offset: int) -> str:
+    """200..219, away from the other tests' domains (reserved on this machine: ``ros_domain``)."""
+    return ros_domain(200 + (os.getpid() + offset) % 20)["ROS_DOMAIN_ID"]
 
 
-def test_simulated_graph_explores_a_small_scene(tmp_path):
+def test_simulated_graph_explores_a_small_scene(tmp_path, ros_domain):
     out = tmp_path / "run"
     cmd = [sys.executable, str(SCRIPT), "--dataset", "3du", "--seed", "1001", "--views", "5", "--no-arm",
-           "--method", "cnn_prob", "--out", str(out), "--domain-id", _domain(0)]  # fmt: skip
+           "--method", "cnn_prob", "--out", str(out), "--domain-id", _domain(ros_domain, 0)]  # fmt: skip
     run = run_launch_script(cmd, timeout=600)
     assert run.returncode == 0, run.stdout[-3000:] + run.stderr[-3000:]
     assert "view 5/5" in run.stdout and "done: 5 views" in run.stdout and "succeeded: reached 5 views" in run.stdout
@@ -128,7 +129,7 @@ def exchanged(report: dict, senders: set[str], receivers: set[str]) -> dict[str,
     return out
 
 
-def test_simulated_graph_with_the_arm_explores_the_table(tmp_path):
+def test_simulated_graph_with_the_arm_explores_the_table(tmp_path, ros_domain):
     """The main job's graph (arm_sim as the robot's driver and trajectory controller, sim_camera
     on the arm as the camera's driver, the planner sending FollowJointTrajectory goals), 2 views
     with prob_ig: robot side and our nodes meet on standard interfaces only, and the CSV's joint
@@ -136,7 +137,7 @@ def test_simulated_graph_with_the_arm_explores_the_table(tmp_path):
     from nbv_prob_cnn.arm.robot import RobotModel
 
     out = tmp_path / "arm"
-    domain = str(140 + (os.getpid() + 7) % 10)  # the arm tests' range (test_ros_arm_planning)
+    domain = ros_domain(140 + (os.getpid() + 7) % 10)["ROS_DOMAIN_ID"]  # the arm tests' range (test_ros_arm_planning)
     cmd = [sys.executable, str(SCRIPT), "--dataset", "3dt", "--seed", "1000", "--views", "2", "--method", "prob_ig",
            "--out", str(out), "--domain-id", domain]  # fmt: skip
     run = run_launch_script(cmd, timeout=600)
@@ -169,10 +170,11 @@ def test_simulated_graph_with_the_arm_explores_the_table(tmp_path):
         assert "characters from /robot_description" in log, node
 
 
-def test_ctrl_c_stops_the_whole_graph(tmp_path):
+def test_ctrl_c_stops_the_whole_graph(tmp_path, ros_domain):
     before = shm_segments()
+    domain = _domain(ros_domain, 1)
     cmd = [sys.executable, str(SCRIPT), "--dataset", "3du", "--views", "50", "--method", "prob_ig", "--no-arm",
-           "--out", str(tmp_path / "run"), "--domain-id", _domain(1)]  # fmt: skip
+           "--out", str(tmp_path / "run"), "--domain-id", domain]  # fmt: skip
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     lines = []
     deadline = time.monotonic() + 240
@@ -189,13 +191,13 @@ def test_ctrl_c_stops_the_whole_graph(tmp_path):
     assert "interrupted" in rest and "stopped 5 processes" in rest
     time.sleep(0.5)
     assert not (_descendants(proc.pid) | {p for p in children if os.path.exists(f"/proc/{p}")}), "orphans left"
-    assert not leaked_segments(before, int(_domain(1)))
+    assert not leaked_segments(before, int(domain))
 
 
-def test_graph_from_the_sample_bag_plans_views(tmp_path):
+def test_graph_from_the_sample_bag_plans_views(tmp_path, ros_domain):
     out = tmp_path / "plan"
     cmd = [sys.executable, str(REPO / "launch_scripts" / "plan_from_bag.py"), "--method", "prob_ig",
-           "--out", str(out), "--domain-id", _domain(2)]  # fmt: skip
+           "--out", str(out), "--domain-id", _domain(ros_domain, 2)]  # fmt: skip
     run = run_launch_script(cmd, timeout=300)
     assert run.returncode == 0, run.stdout[-3000:] + run.stderr[-3000:]
     with open(out / "ranked_views.csv") as handle:
