@@ -25,6 +25,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from nbv_prob_cnn.arm.arm_session import SWEPT_STEP  # the swept volume's step, as nbv_planner's
 from nbv_prob_cnn.arm.feasibility import FeasibilityReport
 from nbv_prob_cnn.arm.selection import ArmViewSelector
 from nbv_prob_cnn.arm.swept import SweptVolume
@@ -39,8 +40,6 @@ MAIN_JOB_ARM = {
     "capability_stride": 8, "arm_ik_alternatives": 4, "arm_strict_capability": True, "arm_fallback_radius_m": 0.25,
     "arm_carve_swept": True, "motion_weight": 0.0,
 }  # fmt: skip
-#: Joint-space step of the swept volume (as ``nbv_planner``'s ``SWEPT_STEP``).
-SWEPT_STEP = 0.02
 
 
 @dataclass
