@@ -20,6 +20,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         DEFAULT_SHAPE,
         DEFAULT_TRUNC_VOXELS,
         DEFAULT_VOXEL_M,
+        FUSION_MODES,
     )
 
     parser.add_argument("--bag", required=True, type=Path, help="rosbag2 directory or .mcap file")
@@ -30,7 +31,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         type=float,
         metavar=("X", "Y", "Z"),
         default=list(DEFAULT_ORIGIN_M),
-        help="world coordinates (m) of the corner of cell 0 (default: %(default)s)",
+        help="world coordinates (m) of the corner of cell 0; with --bounds auto a corner of the cell lattice "
+        "(default: %(default)s)",
     )
     parser.add_argument(
         "--shape",
@@ -38,7 +40,21 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         type=int,
         metavar=("NX", "NY", "NZ"),
         default=list(DEFAULT_SHAPE),
-        help="grid size in cells (default: 3DT %(default)s)",
+        help="grid size in cells with --bounds box (default: 3DT %(default)s)",
+    )
+    parser.add_argument(
+        "--bounds",
+        choices=("box", "auto"),
+        default="box",
+        help="box: the --origin/--shape box; auto: the box of every cell the recording observed (the grid grows "
+        "as it is seen; sparse fusion) (default: %(default)s)",
+    )
+    parser.add_argument(
+        "--fusion",
+        choices=FUSION_MODES,
+        default="sparse",
+        help="sparse: per frame only the blocks its rays cross; dense: every block of the box (same cells) "
+        "(default: %(default)s)",
     )
     parser.add_argument("--voxel", type=float, default=DEFAULT_VOXEL_M, help="cell edge in m (default: %(default)s)")
     parser.add_argument(
@@ -67,14 +83,17 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError(f"--shape: sizes must be positive, got {args.shape}")
     if not args.voxel > 0:
         raise ValueError(f"--voxel: must be positive, got {args.voxel}")
+    if args.bounds == "auto" and args.fusion == "dense":
+        raise ValueError("--bounds auto needs --fusion sparse (dense fusion updates a fixed box)")
     t0 = time.perf_counter()
     integrator = TsdfIntegrator(
         origin_m=np.array(args.origin, dtype=np.float64),
-        shape_cells=tuple(args.shape),
+        shape_cells=tuple(args.shape) if args.bounds == "box" else None,
         voxel_size_m=args.voxel,
         trunc_voxels=args.trunc_voxels,
         empty_margin_voxels=args.empty_margin_voxels,
         refine_pose_icp=args.refine_pose_icp,
+        fusion=args.fusion,
     )
     frames = read_frames(args.bag)  # validates the whole bag first (BagError is a ValueError)
     t_read = time.perf_counter()
@@ -82,14 +101,30 @@ def run(args: argparse.Namespace) -> int:
         integrator.integrate(frame.depth_m, frame.intrinsics, frame.pose_4x4, depth_max=args.depth_max)
     t_extract = time.perf_counter()
     grid = integrator.save(args.out)
+    origin, shape = integrator.grid_box()
     t_end = time.perf_counter()
     labels = (("unknown", UNKNOWN), ("empty", EMPTY), ("occupied", OCCUPIED))
     counts = {name: int(np.count_nonzero(grid == value)) for name, value in labels}
-    print(f"frames read: {integrator.stats.frames}")
-    print(f"grid {tuple(grid.shape)} voxel {args.voxel} m origin {list(args.origin)} -> {args.out}")
+    n = integrator.stats.frames
+    print(f"frames read: {n}")
+    print(f"grid {tuple(grid.shape)} voxel {args.voxel} m origin {[round(float(v), 6) for v in origin]} -> {args.out}")
     print(f"unknown: {counts['unknown']}  empty: {counts['empty']}  occupied: {counts['occupied']}")
     print(
         f"time: {t_end - t0:.2f} s (set-up + bag validation {t_read - t0:.2f} s, "
         f"integrate {integrator.stats.seconds:.2f} s, extract+save {t_end - t_extract:.2f} s)"
     )
+    print(fusion_line(n, integrator.stats.seconds, shape, args.voxel))
     return 0
+
+
+def fusion_line(frames: int, seconds: float, shape: tuple[int, int, int], voxel_m: float) -> str:
+    """``fused N frames in S s (F frames/s), grid NX x NY x NZ at V m, peak RSS M MB`` (this process)."""
+    from nbv_prob_cnn.basics.peak_memory import peak_rss_mb
+
+    rate = frames / seconds if seconds > 0 else float("nan")
+    peak_mb = peak_rss_mb()
+    nx, ny, nz = shape
+    return (
+        f"fused {frames} frames in {seconds:.2f} s ({rate:.1f} frames/s), grid {nx} x {ny} x {nz} at {voxel_m:g} m, "
+        f"peak RSS {peak_mb:.0f} MB"
+    )

@@ -4,6 +4,7 @@ the cells of a fusion over every block of the box; an open grid grows as the sce
 from __future__ import annotations
 
 import math
+import re
 
 import numpy as np
 import pytest
@@ -204,3 +205,80 @@ def test_reset_frees_the_blocks(frames):
     integrator.reset()
     assert integrator.allocated_blocks == 0 and integrator.stats.frames == 0
     assert np.all(integrator.ternary() == UNKNOWN)
+
+
+# ------------------------------------------------------------------------------ nbv integrate
+FUSED_LINE = re.compile(
+    r"^fused (\d+) frames in ([\d.]+) s \(([\d.]+) frames/s\), grid (\d+) x (\d+) x (\d+) at ([\d.]+) m, "
+    r"peak RSS (\d+) MB$"
+)
+
+
+def test_integrate_bounds_auto_ends_with_the_fusion_line(frames, tmp_path, capsys):
+    from nbv_prob_cnn.cli import main
+    from nbv_prob_cnn.perception import BagWriter, load_grid
+
+    intrinsics, posed = frames
+    bag = tmp_path / "bag"
+    with BagWriter(bag) as writer:
+        for i, (depth, pose) in enumerate(posed):
+            writer.write_frame(1_000_000_000 + i * 100_000_000, depth, intrinsics, pose)
+    out = tmp_path / "grid.npz"
+    args = ["integrate", "--bag", str(bag), "--voxel", str(VOXEL), "--bounds", "auto", "--out", str(out)]
+    assert main(args) == 0
+    last = capsys.readouterr().out.strip().splitlines()[-1]
+    match = FUSED_LINE.match(last)
+    assert match, last
+    n, seconds, rate = int(match[1]), float(match[2]), float(match[3])
+    assert n == len(posed) and rate == pytest.approx(n / seconds, rel=0.05)
+    grid, origin, resolution = load_grid(out)
+    assert tuple(int(match[i]) for i in (4, 5, 6)) == grid.shape and resolution == VOXEL
+    assert 0 < int(match[8]) < 4000
+    # the grid is the open grid fused in this process (the bag holds 32FC1 metres)
+    expected = TsdfIntegrator((0.0, 0.0, 0.0), None, VOXEL)
+    for depth, pose in posed:
+        expected.integrate(depth, intrinsics, pose)
+    np.testing.assert_allclose(origin, expected.grid_box()[0], atol=1e-9)
+    np.testing.assert_array_equal(grid, expected.ternary())
+    assert main([*args[:-2], "--fusion", "dense", "--out", str(tmp_path / "x.npz")]) == 2
+    assert "--bounds auto needs --fusion sparse" in capsys.readouterr().err
+
+
+def test_integrate_sample_bag_sparse_and_dense_write_the_same_grid(tmp_path, capsys):
+    from pathlib import Path
+
+    from nbv_prob_cnn.cli import main
+    from nbv_prob_cnn.perception import load_grid
+
+    sample = Path(__file__).resolve().parents[2] / "bags" / "3dt_seed1000_sample"
+    grids = []
+    for mode in ("sparse", "dense"):
+        out = tmp_path / f"{mode}.npz"
+        assert main(["integrate", "--bag", str(sample), "--fusion", mode, "--out", str(out)]) == 0
+        assert FUSED_LINE.match(capsys.readouterr().out.strip().splitlines()[-1])
+        grids.append(load_grid(out))
+    np.testing.assert_array_equal(grids[0][0], grids[1][0])
+    assert grids[0][0].shape == SHAPE and np.all(grids[0][1] == 0.0)
+
+
+def test_fusion_suite_puts_dense_and_sparse_side_by_side(tmp_path):
+    from PIL import Image
+
+    from nbv_prob_cnn.bench.fusion import fusion_suite
+
+    # a 7-Scenes folder: three 640x480 frames of a wall 1.5 m ahead, the camera stepping sideways
+    folder = tmp_path / "seq"
+    folder.mkdir()
+    for i in range(3):
+        Image.fromarray(np.full((480, 640), 1500, np.uint16)).save(folder / f"frame-{i:06d}.depth.png")
+        pose = np.eye(4)
+        pose[0, 3] = 0.1 * i
+        np.savetxt(folder / f"frame-{i:06d}.pose.txt", pose)
+    table = fusion_suite(recording=folder, voxels=(0.1,), frames=3, three_dt_frames=0)
+    rows = [line for line in table.splitlines() if line.startswith("| seq |")]
+    assert [row.split("|")[3].strip() for row in rows] == ["dense", "sparse", "sparse"]
+    assert rows[1].split("|")[-2].strip() == "0"  # sparse over the box: no cell differs from dense
+    assert rows[2].split("|")[-2].strip() == "0 (its window of the box)"
+    assert "| 3 |" in rows[0]
+    absent = fusion_suite(recording=tmp_path / "absent", three_dt_frames=0)
+    assert f"recording cases skipped: the shared recording is absent ({tmp_path / 'absent'})" in absent
