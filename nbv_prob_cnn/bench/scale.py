@@ -36,6 +36,8 @@ from pathlib import Path
 
 import numpy as np
 
+from nbv_prob_cnn.basics.peak_memory import peak_rss_mb
+
 #: Grid shapes of the size rows (the first is 3DT's own).
 SIZES: tuple[tuple[int, int, int], ...] = ((128, 128, 96), (192, 192, 96), (256, 256, 96), (256, 256, 192))
 #: Workspace box widths (m) of the workspace rows, on the largest grid.
@@ -108,14 +110,6 @@ def workspace_box(shape: tuple[int, ...], width_m: float, resolution_m: float) -
     return lo, hi
 
 
-def _peak_rss_mb() -> float:
-    with open("/proc/self/status") as status:
-        for line in status:
-            if line.startswith("VmHWM:"):
-                return int(line.split()[1]) / 1024.0
-    return float("nan")
-
-
 def _step(path: str, state: np.ndarray, box: tuple[np.ndarray, np.ndarray] | None) -> dict:
     """One planning step on ``path``: best view, candidates and stage times."""
     from nbv_prob_cnn.completion import complete
@@ -166,7 +160,7 @@ def _child(path: str, state_file: str, box: tuple[np.ndarray, np.ndarray] | None
         corner = np.ascontiguousarray(state[:WARM_UP_CELLS, :WARM_UP_CELLS, :WARM_UP_CELLS])
         _step(path, corner, None)
         result = _step(path, state, box)
-        result["peak_rss_mb"] = _peak_rss_mb()
+        result["peak_rss_mb"] = peak_rss_mb()
         if result["candidates"] < 0:
             result["candidates"] = _local_candidates(state, box)
         queue.put(result)

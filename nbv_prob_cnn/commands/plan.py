@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import time
 from pathlib import Path
 
 NAME = "plan"
@@ -10,6 +11,9 @@ HELP = (
     "Plan the best next views on a saved grid (nbv integrate, the integrator's save service, the main job's "
     "grid.npz) without ROS: poses in metres with quaternions, as CSV and PNG."
 )
+
+#: The search's stages in the closing line: key of ``ViewChoice.times``, name printed.
+STAGES = (("cnn", "CNN"), ("raycast", "ray casting"), ("views", "views"))
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -48,6 +52,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from nbv_prob_cnn.basics.peak_memory import peak_rss_mb
     from nbv_prob_cnn.perception.saved_grid import read_saved_grid
     from nbv_prob_cnn.planners.offline import infer_dataset, plan_views, resolution_note, write_views_csv
     from nbv_prob_cnn.viz.exploration import plot_views
@@ -57,9 +62,12 @@ def run(args: argparse.Namespace) -> int:
     note = resolution_note(dataset, saved.geometry)
     if note:
         print(note)
+    times: dict[str, float] = {}
+    start = time.perf_counter()
     poses = plan_views(
-        saved.state, saved.geometry, dataset, args.method, args.top_k, args.workspace, args.backend, args.seed
+        saved.state, saved.geometry, dataset, args.method, args.top_k, args.workspace, args.backend, args.seed, times
     )
+    plan_s = time.perf_counter() - start
     args.out.parent.mkdir(parents=True, exist_ok=True)
     csv_path = write_views_csv(poses, args.out.with_suffix(".csv"))
     png = args.out.with_suffix(".png")
@@ -79,4 +87,6 @@ def run(args: argparse.Namespace) -> int:
     if not poses:
         print("no view with a positive gain (nothing unknown in reach?)")
     print(f"wrote {csv_path}, {png}")
+    stages = ", ".join(f"{name} {times.get(key, 0.0):.2f} s" for key, name in STAGES)
+    print(f"plan {plan_s:.2f} s ({stages}), peak RSS {peak_rss_mb():.0f} MB")
     return 0

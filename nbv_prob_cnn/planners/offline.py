@@ -99,9 +99,11 @@ def plan_views(
     workspace_m: Sequence[float] | None = None,
     backend: str = "auto",
     seed: int = 0,
+    times: dict[str, float] | None = None,
 ) -> list[ViewPose]:
     """The ``top_k`` best views of ``method`` on ``state``, best first, as poses (empty when no
-    view has a positive gain).
+    view has a positive gain). ``times``, when given, receives the seconds of the search's stages
+    (``cnn``, ``raycast``, ``views``).
 
     Raises:
         ValueError: bad method, data set, ``top_k`` or workspace; missing CNN weights
@@ -113,6 +115,8 @@ def plan_views(
     context = PlanningContext.for_dataset(infer_dataset(state.shape, dataset), rng=np.random.default_rng(seed),
                                           backend=backend)  # fmt: skip
     ranked = make_planner(method).rank(state, context, top_k, workspace_filter(geometry, workspace_m))
+    if times is not None and ranked:
+        times.update(ranked[0].times)
     return [choice.pose(geometry, context.orientations) for choice in ranked]
 
 

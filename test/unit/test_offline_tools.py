@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import csv
 import math
+import re
 from pathlib import Path
 
 import numpy as np
@@ -81,6 +82,13 @@ def test_plan_on_a_saved_grid(grid_file, tmp_path, capsys):
     assert "#1: gain" in printed
     # 5 cm cells against the 3DU model's 1.16 cm: its 24-cell range is 24 * 0.05 = 1.20 m here
     assert "the grid's cells are 5 cm, the 3du sensor model's 1.16 cm; its range of 24 cells is 1.20 m" in printed
+    closing = re.fullmatch(
+        r"plan (\S+) s \(CNN (\S+) s, ray casting (\S+) s, views (\S+) s\), peak RSS (\d+) MB",
+        printed.strip().splitlines()[-1],
+    )
+    assert closing is not None, printed.strip().splitlines()[-1]
+    total, cnn, ray, views = (float(closing.group(i)) for i in range(1, 5))
+    assert cnn == 0.0 and total >= ray + views - 0.02 and int(closing.group(5)) > 50  # prob_ig: no CNN
 
 
 def test_plan_keeps_to_the_workspace(grid_file, tmp_path):
