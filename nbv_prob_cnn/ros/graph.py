@@ -270,7 +270,9 @@ def call_with_resend(client, request, timeout_s: float, *, executor=None, resend
     A request sent right after ``wait_for_service`` can be lost while DDS is still matching the
     client with a (re)started server: ``wait_for_service`` reports the server's endpoints before
     the server has matched the client's reply reader, and with volatile durability nothing is
-    resent. Waiting once for the whole timeout then fails although the server is up.
+    resent. Waiting once for the whole timeout then fails although the server is up. The answer
+    to any of the requests sent is taken: a server slower than ``resend_s`` (a loaded machine)
+    answers the first request while the later copies wait in its queue.
 
     Args:
         client: an rclpy ``Client``.
@@ -286,18 +288,24 @@ def call_with_resend(client, request, timeout_s: float, *, executor=None, resend
     deadline = time.monotonic() + timeout_s
     if not client.wait_for_service(timeout_sec=timeout_s):
         raise TimeoutError(f"service {client.srv_name} did not appear within {timeout_s:g} s")
-    sent = 0
-    while (remaining := deadline - time.monotonic()) > 0:
-        future = client.call_async(request)
-        sent += 1
-        wait_s = min(resend_s, remaining)
-        if executor is not None:
-            executor.spin_until_future_complete(future, timeout_sec=wait_s)
-        else:
-            wait_for(future.done, wait_s, 0.01)
-        if future.done():
-            return future.result()
-        client.remove_pending_request(future)
+    pending: list = []  # every request sent: a slow server's answer to an earlier one counts too
+    try:
+        while (remaining := deadline - time.monotonic()) > 0:
+            future = client.call_async(request)
+            pending.append(future)
+            wait_s = min(resend_s, remaining)
+            if executor is not None:
+                executor.spin_until_future_complete(future, timeout_sec=wait_s)
+            else:
+                wait_for(lambda: any(f.done() for f in pending), wait_s, 0.01)
+            answered = next((f for f in pending if f.done()), None)
+            if answered is not None:
+                return answered.result()
+    finally:
+        for future in pending:
+            if not future.done():
+                client.remove_pending_request(future)  # unanswered requests no longer wait for a reply
+    sent = len(pending)
     raise TimeoutError(f"service {client.srv_name}: no answer within {timeout_s:g} s ({sent} request(s) sent)")
 
 

@@ -60,6 +60,28 @@ class SpinningExecutor:
         self.spun.append(timeout_sec)
 
 
+class SlowClient(LossyClient):
+    """Answers each request ``late`` calls after it was sent (a server slower than resend_s)."""
+
+    def __init__(self, late: int) -> None:
+        super().__init__(lost=0)
+        self.late, self.futures = late, []
+
+    def call_async(self, request: int) -> Future:
+        self.sent.append(request)
+        self.futures.append(Future())
+        if len(self.futures) > self.late:
+            self.futures[-1 - self.late].answer = request * 2  # the oldest unanswered one is answered now
+        return self.futures[-1]
+
+
+def test_the_late_answer_to_an_earlier_request_is_taken():
+    client = SlowClient(late=2)
+    assert call_with_resend(client, 4, 5.0, resend_s=0.05) == 8
+    assert client.sent == [4, 4, 4]  # answered at the third send: request 1's answer, not request 3's
+    assert client.removed == client.futures[1:]  # the two copies still waiting are forgotten
+
+
 def test_an_executor_is_spun_for_at_most_resend_s_per_request():
     client, executor = LossyClient(lost=1), SpinningExecutor()
     assert call_with_resend(client, 1, 5.0, executor=executor, resend_s=0.5) == 2
