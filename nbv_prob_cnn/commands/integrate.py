@@ -71,18 +71,27 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--depth-max", type=float, default=3.0, help="ignore returns beyond this depth, m (default: 3)")
     parser.add_argument("--refine-pose-icp", action="store_true", help="refine each pose by frame-to-model odometry")
+    parser.add_argument(
+        "--mesh", type=Path, help="also write the surface (marching cubes of the TSDF, world metres) as a PLY mesh"
+    )
+    parser.add_argument("--cloud", type=Path, help="also write the occupied cell centres (world metres) as a PLY cloud")
+    parser.add_argument("--mesh-png", type=Path, help="also draw the surface (decimated, coloured by height) to a PNG")
 
 
 def run(args: argparse.Namespace) -> int:
     """Integrate every frame of the bag and write the grid."""
     from nbv_prob_cnn.basics.grid import EMPTY, OCCUPIED, UNKNOWN
     from nbv_prob_cnn.perception.bags import read_frames
+    from nbv_prob_cnn.perception.surfaces import occupied_centres, render_mesh_png, write_ply
     from nbv_prob_cnn.perception.tsdf import TsdfIntegrator
 
     if any(s <= 0 for s in args.shape):
         raise ValueError(f"--shape: sizes must be positive, got {args.shape}")
     if not args.voxel > 0:
         raise ValueError(f"--voxel: must be positive, got {args.voxel}")
+    for option, path in (("--mesh", args.mesh), ("--cloud", args.cloud)):
+        if path is not None and path.suffix.lower() != ".ply":
+            raise ValueError(f"{option}: expected a .ply file, got {path}")
     if args.bounds == "auto" and args.fusion == "dense":
         raise ValueError("--bounds auto needs --fusion sparse (dense fusion updates a fixed box)")
     t0 = time.perf_counter()
@@ -113,6 +122,19 @@ def run(args: argparse.Namespace) -> int:
         f"time: {t_end - t0:.2f} s (set-up + bag validation {t_read - t0:.2f} s, "
         f"integrate {integrator.stats.seconds:.2f} s, extract+save {t_end - t_extract:.2f} s)"
     )
+    if args.mesh is not None or args.mesh_png is not None:
+        vertices, triangles = integrator.mesh()
+        if args.mesh is not None:
+            write_ply(args.mesh, vertices, triangles)
+            print(f"mesh: {len(vertices)} vertices, {len(triangles)} triangles -> {args.mesh}")
+        if args.mesh_png is not None:
+            title = f"{args.bag.name}: {n} frames at {args.voxel:g} m"
+            render_mesh_png(args.mesh_png, vertices, triangles, title=title)
+            print(f"mesh picture -> {args.mesh_png}")
+    if args.cloud is not None:
+        points = occupied_centres(grid, origin, args.voxel)
+        write_ply(args.cloud, points)
+        print(f"cloud: {len(points)} occupied cell centres -> {args.cloud}")
     print(fusion_line(n, integrator.stats.seconds, shape, args.voxel))
     return 0
 

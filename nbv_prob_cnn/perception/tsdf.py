@@ -479,6 +479,33 @@ class TsdfIntegrator:
         1 occupied)."""
         return self._read(self.labels, UNKNOWN, np.int8)
 
+    def mesh(self, weight_threshold: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
+        """The TSDF's zero level set by marching cubes (open3d's, over the allocated blocks):
+        ``(vertices float64 (V, 3) in world metres, triangles int64 (F, 3))``.
+
+        Only voxels fused at least ``weight_threshold`` times take part (never-observed cells make no
+        surface). With a box, triangles with a vertex outside it (blocks reach past its last cells)
+        are dropped.
+        """
+        if self.allocated_blocks == 0:
+            return np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64)
+        mesh = self._vbg.extract_triangle_mesh(weight_threshold=float(weight_threshold))
+        if "positions" not in mesh.vertex or "indices" not in mesh.triangle:
+            return np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64)
+        # volume frame: voxel i at i * voxel_size; world = volume + origin + half a voxel
+        vertices = mesh.vertex.positions.cpu().numpy().astype(np.float64) + (self.origin + 0.5 * self.voxel_size)
+        triangles = mesh.triangle.indices.cpu().numpy().astype(np.int64)
+        if self.shape is not None:
+            upper = self.origin + np.asarray(self.shape) * self.voxel_size
+            outside = np.any((vertices < self.origin - 1e-9) | (vertices > upper + 1e-9), axis=1)
+            if outside.any():
+                triangles = triangles[~np.any(outside[triangles], axis=1)]
+                used = np.unique(triangles)
+                renumber = np.full(len(vertices), -1, dtype=np.int64)
+                renumber[used] = np.arange(len(used))
+                vertices, triangles = vertices[used], renumber[triangles]
+        return vertices, triangles
+
     def save(self, path: str | Path) -> np.ndarray:
         """Write the ternary grid (with origin and resolution) to ``path`` (.npz); return it."""
         origin, _ = self.grid_box()

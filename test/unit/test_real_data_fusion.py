@@ -77,3 +77,23 @@ def test_kitchen_sparse_and_dense_fusion_agree_cell_for_cell(kitchen_bag):
     # cells at the rounding edge) against the box fused densely
     differing = int(np.count_nonzero(grids[0] != grids[1]))
     assert differing <= 1e-4 * grids[0].size, f"{differing} of {grids[0].size} cells differ"
+
+
+def test_kitchen_mesh_lies_on_the_returns(kitchen_bag):
+    """>= 90 % of the mesh vertices within 2 cm of the frames' back-projected depth (the points
+    computed here from the images and poses, a k-d tree of every second pixel: subsampling only
+    makes the distances longer)."""
+    from scipy.spatial import cKDTree
+
+    integrator = TsdfIntegrator((0.0, 0.0, 0.0), None, 0.02)
+    points = []
+    for frame in read_frames(kitchen_bag):
+        integrator.integrate(frame.depth_m, frame.intrinsics, frame.pose_4x4, depth_max=4.0)
+        every_second = np.zeros_like(frame.depth_m)
+        every_second[::2, ::2] = np.where(frame.depth_m <= 4.0, frame.depth_m, 0.0)[::2, ::2]
+        points.append(frame.intrinsics.backproject(every_second) @ frame.pose_4x4[:3, :3].T + frame.pose_4x4[:3, 3])
+    vertices, triangles = integrator.mesh()
+    assert len(triangles) > 10_000
+    distance, _ = cKDTree(np.concatenate(points)).query(vertices, workers=2)
+    within = float(np.mean(distance <= 0.02))
+    assert within >= 0.90, f"{within:.3f} of the mesh vertices within 2 cm of the returns"
