@@ -11,8 +11,10 @@ Paths, each row in a fresh child process (its peak RSS is that process's ``VmHWM
 the OpenCL runtime included, about 0.3 GB before any grid); the child first plans on a 48³ corner of
 the grid (weights, kernels) and then times one step:
 
-* ``today``: the completion CNN over the whole grid (:func:`~nbv_prob_cnn.completion.inference.complete`),
-  every empty cell, the coarse-to-fine search (:func:`~nbv_prob_cnn.planners.base.search_views`);
+* ``today``: the planner before issue #35: the completion CNN over the whole grid
+  (:func:`~nbv_prob_cnn.completion.inference.complete`), every empty cell, the coarse-to-fine search
+  (:func:`~nbv_prob_cnn.gain.best_origin_view`) on blocks of :data:`TODAY_BLOCK` cells (both paths run
+  the CNN's current, leaner forward pass);
 * ``local``: the planner (``make_planner("cnn_prob")``): the origins within the rays' reach of unknown
   space, the CNN by tiles over their reach (:mod:`nbv_prob_cnn.planners.local_completion`), the search
   on that reach;
@@ -20,7 +22,8 @@ the grid (weights, kernels) and then times one step:
   :data:`WINDOW_MARGIN` cells only (``p0`` outside).
 
 Workspace rows: the 256×256×192 grid with a centred box of camera positions 0.5, 1.0 and 1.5 m wide
-standing on the table. The kitchen row (``../shared/data/rgbd/7scenes_redkitchen``) needs an in-process
+standing on the table, ``local`` and ``window`` (today's path there is the size row's whole-grid CNN
+and a search over fewer origins). The kitchen row (``../shared/data/rgbd/7scenes_redkitchen``) needs an in-process
 fusion of the recording, which this tree does not have yet: it is skipped with that reason.
 """
 
@@ -43,11 +46,13 @@ SIZES: tuple[tuple[int, int, int], ...] = ((128, 128, 96), (192, 192, 96), (256,
 #: Workspace box widths (m) of the workspace rows, on the largest grid.
 WORKSPACES_M = (0.5, 1.0, 1.5)
 #: Margin (cells) of the ``window`` path's CNN window around the workspace.
-WINDOW_MARGIN = 32
+WINDOW_MARGIN = 48
 #: Where the kitchen recording would be (the row is skipped without an in-process fusion).
 KITCHEN = Path(__file__).resolve().parents[3] / "shared" / "data" / "rgbd" / "7scenes_redkitchen"
 #: Corner of the grid the child plans on first (weights, kernels).
 WARM_UP_CELLS = 48
+#: Bounded block (cells per axis) of the search before issue #35 (two origin strides).
+TODAY_BLOCK = 2
 #: Seconds a child may take.
 CHILD_TIMEOUT_S = 900
 
@@ -113,8 +118,9 @@ def workspace_box(shape: tuple[int, ...], width_m: float, resolution_m: float) -
 def _step(path: str, state: np.ndarray, box: tuple[np.ndarray, np.ndarray] | None) -> dict:
     """One planning step on ``path``: best view, candidates and stage times."""
     from nbv_prob_cnn.completion import complete
+    from nbv_prob_cnn.gain import best_origin_view
     from nbv_prob_cnn.planners import PlanningContext, make_planner
-    from nbv_prob_cnn.planners.base import search_views
+    from nbv_prob_cnn.planners.base import ViewChoice
 
     def inside(origins: np.ndarray) -> np.ndarray:
         return origins if box is None else origins[np.all((origins >= box[0]) & (origins < box[1]), axis=1)]
@@ -127,7 +133,11 @@ def _step(path: str, state: np.ndarray, box: tuple[np.ndarray, np.ndarray] | Non
         prob = complete(state, dataset="3dt")
         cnn_s = time.perf_counter() - start
         origins = inside(context.candidate_origins(state))
-        found = search_views(state, prob, origins, context, "prob", 1, probability="cnn")
+        index, view, gain = best_origin_view(
+            state, prob, context.directions, context.active_sensor.r_max, context.membership, origins, "opencl",
+            settings=context.gain_settings("prob", "cnn"), block_size=TODAY_BLOCK,
+        )  # fmt: skip
+        found = [ViewChoice(origins[index], int(view), float(gain))] if gain > 0.0 else []
         candidates = origins.shape[0]
     else:
         found = make_planner("cnn_prob").rank(state, context, 1, None if box is None else inside)
@@ -228,7 +238,7 @@ def scale_benchmark(seed: int = 1000, out_dir: str | Path = "docs", sizes=SIZES,
     for width in workspaces:
         box = workspace_box(largest, width, resolution)
         label = "×".join(str(s) for s in largest)
-        for path in ("today", "local", "window"):
+        for path in ("local", "window"):
             result = measure(path, states[largest], box)
             rows.append(ScaleRow(label, int(np.prod(largest)), path, width, **_fields(result)))
             lines.append(_line(rows[-1]))

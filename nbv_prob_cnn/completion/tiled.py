@@ -22,7 +22,7 @@ stitched cores equal whole-grid inference up to float rounding (measured below 1
 check 1e-4). A core without unknown cells needs no network (``P`` is 0 or 1 there). A region whose
 window fits ``max_window_cells`` is one tile: the same computation as
 :func:`~nbv_prob_cnn.completion.inference.complete` on that window (on a whole grid, identical).
-Tiles bound the memory of a pass (about 150 bytes per window cell on a CPU) at the price of
+Tiles bound the memory of a pass (about 143 bytes per window cell on a CPU) at the price of
 recomputing the halos.
 
 **Windows.** :func:`complete_window` is the approximate, local alternative: the network sees only
@@ -44,8 +44,9 @@ from nbv_prob_cnn.basics.region import Region, check_region, region_slices
 from nbv_prob_cnn.completion.inference import complete, load_model, resolve_device
 from nbv_prob_cnn.completion.model import CompletionNet
 
-#: Default bound on the cells of one tile's window (about 1.2 GB of activations on a CPU).
-MAX_WINDOW_CELLS = 8_000_000
+#: Default bound on the cells of one tile's window: 16 M cells, about 2.2 GB at the 143 bytes per cell
+#: measured on a CPU (a 256×256×192 grid is one pass; tiles recompute their halos, 1.9× the cells there).
+MAX_WINDOW_CELLS = 16_000_000
 #: Most tiles per axis :func:`plan_tiles` considers.
 MAX_SPLIT = 6
 

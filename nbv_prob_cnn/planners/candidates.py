@@ -44,23 +44,39 @@ def _any_within(mask: np.ndarray, reach: int, axis: int) -> np.ndarray:
     return np.moveaxis(upper > 0, 0, axis)
 
 
-def near_unknown(state: np.ndarray, reach: int) -> np.ndarray:
-    """Bool grid: an unknown cell lies within Chebyshev distance ``reach`` (separable: one running
+def dilate(mask: np.ndarray, reach: int) -> np.ndarray:
+    """Bool grid: a cell of ``mask`` lies within Chebyshev distance ``reach`` (separable: one running
     count per axis)."""
     if reach < 0:
         raise ValueError(f"reach: expected a distance in cells >= 0, got {reach!r}")
-    near = state == UNKNOWN
-    for axis in range(state.ndim):
+    near = mask
+    for axis in range(mask.ndim):
         near = _any_within(near, reach, axis)
     return np.asarray(near)
 
 
-def near_unknown_origins(state: np.ndarray, origins: np.ndarray, reach: int) -> np.ndarray:
-    """The ``origins`` (``(N, dims)`` cells, order kept) within Chebyshev distance ``reach`` of an
-    unknown cell: the ones that can have a positive gain."""
+def near_unknown(state: np.ndarray, reach: int) -> np.ndarray:
+    """Bool grid: an unknown cell lies within Chebyshev distance ``reach``."""
+    return dilate(state == UNKNOWN, reach)
+
+
+def near_unknown_origins(state: np.ndarray, origins: np.ndarray, reach: int, block: int = 4) -> np.ndarray:
+    """The ``origins`` (``(N, dims)`` cells, order kept) whose block of ``block`` cells per axis lies
+    within ``ceil(reach / block)`` blocks of a block holding an unknown cell: every origin within
+    Chebyshev distance ``reach`` of an unknown cell (the ones that can have a positive gain) and a few
+    up to ``block`` cells further, at ``1 / block**dims`` of the cost of the cell-exact test."""
     if origins.shape[0] == 0:
         return origins
-    return origins[near_unknown(state, reach)[tuple(np.asarray(origins).T)]]
+    unknown = state == UNKNOWN
+    shape = [-(-n // block) for n in state.shape]
+    padded = np.zeros([n * block for n in shape], dtype=bool)
+    padded[tuple(slice(0, n) for n in state.shape)] = unknown
+    split = [v for n in shape for v in (n, block)]
+    coarse = np.asarray(padded.reshape(split).any(axis=tuple(range(1, 2 * state.ndim, 2))))
+    near = dilate(coarse, -(-reach // block))
+    if near.all():  # e.g. a grid within the rays' reach everywhere: every origin stays
+        return origins
+    return origins[near[tuple((np.asarray(origins) // block).T)]]
 
 
 def frontier_band(state: np.ndarray, reach: int, stride: int = 1) -> np.ndarray:

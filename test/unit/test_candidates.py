@@ -98,3 +98,19 @@ def test_a_search_from_a_corner_reads_only_its_reach(rng):
     best = search_views(state, prob, corner, context, "prob", 1)[0]
     first = int(np.argmax(gains))
     assert (tuple(best.cell), best.view_index) == (tuple(corner[first // gains.shape[1]]), first % gains.shape[1])
+
+
+@pytest.mark.parametrize("reach", [1, 3, 9])
+def test_origins_near_unknown_keep_every_origin_within_reach(rng, reach):
+    """The block test keeps every origin the cell-exact band keeps, and none farther than reach + block."""
+    from nbv_prob_cnn.planners.candidates import near_unknown_origins
+
+    state = _state(rng, (37, 30, 21), 0.0)
+    state[5:7, 22:25, 3:5] = -1
+    origins = empty_origins(state)
+    distance = ndimage.distance_transform_cdt(state != -1, metric="chessboard")[tuple(origins.T)]
+    kept = near_unknown_origins(state, origins, reach)
+    assert {tuple(c) for c in origins[distance <= reach]} <= {tuple(c) for c in kept}
+    kept_distance = ndimage.distance_transform_cdt(state != -1, metric="chessboard")[tuple(kept.T)]
+    assert kept_distance.max() < reach + 2 * 4 and kept.shape[0] < origins.shape[0]
+    assert np.all(np.diff(np.ravel_multi_index(tuple(kept.T), state.shape)) > 0)  # order kept
