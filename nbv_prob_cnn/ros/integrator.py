@@ -81,7 +81,10 @@ message; from then on every frame the camera publishes is integrated or counted.
 Services: ``/integrator/reset`` (``std_srvs/Trigger``, every cell unknown again, waiting frames
 discarded) and ``/integrator/save`` (``nbv_prob_cnn_msgs/SaveGrid``: ``.npz`` with keys ``grid``,
 ``origin``, ``resolution``, ``frames`` written on the node's machine, relative paths from its
-working directory).
+working directory) and ``/integrator/save_mesh`` (``SaveGrid``: the TSDF's surface by marching
+cubes, world metres, as a binary ``.ply`` mesh). ``/integrator/occupied_cells``
+(``sensor_msgs/PointCloud2``, the occupied cell centres, for RViz) follows the grids at most
+``cloud_rate_hz`` times a second, and only while someone subscribes.
 
 Run: ``nbv node integrator --ros-args -p publish_rate_hz:=2.0``
 """
@@ -108,7 +111,7 @@ from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
 from rclpy.event_handler import SubscriptionEventCallbacks
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy
-from sensor_msgs.msg import CameraInfo, Image, JointState
+from sensor_msgs.msg import CameraInfo, Image, JointState, PointCloud2
 from std_srvs.srv import Trigger
 
 from nbv_prob_cnn.arm.joint_states import JointStateMerger
@@ -133,6 +136,7 @@ from nbv_prob_cnn.perception.messages import (
     typestore,
 )
 from nbv_prob_cnn.perception.still_frames import StillFrameFilter
+from nbv_prob_cnn.perception.surfaces import write_ply
 from nbv_prob_cnn.perception.tf_buffer import TransformError
 from nbv_prob_cnn.perception.tsdf import (
     DEFAULT_EMPTY_MARGIN_VOXELS,
@@ -144,6 +148,7 @@ from nbv_prob_cnn.perception.tsdf import (
 )
 from nbv_prob_cnn.ros import names
 from nbv_prob_cnn.ros.conversions import grid_to_msg, time_msg
+from nbv_prob_cnn.ros.occupied_cloud import occupied_cloud_msg
 from nbv_prob_cnn.ros.parameters import declare_config, param
 from nbv_prob_cnn.ros.qos import GRID_QOS, RELIABILITY, lost_message_counter, subscription_qos
 from nbv_prob_cnn.ros.readiness import InputReadiness
@@ -156,6 +161,8 @@ NODE_NAME = "integrator"
 TOPIC_GRID = names.GRID
 SERVICE_RESET = names.INTEGRATOR_RESET
 SERVICE_SAVE = names.INTEGRATOR_SAVE
+SERVICE_SAVE_MESH = names.INTEGRATOR_SAVE_MESH
+TOPIC_OCCUPIED_CELLS = names.INTEGRATOR_OCCUPIED_CELLS
 SERVICE_DIAGNOSTICS = names.INTEGRATOR_DIAGNOSTICS
 #: The standard diagnostics topic (absolute, as diagnostic_aggregator expects it).
 TOPIC_DIAGNOSTICS = names.DIAGNOSTICS
@@ -222,6 +229,10 @@ class IntegratorConfig(RobotParams):
     publish_rate_hz: float = param(
         2.0, "most grids per second; 0 = a grid after every integrated frame", min_value=0.0, max_value=100.0,
         attribute="publish_rate",
+    )  # fmt: skip
+    cloud_rate_hz: float = param(
+        1.0, "most PointCloud2s of the occupied cell centres per second on integrator/occupied_cells (for RViz; "
+        "made only while it has a subscriber); 0 = none", min_value=0.0, max_value=100.0,
     )  # fmt: skip
     republish_period_s: float = param(
         1.0, "publish the latest grid again when unchanged this long while a volatile subscriber listens (it "
@@ -332,6 +343,8 @@ class Integrator(Node):
         self._store = typestore()
 
         self._grid_pub = self.create_publisher(VoxelGrid, TOPIC_GRID, GRID_QOS)
+        self._cloud_pub = self.create_publisher(PointCloud2, TOPIC_OCCUPIED_CELLS, 1)
+        self._next_cloud = 0.0
         inputs = MutuallyExclusiveCallbackGroup()
         services = MutuallyExclusiveCallbackGroup()
         image, info, pose = (
@@ -376,6 +389,7 @@ class Integrator(Node):
         self.create_timer(0.1, self._on_expire_timer, callback_group=inputs)
         self.create_service(Trigger, SERVICE_RESET, self._on_reset, callback_group=services)
         self.create_service(SaveGrid, SERVICE_SAVE, self._on_save, callback_group=services)
+        self.create_service(SaveGrid, SERVICE_SAVE_MESH, self._on_save_mesh, callback_group=services)
         self.create_service(Trigger, SERVICE_DIAGNOSTICS, self._on_diagnostics, callback_group=services)
         self._diagnostics_pub = self.create_publisher(DiagnosticArray, TOPIC_DIAGNOSTICS, 10)
         self.create_timer(cfg.diagnostics_period_s, self._publish_diagnostics, callback_group=services)
@@ -654,6 +668,32 @@ class Integrator(Node):
         self.get_logger().info(response.message)
         return response
 
+    def _on_save_mesh(self, request: SaveGrid.Request, response: SaveGrid.Response) -> SaveGrid.Response:
+        """The TSDF's surface (marching cubes, world metres) as a binary PLY mesh at ``request.path``."""
+        path = Path(request.path).expanduser()
+        if not request.path:
+            response.success, response.message = False, "path is empty"
+            return response
+        if path.suffix.lower() != ".ply":
+            path = path.with_name(path.name + ".ply")
+        if not path.parent.is_dir():
+            response.success, response.message = False, f"{path.parent}: no such directory"
+            return response
+        with self._tsdf_lock:
+            vertices, triangles = self._tsdf.mesh()
+            frames = self._tsdf.stats.frames
+        try:
+            write_ply(path, vertices, triangles)
+        except OSError as exc:
+            response.success, response.message = False, f"{path}: cannot write ({exc})"
+            return response
+        response.success = True
+        response.message = (
+            f"saved {path.resolve()} ({frames} frame(s); {len(vertices)} vertices, {len(triangles)} triangles)"
+        )
+        self.get_logger().info(response.message)
+        return response
+
     @staticmethod
     def _labels():
         return (("unknown", UNKNOWN), ("empty", EMPTY), ("occupied", OCCUPIED))
@@ -749,6 +789,13 @@ class Integrator(Node):
         self._grid_pub.publish(msg)
         self._last_grid, self._last_grid_at = msg, time.monotonic()
         self.counts["grids"] += 1
+        cloud_rate = self.config.cloud_rate_hz
+        if cloud_rate > 0 and time.monotonic() >= self._next_cloud and self._cloud_pub.get_subscription_count() > 0:
+            self._next_cloud = time.monotonic() + 1.0 / cloud_rate
+            self._cloud_pub.publish(
+                occupied_cloud_msg(grid, self.geometry.origin, self.geometry.resolution, self.config.fixed_frame,
+                                   time_msg(stamp_ns))
+            )  # fmt: skip
 
     def _on_republish_timer(self) -> None:
         """The latest grid again, when unchanged for ``republish_period_s`` and a volatile

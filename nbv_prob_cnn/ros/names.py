@@ -36,6 +36,9 @@ MOVE_TO = "sim_camera/move_to"
 MOVE_TO_JOINTS = "arm_sim/move_to_joints"
 INTEGRATOR_RESET = "integrator/reset"
 INTEGRATOR_SAVE = "integrator/save"
+INTEGRATOR_SAVE_MESH = "integrator/save_mesh"
+#: The occupied cells of the integrator's grid (PointCloud2, for RViz).
+INTEGRATOR_OCCUPIED_CELLS = "integrator/occupied_cells"
 INTEGRATOR_DIAGNOSTICS = "integrator/diagnostics"
 #: The robot-wide diagnostics topic (absolute: every node reports there).
 DIAGNOSTICS = "/diagnostics"
