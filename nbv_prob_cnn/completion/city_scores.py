@@ -24,10 +24,10 @@ from dataclasses import dataclass
 
 import numpy as np
 import torch
-from scipy.stats import spearmanr
 
 from nbv_prob_cnn.basics.datasets import DatasetSpec
 from nbv_prob_cnn.basics.grid import lattice_index
+from nbv_prob_cnn.basics.rank_stats import spearman as spearman  # re-exported
 from nbv_prob_cnn.completion.tasks import Example
 
 
@@ -86,13 +86,6 @@ def cell_gain_pairs(method: str, spec: DatasetSpec, output: np.ndarray, example:
     """Predicted and target gain of the best view of every empty lattice cell (cell ρ, see module
     docs), decoded as the planner decodes them."""
     return rank_pairs(method, spec, output, example)[1]
-
-
-def spearman(a: np.ndarray, b: np.ndarray) -> float:
-    """Spearman ρ of two samples; NaN when either is constant or shorter than 2."""
-    if a.size < 2 or np.all(a == a[0]) or np.all(b == b[0]):
-        return float("nan")
-    return float(spearmanr(a, b).statistic)
 
 
 @dataclass(frozen=True)

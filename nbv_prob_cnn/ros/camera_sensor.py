@@ -123,6 +123,24 @@ def node_planning_context(
     return context
 
 
+def planning_frustum(
+    params: SensorParams,
+    camera_fov: tuple[float, float] | None,
+    hfov_deg: float = 0.0,
+    vfov_deg: float = 0.0,
+    max_range_m: float = 0.0,
+) -> Frustum:
+    """The overrides to plan with (module docstring's precedence): a request's own (0 = not set), then
+    the parameters, then the camera's fields of view ``camera_fov`` (None: no CameraInfo yet)."""
+    fov = camera_fov or (0.0, 0.0)
+    return Frustum(
+        hfov_deg=hfov_deg or params.hfov_deg or fov[0],
+        vfov_deg=vfov_deg or params.vfov_deg or fov[1],
+        max_range_m=max_range_m or params.max_range_m,
+        min_range_m=params.min_range_m,
+    )
+
+
 class CameraInfoSensor:
     """The frustum a node plans with: parameters, the latest CameraInfo, the data set."""
 
@@ -164,14 +182,7 @@ class CameraInfoSensor:
 
     def frustum(self, hfov_deg: float = 0.0, vfov_deg: float = 0.0, max_range_m: float = 0.0) -> Frustum:
         """The overrides to plan with, given a request's own (0 = not set)."""
-        p = self._params
-        fov = self.camera_fov() or (0.0, 0.0)
-        return Frustum(
-            hfov_deg=hfov_deg or p.hfov_deg or fov[0],
-            vfov_deg=vfov_deg or p.vfov_deg or fov[1],
-            max_range_m=max_range_m or p.max_range_m,
-            min_range_m=p.min_range_m,
-        )
+        return planning_frustum(self._params, self.camera_fov(), hfov_deg, vfov_deg, max_range_m)
 
     def describe(self) -> str:
         """What the frustum is now and where each part comes from."""

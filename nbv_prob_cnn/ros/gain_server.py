@@ -11,6 +11,11 @@ transform); a pose TF cannot transform is invalid, its reason naming the missing
 time gap. The planning frustum comes from the depth camera's CameraInfo and the range
 parameters (:class:`~nbv_prob_cnn.ros.camera_sensor.CameraInfoSensor`).
 
+``/nbv/evaluate_views`` sums, per pose, ``evaluate_rays_across`` (32) rays across the pose's own image,
+weighted by their solid angles (docs/method.md#scoring-given-poses): it ranks recorded Kinect poses far
+better than the view search's 56 rays, of which 2 to 6 fall in the frustum (``nbv gain-study``). With
+``evaluate_rays_across:=0`` a pose gets the gain ``/nbv/rank_views`` gives it.
+
 With ``use_arm:=true`` (robot description parameters of :class:`RobotParams`) ``/nbv/evaluate_views``
 also reports per pose whether the arm reaches it: an IK solution (seeded from the latest
 ``/joint_states``, or the reference configuration before any) free of self-collision and of the
@@ -34,12 +39,13 @@ from nbv_prob_cnn.arm.views import ArmPlanningSetup, reachable_poses
 from nbv_prob_cnn.basics.camera import DATASETS, quaternion_from_matrix
 from nbv_prob_cnn.basics.geometry import GridGeometry
 from nbv_prob_cnn.basics.modes import BACKEND_NAMES, Backend
+from nbv_prob_cnn.gain.sampling import SAMPLINGS
 from nbv_prob_cnn.gain.variant import GAIN_VARIANTS
 from nbv_prob_cnn.perception.messages import stamp_ns
 from nbv_prob_cnn.perception.tf_buffer import TransformError, matrix_from_translation_quaternion
 from nbv_prob_cnn.planners import PlanningContext, check_ros_method
 from nbv_prob_cnn.planners.methods import cnn_completion, probability_map
-from nbv_prob_cnn.planners.pose_scoring import INVALID_POSE, score_poses
+from nbv_prob_cnn.planners.pose_scoring import EVALUATE_RAYS_ACROSS, INVALID_POSE, score_poses
 from nbv_prob_cnn.planners.ranked_views import ranked_to_arrays, view_mask_from_bytes
 from nbv_prob_cnn.planners.requests import (
     allowed_origins_filter,
@@ -87,6 +93,17 @@ class GainServerConfig(SensorParams, ArmViewParams):
         60.0, "wait for nbv/complete", min_value=0.1, max_value=600.0, dynamic=True, check=positive_seconds
     )
     frame_id: str = param("world", "frame of the grid when the grid message has none")
+    evaluate_rays_across: int = param(
+        EVALUATE_RAYS_ACROSS, "evaluate_views: rays across each pose's own image, its gain in steradians (0 = the "
+        "view search's rays inside the pose's frustum, n_rays: the gain /nbv/rank_views gives that pose)",
+        min_value=0, max_value=256,
+    )  # fmt: skip
+    evaluate_sampling: str = param("rounded", "evaluate_views: gain sampling, 'rounded' or 'exact' (docs/sensing.md)",
+                                   choices=SAMPLINGS)  # fmt: skip
+
+    def apply_pose_scoring(self, context: PlanningContext) -> None:
+        """Set ``context``'s pose-scoring settings (``evaluate_views``) from these parameters."""
+        context.sampling = self.evaluate_sampling
 
 
 class GainServer(Node):
@@ -167,6 +184,7 @@ class GainServer(Node):
             method = gain_method(request.method, self.config.method)
             frustum = self._sensor.frustum(request.hfov_deg, request.vfov_deg, request.max_range_m)
             context = node_planning_context(self.config, geometry, frustum, self._rng)
+            self.config.apply_pose_scoring(context)
             positions = np.array([[p.pose.position.x, p.pose.position.y, p.pose.position.z] for p in request.poses])
             o = [p.pose.orientation for p in request.poses]
             quats = np.array([[q.x, q.y, q.z, q.w] for q in o])
@@ -174,7 +192,8 @@ class GainServer(Node):
             context.completion = self._completion(grid.header, geometry)
             prob = probability_map(method, state, context)
             scores = score_poses(state, prob, geometry, positions, quats, context, method.mode,
-                                 score_unknown_cells=request.score_unknown_cells)  # fmt: skip
+                                 score_unknown_cells=request.score_unknown_cells,
+                                 rays_across=self.config.evaluate_rays_across)  # fmt: skip
             reasons = list(scores.reasons)
             for i, error in frame_errors.items():
                 scores.validity[i] = INVALID_POSE

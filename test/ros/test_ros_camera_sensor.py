@@ -21,7 +21,7 @@ from test_ros_tf import transform  # noqa: E402
 from tf2_msgs.msg import TFMessage  # noqa: E402
 
 from nbv_prob_cnn.basics.grid import probability_with_constant  # noqa: E402
-from nbv_prob_cnn.planners.pose_scoring import IN_UNKNOWN_CELL, VALID, score_poses  # noqa: E402
+from nbv_prob_cnn.planners.pose_scoring import EVALUATE_RAYS_ACROSS, IN_UNKNOWN_CELL, VALID, score_poses  # noqa: E402
 from nbv_prob_cnn.planners.requests import planning_context  # noqa: E402
 from nbv_prob_cnn.ros.conversions import grid_to_msg  # noqa: E402
 from nbv_prob_cnn.ros.graph import wait_for  # noqa: E402
@@ -47,10 +47,11 @@ def d435_info() -> CameraInfo:
 
 
 def scored(state, positions, quats, hfov: float, vfov: float, **kwargs):
-    """The core's gains with the given fields of view (the 3DU defaults otherwise)."""
+    """The core's gains with the given fields of view (the 3DU defaults otherwise), over the rays across each
+    pose's image that gain_server scores with by default."""
     context = planning_context("3du", GEOMETRY, "opencl", 0, np.random.default_rng(0), hfov, vfov)
     prob = probability_with_constant(state, PROB_IG)
-    return score_poses(state, prob, GEOMETRY, positions, quats, context, **kwargs)
+    return score_poses(state, prob, GEOMETRY, positions, quats, context, rays_across=EVALUATE_RAYS_ACROSS, **kwargs)
 
 
 def test_d435_intrinsics_give_its_fields_of_view():

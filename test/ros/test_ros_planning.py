@@ -22,7 +22,7 @@ from nbv_prob_cnn.basics.geometry import GridGeometry  # noqa: E402
 from nbv_prob_cnn.basics.grid import probability_with_constant  # noqa: E402
 from nbv_prob_cnn.planners import GainPlanner, PlanningContext  # noqa: E402
 from nbv_prob_cnn.planners.methods import GAIN_METHODS  # noqa: E402
-from nbv_prob_cnn.planners.pose_scoring import INVALID_POSE, VALID, score_poses  # noqa: E402
+from nbv_prob_cnn.planners.pose_scoring import EVALUATE_RAYS_ACROSS, INVALID_POSE, VALID, score_poses  # noqa: E402
 from nbv_prob_cnn.ros.conversions import grid_to_msg  # noqa: E402
 from nbv_prob_cnn.ros.graph import NodeGraph, call_with_resend, wait_for  # noqa: E402
 from nbv_prob_cnn.ros.qos import GRID_QOS  # noqa: E402
@@ -125,9 +125,11 @@ def test_evaluate_views_matches_core_and_survives_bad_requests(ros):
     assert wait_for(answered, 30.0, 0.5), "the grid never reached gain_server"
     reply = answers[-1]
     context_core = PlanningContext(dataset_defaults("3du"), backend="opencl")
-    expected = score_poses(state, probability_with_constant(state, 0.15), GEOMETRY, positions, quats, context_core)
+    expected = score_poses(state, probability_with_constant(state, 0.15), GEOMETRY, positions, quats, context_core,
+                           rays_across=EVALUATE_RAYS_ACROSS)  # fmt: skip
     assert np.all(np.array(reply.validity) == VALID)
-    assert np.asarray(reply.gains).max() > 0.1
+    # steradians (the frustum's own rays): the best pose's ray gains weigh at least 6 % of its 0.79 sr frustum
+    assert np.asarray(reply.gains).max() > 0.05
     np.testing.assert_allclose(np.asarray(reply.gains), expected.gains, rtol=1e-6, atol=1e-7)
 
     # bad poses are flagged one by one, with reasons; the rest is still scored

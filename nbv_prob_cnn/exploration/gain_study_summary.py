@@ -1,0 +1,104 @@
+"""The rank agreement of ``nbv gain-study`` (:mod:`~nbv_prob_cnn.exploration.gain_study`) and its files.
+
+Per method and scoring variant:
+
+* **per anchor**: Spearman ρ between the predicted and the realized gains of the anchor's next poses
+  (0 when the prediction is constant and the realized gains are not: it ranks nothing; undefined
+  when the realized gains are all equal);
+* **pooled**: ρ of every (anchor, pose) pair together. It also counts how well the gains tell the
+  anchors apart (an early anchor, with most of the room unknown, has larger gains on both sides);
+* **within**: the mean of the per-anchor ρ, the ranking a planner needs when it picks one of the
+  poses open to it at one moment.
+
+Both come with a percentile bootstrap interval over the anchors (whole anchors resampled:
+:func:`~nbv_prob_cnn.basics.rank_stats.bootstrap_interval`).
+"""
+
+from __future__ import annotations
+
+import csv
+from collections.abc import Sequence
+from dataclasses import asdict, dataclass, fields
+from pathlib import Path
+
+import numpy as np
+
+from nbv_prob_cnn.basics.rank_stats import Group, bootstrap_interval, finite_mean, pooled_rho, ranking_rho
+from nbv_prob_cnn.exploration.gain_study import GainStudy, PoseRow
+
+SCOPES = ("anchor", "pooled", "within")
+
+
+@dataclass(frozen=True)
+class RhoRow:
+    """One ρ: per anchor (``anchor`` its frame index), pooled or within (``anchor`` -1)."""
+
+    method: str
+    variant: str
+    scope: str
+    anchor: int
+    rho: float
+    low: float
+    high: float
+    anchors: int  # anchors that count (realized gains not all equal)
+    poses: int
+    mean_rays_in_frustum: float
+
+
+def anchor_groups(rows: Sequence[PoseRow], method: str, variant: str) -> dict[int, Group]:
+    """Per anchor: (predicted, realized) gains of one method and variant, in pose order."""
+    groups: dict[int, tuple[list[float], list[float]]] = {}
+    for row in rows:
+        if row.method == method and row.variant == variant:
+            predicted, realized = groups.setdefault(row.anchor, ([], []))
+            predicted.append(row.predicted)
+            realized.append(row.realized)
+    return {a: (np.array(p, dtype=np.float64), np.array(r, dtype=np.float64)) for a, (p, r) in groups.items()}
+
+
+def summarise(study: GainStudy, n_resamples: int = 2000, level: float = 0.95, seed: int = 0) -> list[RhoRow]:
+    """Every ρ of the study: per (method, variant) the anchors', the pooled one and the within one."""
+    pairs = list(dict.fromkeys((r.method, r.variant) for r in study.rows))
+    out = []
+    for method, variant in pairs:
+        groups = anchor_groups(study.rows, method, variant)
+        rays = [r.rays_in_frustum for r in study.rows if r.method == method and r.variant == variant]
+        mean_rays = float(np.mean(rays))
+        rhos = {anchor: ranking_rho(*group) for anchor, group in groups.items()}
+        counting = int(np.count_nonzero(np.isfinite(list(rhos.values()))))
+        n_poses = sum(len(g[0]) for g in groups.values())
+        for anchor, rho in rhos.items():
+            out.append(RhoRow(method, variant, "anchor", anchor, rho, rho, rho, int(np.isfinite(rho)),
+                              len(groups[anchor][0]), mean_rays))  # fmt: skip
+        all_groups = list(groups.values())
+        low, high = bootstrap_interval(all_groups, pooled_rho, n_resamples, level, seed)
+        out.append(RhoRow(method, variant, "pooled", -1, pooled_rho(all_groups), low, high, counting, n_poses,
+                          mean_rays))  # fmt: skip
+        low, high = bootstrap_interval(list(rhos.values()), finite_mean, n_resamples, level, seed)
+        out.append(RhoRow(method, variant, "within", -1, finite_mean(list(rhos.values())), low, high, counting,
+                          n_poses, mean_rays))  # fmt: skip
+    return out
+
+
+def write_csv(path: Path, rows: Sequence[PoseRow] | Sequence[RhoRow]) -> None:
+    """One dataclass row per line, the field names as the header (floats to 6 significant digits)."""
+    if not rows:
+        raise ValueError(f"{path}: no rows to write")
+    names = [f.name for f in fields(rows[0])]  # type: ignore[arg-type]
+    with open(path, "w", newline="") as handle:
+        writer = csv.writer(handle)
+        writer.writerow(names)
+        for row in rows:
+            values = asdict(row)  # type: ignore[call-overload]
+            writer.writerow([f"{v:.6g}" if isinstance(v, float) else v for v in (values[n] for n in names)])
+
+
+def rho_line(summary: Sequence[RhoRow], variant: str, scope: str = "pooled") -> str:
+    """``rho: METHOD X [lo, hi], ... (K anchors)`` of one variant and scope, methods in study order."""
+    chosen = [r for r in summary if r.variant == variant and r.scope == scope]
+    if not chosen:
+        raise ValueError(f"variant: no {scope} rho for {variant!r}")
+    parts = [f"{r.method} {r.rho:.2f} [{r.low:.2f}, {r.high:.2f}]" for r in chosen]
+    anchors = max(r.anchors for r in chosen)
+    label = "rho" if scope == "pooled" else f"rho {scope} anchors"
+    return f"{label}: {', '.join(parts)} ({anchors} anchors)"
