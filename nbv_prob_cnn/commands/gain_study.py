@@ -44,7 +44,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from nbv_prob_cnn.exploration.gain_study import run_gain_study
+    from nbv_prob_cnn.exploration.gain_study import BASELINE, run_gain_study
     from nbv_prob_cnn.exploration.gain_study_summary import rho_line, summarise, write_csv
     from nbv_prob_cnn.exploration.scoring_variants import cross_variants
     from nbv_prob_cnn.perception.realized_gain import Fusion
@@ -77,6 +77,8 @@ def run(args: argparse.Namespace) -> int:
     lines = _report(study, summary, default.label, command)
     (args.out / "summary.md").write_text("\n".join(lines) + "\n")
     print("\n".join(lines[lines.index(TABLE_HEADER) :]))
+    print(rho_line(summary, BASELINE[1], "within"))
+    print(rho_line(summary, BASELINE[1], "pooled"))
     print(rho_line(summary, default.label, "within"))
     print(rho_line(summary, default.label, "pooled"))
     return 0

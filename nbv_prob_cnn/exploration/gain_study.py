@@ -13,6 +13,10 @@ far is taken; each of the next ``M`` recorded camera poses is then
 
 The camera was at each recorded pose, so its cell is free even where the anchor grid has not seen
 it: poses in unknown cells are scored (``score_unknown_cells``), and their count is kept.
+
+A baseline that knows nothing of the grid is scored beside the methods: :data:`BASELINE`, the number
+of frames since the anchor. A hand-held camera that moves on reveals more the farther it has gone,
+so a gain is worth something only where it ranks better than that.
 """
 
 from __future__ import annotations
@@ -35,6 +39,8 @@ from nbv_prob_cnn.planners.base import PlanningContext
 from nbv_prob_cnn.planners.methods import GainMethod, probability_map
 from nbv_prob_cnn.planners.pose_scoring import IN_UNKNOWN_CELL, VALID, classify_poses, score_poses
 
+#: The baseline's method and variant names: a pose predicted by its frames since the anchor.
+BASELINE = ("frames since anchor", "baseline")
 #: ``context_for(geometry, intrinsics, variant)``: the planning context the scoring service would use
 #: for a grid of ``geometry``, a camera of ``intrinsics`` and the variant's settings.
 ContextFactory = Callable[[GridGeometry, Intrinsics, ScoringVariant], PlanningContext]
@@ -182,10 +188,9 @@ def run_gain_study(
 
 
 def _rows(anchor: int, frame: int, gained: int, predictions: dict, k: int) -> list[PoseRow]:
-    """The rows of the ``k``-th next pose of an anchor."""
+    """The rows of the ``k``-th next pose of an anchor, the baseline's last."""
+    in_unknown = bool(predictions["in_unknown"][k])
     return [
-        PoseRow(
-            anchor, frame, method, variant, float(gains[k]), gained, bool(predictions["in_unknown"][k]), int(rays[k])
-        )  # fmt: skip
+        PoseRow(anchor, frame, method, variant, float(gains[k]), gained, in_unknown, int(rays[k]))
         for (method, variant), (gains, rays) in predictions["scores"].items()
-    ]
+    ] + [PoseRow(anchor, frame, *BASELINE, float(k + 1), gained, in_unknown, 0)]

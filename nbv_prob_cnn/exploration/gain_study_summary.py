@@ -10,6 +10,9 @@ Per method and scoring variant:
 * **within**: the mean of the per-anchor ρ, the ranking a planner needs when it picks one of the
   poses open to it at one moment.
 
+The baseline (:data:`~nbv_prob_cnn.exploration.gain_study.BASELINE`, frames since the anchor) gets the
+same three.
+
 Both come with a percentile bootstrap interval over the anchors (whole anchors resampled:
 :func:`~nbv_prob_cnn.basics.rank_stats.bootstrap_interval`).
 """
@@ -24,7 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from nbv_prob_cnn.basics.rank_stats import Group, bootstrap_interval, finite_mean, pooled_rho, ranking_rho
-from nbv_prob_cnn.exploration.gain_study import GainStudy, PoseRow
+from nbv_prob_cnn.exploration.gain_study import BASELINE, GainStudy, PoseRow
 
 SCOPES = ("anchor", "pooled", "within")
 
@@ -100,5 +103,5 @@ def rho_line(summary: Sequence[RhoRow], variant: str, scope: str = "pooled") -> 
         raise ValueError(f"variant: no {scope} rho for {variant!r}")
     parts = [f"{r.method} {r.rho:.2f} [{r.low:.2f}, {r.high:.2f}]" for r in chosen]
     anchors = max(r.anchors for r in chosen)
-    label = "rho" if scope == "pooled" else f"rho {scope} anchors"
+    label = ("rho" if scope == "pooled" else f"rho {scope} anchors") + (" (baseline)" if variant == BASELINE[1] else "")
     return f"{label}: {', '.join(parts)} ({anchors} anchors)"

@@ -11,14 +11,17 @@ import numpy as np
 from matplotlib.axes import Axes
 from matplotlib.figure import Figure
 
-from nbv_prob_cnn.exploration.gain_study import GainStudy
+from nbv_prob_cnn.exploration.gain_study import BASELINE, GainStudy
 from nbv_prob_cnn.exploration.gain_study_summary import RhoRow
 
 RHO_LABEL = "Spearman ρ, predicted vs realized gain"
 
 
 def _interval_panel(ax: Axes, summary: Sequence[RhoRow], scope: str, methods: list[str], variants: list[str]) -> None:
-    """ρ with its interval per variant (rows) and method (markers)."""
+    """ρ with its interval per variant (rows) and method (markers); the baseline's ρ as a dotted line."""
+    for row in summary:
+        if row.variant == BASELINE[1] and row.scope == scope:
+            ax.axvline(row.rho, color="black", lw=1.0, ls=":", label=f"baseline: {row.method}")
     step = 0.8 / max(1, len(methods))
     for m, method in enumerate(methods):
         rows = {r.variant: r for r in summary if r.method == method and r.scope == scope}
@@ -41,8 +44,8 @@ def _interval_panel(ax: Axes, summary: Sequence[RhoRow], scope: str, methods: li
 
 def plot_gain_study(study: GainStudy, summary: Sequence[RhoRow], default_variant: str, path: Path) -> None:
     """Write the study's picture to ``path`` (PNG)."""
-    methods = list(dict.fromkeys(r.method for r in summary))
-    variants = list(dict.fromkeys(r.variant for r in summary))
+    methods = list(dict.fromkeys(r.method for r in summary if r.variant != BASELINE[1]))
+    variants = list(dict.fromkeys(r.variant for r in summary if r.variant != BASELINE[1]))
     fig = Figure(figsize=(13.0, 4.0 + 0.28 * len(variants) * 2))
     axes = fig.subplots(2, 2)
     _interval_panel(axes[0, 0], summary, "pooled", methods, variants)
@@ -63,6 +66,8 @@ def plot_gain_study(study: GainStudy, summary: Sequence[RhoRow], default_variant
         mine = [r for r in summary if r.method == method and r.variant == default_variant and r.scope == "anchor"]
         rows = sorted(mine, key=lambda r: r.anchor)
         ax.plot([r.anchor for r in rows], [r.rho for r in rows], "o-", ms=4, label=method)
+    baseline = sorted((r for r in summary if r.variant == BASELINE[1] and r.scope == "anchor"), key=lambda r: r.anchor)
+    ax.plot([r.anchor for r in baseline], [r.rho for r in baseline], "k:", lw=1.0, label=f"baseline: {BASELINE[0]}")
     ax.axhline(0.0, color="grey", lw=0.6)
     ax.set_ylim(-1.05, 1.05)
     ax.set_xlabel("anchor (frame index of the recording)")

@@ -67,13 +67,18 @@ def test_the_study_ranks_the_services_scores_against_what_each_frame_revealed(ro
     interval = rf"({number}) \[({number}), ({number})\]"
     assert re.fullmatch(rf"rho: ig {interval}, prob_ig {interval} \(2 anchors\)", lines[-1]), lines[-1]
     assert lines[-2].startswith("rho within anchors: ig ")
+    assert lines[-3].startswith("rho (baseline): frames since anchor ")
     assert {p.name for p in out.iterdir()} == {"poses.csv", "rho.csv", "rho.png", "summary.md"}
     assert "nbv gain-study" in (out / "summary.md").read_text()
 
     rows = read_rows(out / "poses.csv")
     labels = {0: "n_rays=4 paper rounded", 8: "across=8 paper rounded", 32: "across=32 paper rounded"}
-    assert {r["variant"] for r in rows} == set(labels.values())  # the service's defaults (32 across) and --vary
-    assert len(rows) == 2 * 3 * 2 * 3  # anchors x next poses x methods x variants
+    # the service's defaults (32 across), --vary, and the baseline: the frames since the anchor
+    assert {r["variant"] for r in rows} == {*labels.values(), "baseline"}
+    assert len(rows) == 2 * 3 * (2 * 3 + 1)  # anchors x next poses x (methods x variants + the baseline)
+    baseline = [r for r in rows if r["variant"] == "baseline"]
+    assert [float(r["predicted"]) for r in baseline] == [1.0, 2.0, 3.0] * 2
+    assert {r["method"] for r in baseline} == {"frames since anchor"}
     anchors = anchor_frames(N_FRAMES, 2, 3)
     assert anchors == [0, 5] and sorted({int(r["anchor"]) for r in rows}) == anchors
 
@@ -109,6 +114,7 @@ def test_the_study_ranks_the_services_scores_against_what_each_frame_revealed(ro
 
     summary = read_rows(out / "rho.csv")
     assert {r["scope"] for r in summary} == {"anchor", "pooled", "within"}
+    assert any(r["variant"] == "baseline" and r["scope"] == "within" for r in summary)
     pooled = [r for r in summary if r["scope"] == "pooled" and r["method"] == "prob_ig"]
     assert len(pooled) == 3 and all(-1.0 <= float(r["rho"]) <= 1.0 for r in pooled)
 
@@ -161,7 +167,7 @@ def test_on_the_shared_kitchen_the_scores_rank_what_the_kinect_revealed(tmp_path
     last = capsys.readouterr().out.strip().splitlines()[-1]
     assert re.fullmatch(r"rho: prob_ig -?\d\.\d\d \[.*\], cnn_prob -?\d\.\d\d \[.*\] \(\d anchors\)", last), last
     rows = read_rows(out / "poses.csv")
-    assert len(rows) == 3 * 4 * 2 * 3  # anchors x next poses x methods x variants (32 and 16 across, n_rays 4)
+    assert len(rows) == 3 * 4 * (2 * 3 + 1)  # anchors x next poses x (methods x variants + baseline)
     # the frames reveal cells (the camera moves on), and the own-frustum rays sum 16 x 12 rays per pose
     assert max(int(r["realized"]) for r in rows) > 100
     assert {int(r["rays_in_frustum"]) for r in rows if r["variant"].startswith("across=16")} == {16 * 12}
