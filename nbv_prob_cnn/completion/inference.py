@@ -238,7 +238,7 @@ def complete(
         with torch.inference_mode():
             for start in range(0, grids.shape[0], max(1, chunk)):
                 part = grids[start : start + chunk]
-                prob = model(encode_state(part).to(dev))[:, 0]
+                prob = model(encode_state(part, channels_last=dev.type == "cpu").to(dev))[:, 0]
                 out[start : start + chunk] = prob.float().cpu().numpy()
     finally:
         model.train(was_training)

@@ -86,9 +86,13 @@ def pad_to_multiple(state: np.ndarray, multiple: int, n_spatial: int | None = No
     return np.pad(state, pads, mode="constant", constant_values=UNKNOWN)
 
 
-def encode_state(state: np.ndarray | torch.Tensor) -> torch.Tensor:
-    """Ternary grid(s) ``(B, *spatial)`` -> float input ``(B, 2, *spatial)`` with channels E, O."""
+def encode_state(state: np.ndarray | torch.Tensor, channels_last: bool = False) -> torch.Tensor:
+    """Ternary grid(s) ``(B, *spatial)`` -> float input ``(B, 2, *spatial)`` with channels E, O;
+    ``channels_last``: stored channels innermost (the layout of the CPU forward pass, which then
+    needs no copy of it)."""
     t = torch.as_tensor(state)
+    if channels_last:
+        return torch.stack([(t == EMPTY), (t == OCCUPIED)], dim=-1).to(torch.float32).movedim(-1, 1)
     return torch.stack([(t == EMPTY), (t == OCCUPIED)], dim=1).to(torch.float32)
 
 

@@ -229,9 +229,13 @@ def complete_region(
     if max_window_cells < 1:
         raise ValueError(f"max_window_cells: expected a positive count, got {max_window_cells!r}")
     box = check_region(region, state.shape)
-    out = _known_probability(state, fill)
     halo = halo_cells(net) if halo is None else halo
-    for tile in plan_tiles(state.shape, box, net.multiple, halo, max_window_cells):
+    tiles = plan_tiles(state.shape, box, net.multiple, halo, max_window_cells)
+    whole = check_region(None, state.shape)
+    if len(tiles) == 1 and tiles[0].core == tiles[0].window == whole:
+        return complete(state, model=net, device=device)  # one pass over the grid: no copies
+    out = _known_probability(state, fill)
+    for tile in tiles:
         core = tile.slices("core")
         if not np.any(state[core] == UNKNOWN):
             continue  # P is 0 / 1 on known cells: no network needed

@@ -33,7 +33,7 @@ def state_3dt():
 
 
 def test_tiles_equal_whole_grid_inference_on_the_shipped_3dt_weights(state_3dt):
-    """The shipped 3DT CNN on its 128×128×96 grid: 6 tiles (48-cell halos) equal one pass within 1e-4."""
+    """The shipped 3DT CNN on its 128×128×96 grid: several tiles (48-cell halos) equal one pass within 1e-4."""
     from nbv_prob_cnn.completion.inference import load_model
 
     net = load_model(dataset="3dt", device="cpu")
