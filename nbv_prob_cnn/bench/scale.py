@@ -51,6 +51,8 @@ WINDOW_MARGIN = 48
 KITCHEN = Path(__file__).resolve().parents[3] / "shared" / "data" / "rgbd" / "7scenes_redkitchen"
 #: Corner of the grid the child plans on first (weights, kernels).
 WARM_UP_CELLS = 48
+#: Colour of each path in the plot.
+PATH_COLOURS = {"today": "tab:blue", "local": "tab:orange", "window": "tab:green"}
 #: Bounded block (cells per axis) of the search before issue #35 (two origin strides).
 TODAY_BLOCK = 2
 #: Seconds a child may take.
@@ -217,14 +219,13 @@ def measure(path: str, state: np.ndarray, box: tuple[np.ndarray, np.ndarray] | N
 
 
 def scale_benchmark(seed: int = 1000, out_dir: str | Path = "docs", sizes=SIZES, workspaces=WORKSPACES_M) -> str:
-    """Every row in one run: CSV and PNG in ``out_dir`` (``scale.csv``, ``scale.png``); returns the
-    printed report (table, ratios, targets)."""
+    """Every row in one run, each printed as it is measured: CSV and PNG in ``out_dir`` (``scale.csv``,
+    ``scale.png``); returns the closing report (ratios, targets, files)."""
     from nbv_prob_cnn.basics.camera import dataset_defaults
 
     resolution = dataset_defaults("3dt").resolution_m
     rows: list[ScaleRow] = []
     states = {}
-    lines = []
     for shape in sizes:
         state = scale_state(shape, seed)
         states[shape] = state
@@ -232,8 +233,7 @@ def scale_benchmark(seed: int = 1000, out_dir: str | Path = "docs", sizes=SIZES,
         for path in ("today", "local"):
             result = measure(path, state)
             rows.append(ScaleRow(label, int(np.prod(shape)), path, 0.0, **_fields(result)))
-            lines.append(_line(rows[-1]))
-            print(lines[-1], flush=True)
+            print(_line(rows[-1]), flush=True)
     largest = max(sizes, key=lambda s: int(np.prod(s)))
     for width in workspaces:
         box = workspace_box(largest, width, resolution)
@@ -241,8 +241,7 @@ def scale_benchmark(seed: int = 1000, out_dir: str | Path = "docs", sizes=SIZES,
         for path in ("local", "window"):
             result = measure(path, states[largest], box)
             rows.append(ScaleRow(label, int(np.prod(largest)), path, width, **_fields(result)))
-            lines.append(_line(rows[-1]))
-            print(lines[-1], flush=True)
+            print(_line(rows[-1]), flush=True)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     load = ", ".join(f"{x:.1f}" for x in os.getloadavg())
@@ -253,7 +252,7 @@ def scale_benchmark(seed: int = 1000, out_dir: str | Path = "docs", sizes=SIZES,
         if not KITCHEN.is_dir()
         else "kitchen: skipped, the recording is here but this tree has no in-process fusion of it into a grid yet"
     )
-    return "\n".join([*lines, "", *ratio_lines(rows, sizes), kitchen, f"load average at the end: {load}",
+    return "\n".join(["", *ratio_lines(rows, sizes), kitchen, f"load average at the end: {load}",
                       f"wrote {csv_path}, {png}"])  # fmt: skip
 
 
@@ -317,18 +316,20 @@ def plot_scale(rows: list[ScaleRow], path: Path, note: str = "") -> Path:
     import matplotlib.pyplot as plt
 
     fig, axes = plt.subplots(2, 2, figsize=(11, 8))
-    paths = sorted({r.path for r in rows}, key=("today", "local", "window").index)
+    paths = sorted({r.path for r in rows}, key=list(PATH_COLOURS).index)
     for path_name in paths:
         size_rows = [r for r in rows if r.path == path_name and not r.workspace_m]
         if size_rows:
             cells = [r.cells / 1e6 for r in size_rows]
-            axes[0, 0].plot(cells, [r.seconds for r in size_rows], "o-", label=path_name)
-            axes[1, 0].plot(cells, [r.peak_rss_mb / 1024 for r in size_rows], "o-", label=path_name)
+            axes[0, 0].plot(cells, [r.seconds for r in size_rows], "o-", color=PATH_COLOURS[path_name], label=path_name)
+            axes[1, 0].plot(cells, [r.peak_rss_mb / 1024 for r in size_rows], "o-", color=PATH_COLOURS[path_name],
+                            label=path_name)  # fmt: skip
         work = [r for r in rows if r.path == path_name and r.workspace_m]
         if work:
             widths = [r.workspace_m for r in work]
-            axes[0, 1].plot(widths, [r.seconds for r in work], "o-", label=path_name)
-            axes[1, 1].plot(widths, [r.peak_rss_mb / 1024 for r in work], "o-", label=path_name)
+            axes[0, 1].plot(widths, [r.seconds for r in work], "o-", color=PATH_COLOURS[path_name], label=path_name)
+            axes[1, 1].plot(widths, [r.peak_rss_mb / 1024 for r in work], "o-", color=PATH_COLOURS[path_name],
+                            label=path_name)  # fmt: skip
     axes[0, 0].set(title="grid size (every empty cell a candidate)", ylabel="one cnn_prob step (s)")
     axes[1, 0].set(xlabel="grid cells (millions)", ylabel="peak RSS (GB)")
     largest = max((r.grid for r in rows if r.workspace_m), default="")
