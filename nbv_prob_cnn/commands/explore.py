@@ -116,8 +116,19 @@ def run(args: argparse.Namespace) -> int:
     print(
         f"{args.dataset} seed {world.seed} {planner.name}: {len(result.records)} views, "
         f"unknown fraction {last.unknown_fraction:.4f} (all cells {last.unknown_fraction_all:.4f}), "
+        f"surface coverage {last.surface_coverage:.4f}{_views_to_coverage(result)}, "
         f"mean planning time {mean_plan:.3f} s, {result.stop_reason}"
         + ("" if guard is None else f", {len(guard.ruled_out)} views ruled out (< {guard.min_changed_cells} cells)")
         + f"; wrote {', '.join(written)}"
     )
     return 0
+
+
+def _views_to_coverage(result) -> str:
+    """`` (80/90/95 % after 3/5/- views)``: the views each coverage level took (``-``: not reached)."""
+    from nbv_prob_cnn.exploration.surface_metrics import views_to_coverage
+
+    reached = views_to_coverage([r.surface_coverage for r in result.records])
+    levels = "/".join(f"{round(100 * level)}" for level in reached)
+    counts = "/".join("-" if n is None else str(n) for n in reached.values())
+    return f" ({levels} % after {counts} views)"

@@ -16,6 +16,7 @@ from tqdm import tqdm
 from nbv_prob_cnn.basics.grid import unknown_fraction
 from nbv_prob_cnn.basics.interrupt import Interrupt
 from nbv_prob_cnn.exploration.session import ExplorationSession, NoView, PlannedView, TakenView
+from nbv_prob_cnn.exploration.surface_metrics import surface_coverage
 from nbv_prob_cnn.exploration.view_guard import ViewGuard
 from nbv_prob_cnn.planners import Planner, PlanningContext, ViewChoice
 from nbv_prob_cnn.sensing.observe import observe
@@ -25,12 +26,14 @@ from nbv_prob_cnn.worlds.world import World
 CSV_COLUMNS = [
     "iteration", "unknown_fraction", "unknown_fraction_all", "gain",
     "time_total_s", "time_cnn_s", "time_raycast_s", "time_views_s",
-    "x_m", "y_m", "z_m", "qx", "qy", "qz", "qw", "changed_cells", "ruled_out_views",
+    "x_m", "y_m", "z_m", "qx", "qy", "qz", "qw", "changed_cells", "ruled_out_views", "surface_coverage",
 ]  # fmt: skip
 #: Units of the columns: fractions and gains are ratios; times in seconds (``_s``); the camera
 #: position in metres of the grid frame (``_m``); the quaternion (x, y, z, w) of the camera;
 #: counts of cells (``changed_cells``: cells whose state the view changed) and of views
-#: (``ruled_out_views``: poses the view guard has ruled out after this view; 0 without a guard).
+#: (``ruled_out_views``: poses the view guard has ruled out after this view; 0 without a guard);
+#: ``surface_coverage``: the share of the ground-truth surface seen so far
+#: (:func:`~nbv_prob_cnn.exploration.surface_metrics.surface_coverage`).
 
 
 @dataclass
@@ -50,6 +53,7 @@ class IterationRecord:
     quaternion: np.ndarray
     changed_cells: int = 0
     ruled_out_views: int = 0
+    surface_coverage: float = float("nan")
 
     def csv_row(self) -> list:
         return [
@@ -65,6 +69,7 @@ class IterationRecord:
             *(f"{v:.6f}" for v in self.quaternion),
             self.changed_cells,
             self.ruled_out_views,
+            f"{self.surface_coverage:.6f}",
         ]
 
 
@@ -135,10 +140,15 @@ def explore(
                 quaternion=context.view_quaternion(choice.view_index),
                 changed_cells=taken.changed_cells,
                 ruled_out_views=taken.ruled_out_views,
+                surface_coverage=surface_coverage(taken.grid, world.ground_truth),
             )
         )
         bar.update(1)
-        bar.set_postfix(unknown=f"{records[-1].unknown_fraction:.3f}", plan_s=f"{taken.planned.seconds:.2f}")
+        bar.set_postfix(
+            unknown=f"{records[-1].unknown_fraction:.3f}",
+            surface=f"{records[-1].surface_coverage:.3f}",
+            plan_s=f"{taken.planned.seconds:.2f}",
+        )
 
     session = ExplorationSession(
         simulated, SimulatedPlanner(world, planner, context, first), simulated, views, guard=guard, on_view=record

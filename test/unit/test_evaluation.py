@@ -105,4 +105,4 @@ def test_guarded_runs_sit_beside_the_plain_ones(tmp_path):
     assert guarded["prob_ig"][0].unknown_fraction[0] == plain["prob_ig"][0].unknown_fraction[0]
     with open(path) as handle:
         header = handle.readline().strip().split(",")
-    assert header[-2:] == ["changed_cells", "ruled_out_views"]
+    assert header[-3:] == ["changed_cells", "ruled_out_views", "surface_coverage"]
