@@ -16,7 +16,7 @@ from tqdm import tqdm
 from nbv_prob_cnn.basics.grid import unknown_fraction
 from nbv_prob_cnn.basics.interrupt import Interrupt
 from nbv_prob_cnn.exploration.session import ExplorationSession, NoView, PlannedView, TakenView
-from nbv_prob_cnn.exploration.surface_metrics import surface_coverage
+from nbv_prob_cnn.exploration.surface_metrics import SurfaceCoverage
 from nbv_prob_cnn.exploration.view_guard import ViewGuard
 from nbv_prob_cnn.planners import Planner, PlanningContext, ViewChoice
 from nbv_prob_cnn.sensing.observe import observe
@@ -121,6 +121,7 @@ def explore(
         raise ValueError(f"views: expected at least 1 view, got {views}")
     simulated = SimulatedWorld(world, context, noise, room_margin_m)
     records: list[IterationRecord] = []
+    coverage = SurfaceCoverage(world.ground_truth)
     bar = tqdm(total=views, desc=f"{world.dataset} {planner.name}", unit="view", disable=not progress)
 
     def record(taken: TakenView[ViewChoice]) -> None:
@@ -140,7 +141,7 @@ def explore(
                 quaternion=context.view_quaternion(choice.view_index),
                 changed_cells=taken.changed_cells,
                 ruled_out_views=taken.ruled_out_views,
-                surface_coverage=surface_coverage(taken.grid, world.ground_truth),
+                surface_coverage=coverage(taken.grid),
             )
         )
         bar.update(1)

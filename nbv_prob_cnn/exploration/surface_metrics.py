@@ -33,20 +33,32 @@ def surface_cells(ground_truth: np.ndarray) -> np.ndarray:
     return (truth == OCCUPIED) & ndimage.binary_dilation(empty, structure=faces)
 
 
+class SurfaceCoverage:
+    """The surface coverage of states of one ground truth: its surface (:func:`surface_cells`) is
+    found once, each call measures one state."""
+
+    def __init__(self, ground_truth: np.ndarray) -> None:
+        self.shape = np.shape(ground_truth)
+        self.surface = surface_cells(ground_truth)
+        self.surface_count = int(self.surface.sum())
+
+    def __call__(self, state: np.ndarray) -> float:
+        """Share of the surface cells within one cell (the full 3×3(×3) neighbourhood) of a cell
+        seen occupied in ``state`` (ternary: -1 unknown, 0 empty, 1 occupied). 1.0 when the
+        truth has no surface."""
+        state = np.asarray(state)
+        if state.shape != self.shape:
+            raise ValueError(f"state: shape {state.shape} differs from ground_truth's {self.shape}")
+        if self.surface_count == 0:
+            return 1.0
+        seen = state == OCCUPIED
+        near_seen = ndimage.binary_dilation(seen, structure=np.ones((3,) * state.ndim, dtype=bool))
+        return float(np.count_nonzero(self.surface & near_seen) / self.surface_count)
+
+
 def surface_coverage(state: np.ndarray, ground_truth: np.ndarray) -> float:
-    """Share of the ground-truth surface cells (:func:`surface_cells`) within one cell (the full
-    3×3(×3) neighbourhood) of a cell seen occupied in ``state`` (ternary: -1 unknown, 0 empty,
-    1 occupied). 1.0 when the truth has no surface."""
-    state = np.asarray(state)
-    if state.shape != np.shape(ground_truth):
-        raise ValueError(f"state: shape {state.shape} differs from ground_truth's {np.shape(ground_truth)}")
-    surface = surface_cells(ground_truth)
-    n_surface = int(surface.sum())
-    if n_surface == 0:
-        return 1.0
-    seen = state == OCCUPIED
-    near_seen = ndimage.binary_dilation(seen, structure=np.ones((3,) * state.ndim, dtype=bool))
-    return float(np.count_nonzero(surface & near_seen) / n_surface)
+    """:class:`SurfaceCoverage` of ``ground_truth`` measured once, on ``state``."""
+    return SurfaceCoverage(ground_truth)(state)
 
 
 def chamfer_distance(a: np.ndarray, b: np.ndarray) -> float:

@@ -7,20 +7,17 @@ import pytest
 
 pytest.importorskip("pinocchio")
 
+from arm_views import GEOMETRY_3DT, near_view  # noqa: E402
 
 from nbv_prob_cnn.arm.feasibility import ArmFeasibility  # noqa: E402
 from nbv_prob_cnn.arm.ik import DEFAULT_IK  # noqa: E402
 from nbv_prob_cnn.basics.camera import (  # noqa: E402
-    DATASETS,  # noqa: E402
     DatasetDefaults,
-    Sensor,
-    matrix_from_quaternion,  # noqa: E402
+    Sensor,  # noqa: E402
 )
-from nbv_prob_cnn.basics.geometry import GridGeometry  # noqa: E402
 from nbv_prob_cnn.basics.grid import EMPTY, UNKNOWN  # noqa: E402
 from nbv_prob_cnn.planners import GAIN_METHODS, GainPlanner, PlanningContext, ViewChoice  # noqa: E402
 
-GEOMETRY_3DT = GridGeometry((0.0, 0.0, 0.0), DATASETS["3dt"].resolution_m, DATASETS["3dt"].shape)
 SMALL_3D = DatasetDefaults("3du", 3, (18, 16, 14), 0.01, Sensor(60.0, 46.0, 8), 4, 3)
 
 
@@ -37,15 +34,6 @@ class TwoViews:
         cells = np.array([v.cell for v in self.views])
         kept = origin_filter(cells) if origin_filter is not None else cells
         return [ViewChoice(v.cell, v.view_index, v.gain) for v in self.views if (kept == v.cell).all(axis=1).any()]
-
-
-def near_view(robot, context) -> ViewChoice:
-    """A view 5 cm beside the camera's reference pose, in the orientation closest to its own."""
-    pose = robot.camera_pose(robot.reference_q)
-    cell, inside = GEOMETRY_3DT.containing_cell(pose[:3, 3] + np.array([0.0, 0.05, 0.0]))
-    assert inside
-    angles = [np.trace(matrix_from_quaternion(q).T @ pose[:3, :3]) for q in context.orientations]
-    return ViewChoice(cell, int(np.argmax(angles)), 0.5)
 
 
 def test_fallback_ranks_again_near_the_camera(robot, checker):

@@ -10,6 +10,8 @@ import pytest
 
 pytest.importorskip("pinocchio")
 
+from arm_views import GEOMETRY_3DT  # noqa: E402
+
 from nbv_prob_cnn.arm.capability import (  # noqa: E402
     MAP_IK,
     CapabilityMap,
@@ -28,8 +30,6 @@ from nbv_prob_cnn.basics.camera import DATASETS, look_rotation  # noqa: E402
 from nbv_prob_cnn.basics.geometry import GridGeometry  # noqa: E402
 from nbv_prob_cnn.basics.grid import OCCUPIED, UNKNOWN  # noqa: E402
 from nbv_prob_cnn.planners import PlanningContext, ViewChoice  # noqa: E402
-
-GEOMETRY_3DT = GridGeometry((0.0, 0.0, 0.0), DATASETS["3dt"].resolution_m, DATASETS["3dt"].shape)
 
 
 def pose_errors(a: np.ndarray, b: np.ndarray) -> tuple[float, float]:

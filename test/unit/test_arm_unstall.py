@@ -9,7 +9,7 @@ import pytest
 
 pytest.importorskip("pinocchio")
 
-from test_arm import GEOMETRY_3DT  # noqa: E402
+from arm_views import GEOMETRY_3DT, near_view  # noqa: E402
 
 from nbv_prob_cnn.arm.capability import CapabilityMap  # noqa: E402
 from nbv_prob_cnn.arm.collision import GridObstacles  # noqa: E402
@@ -217,15 +217,6 @@ def test_other_ik_solutions_rescue_a_view_whose_first_one_collides(robot, chain,
 def test_bad_feasibility_arguments(robot, checker):
     with pytest.raises(ValueError, match="ik_alternatives"):
         ArmFeasibility(robot, checker, ik_alternatives=-1)
-
-
-def near_view(robot, context) -> ViewChoice:
-    """A view 5 cm beside the camera's reference pose, in the orientation closest to its own."""
-    pose = robot.camera_pose(robot.reference_q)
-    cell, inside = GEOMETRY_3DT.containing_cell(pose[:3, 3] + np.array([0.0, 0.05, 0.0]))
-    assert inside
-    angles = [np.trace(matrix_from_quaternion(q).T @ pose[:3, :3]) for q in context.orientations]
-    return ViewChoice(cell, int(np.argmax(angles)), 0.5)
 
 
 # --- the selector shared by arm-compare and the ROS nbv_planner ---------------------------------
