@@ -32,7 +32,7 @@ import sys
 import time
 from pathlib import Path
 
-from nbv_prob_cnn.ros.graph import NodeGraph, run_graph
+from nbv_prob_cnn.ros.graph import NodeGraph, hear_ctrl_c, run_graph
 
 #: Our nodes, started in this order (the servers before the planner that calls them).
 NODES = ("integrator", "completion_server", "gain_server", "nbv_planner")
@@ -85,6 +85,7 @@ def main(argv=None) -> int:
             raise SystemExit("--views with --namespace: the Explore client runs without a namespace; send the goal "
                              "to <namespace>/nbv/explore yourself")  # fmt: skip
         return run_graph(start_nodes, client, env, args.out / "logs", "robot")
+    hear_ctrl_c()
     graph = NodeGraph(env, log_dir=args.out / "logs")
     print(f"[robot] starting {', '.join(args.nodes)}; logs in {args.out / 'logs'}; Ctrl-C stops them", flush=True)
     try:

@@ -208,6 +208,14 @@ def leaked_segments(before: set[str], domain: int, ignore_pids: frozenset[int] =
     }
 
 
+def hear_ctrl_c() -> None:
+    """Let Ctrl-C (SIGINT) raise KeyboardInterrupt in this launcher even when it inherited SIGINT
+    ignored: a shell without job control starts background commands (``cmd &``, ``nohup cmd &``)
+    that way, and Python then installs no handler, so ``kill -INT`` would go unheard and the
+    graph would run on. The processes it starts afterwards get the default disposition."""
+    signal.signal(signal.SIGINT, signal.default_int_handler)
+
+
 def run_graph(
     start_nodes: Callable[[NodeGraph], None],
     client_cmd: list[str],
@@ -225,6 +233,7 @@ def run_graph(
         The client's exit status (130 after Ctrl-C).
     """
     domain = int(env["ROS_DOMAIN_ID"])
+    hear_ctrl_c()
     shm_before = shm_segments()
     graph = NodeGraph(env, log_dir=log_dir)
     print(f"[{label}] ROS_DOMAIN_ID={domain}, logs in {log_dir}", flush=True)
@@ -312,6 +321,7 @@ def call_with_resend(client, request, timeout_s: float, *, executor=None, resend
 __all__ = [
     "NodeGraph",
     "call_with_resend",
+    "hear_ctrl_c",
     "leaked_segments",
     "mapped_shm",
     "node_command",

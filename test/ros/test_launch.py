@@ -7,6 +7,7 @@ import contextlib
 import csv
 import json
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -147,13 +148,21 @@ def test_simulated_graph_with_the_arm_explores_the_table(tmp_path, ros_domain):
         rows = list(csv.DictReader(handle))
     robot = RobotModel()
     assert len(rows) == 2 and list(rows[0])[-10:] == ["joint_travel", *robot.joint_names]
+    planner_log = (out / "logs" / "nbv_planner.log").read_text()
+    planned_paths = [int(n) for n in re.findall(r"paths planned (\d+)", planner_log)]
     previous = None
     for r in rows:
         q = np.array([float(r[name]) for name in robot.joint_names])
         camera = robot.camera_pose(q)
         np.testing.assert_allclose(camera[:3, 3], [float(r["x_m"]), float(r["y_m"]), float(r["z_m"])], atol=2e-3)
         if previous is not None:
-            assert float(r["joint_travel"]) == pytest.approx(np.linalg.norm(q[:7] - previous[:7]), abs=1e-5)
+            # the move is the straight joint path when it is free, else a planned path around what the grid
+            # holds (occupied or still unknown: how much is known depends on the frames fused so far): longer
+            # than the straight line, and then the planner's log says it planned one
+            straight, travel = np.linalg.norm(q[:7] - previous[:7]), float(r["joint_travel"])
+            assert travel >= straight - 1e-5
+            if travel > straight + 1e-5:
+                assert any(planned_paths), f"joint travel {travel} > straight {straight} without a planned path"
         previous = q
     assert float(rows[-1]["unknown_fraction"]) < float(rows[0]["unknown_fraction"])
     report = json.loads((out / "graph.json").read_text())
@@ -175,7 +184,10 @@ def test_ctrl_c_stops_the_whole_graph(tmp_path, ros_domain):
     domain = _domain(ros_domain, 1)
     cmd = [sys.executable, str(SCRIPT), "--dataset", "3du", "--views", "50", "--method", "prob_ig", "--no-arm",
            "--out", str(tmp_path / "run"), "--domain-id", domain]  # fmt: skip
-    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    # started with SIGINT ignored, as a shell without job control starts a background job (``cmd &``, CI
+    # runners): the launcher must still hear Ctrl-C (it once ran on to the last view: exit 0, not 130)
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_IGN))  # fmt: skip
     lines = []
     deadline = time.monotonic() + 240
     while time.monotonic() < deadline:
