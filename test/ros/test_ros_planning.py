@@ -233,7 +233,9 @@ def test_colcon_builds_both_packages_and_runs_a_node(ros, tmp_path):
     )
     workspace = tmp_path / "ws"
     build = subprocess.run(
-        [str(venv / "bin" / "colcon"), "build", "--base-paths", str(REPO), str(REPO / "msg_defs"),
+        # our two packages; control_msgs and tf2_msgs (msg_defs/ builds them where no wheel has them) come from
+        # the underlay the set-up built, as from a sourced ROS install
+        [str(venv / "bin" / "colcon"), "build", "--base-paths", str(REPO), str(REPO / "msg_defs" / "nbv_prob_cnn_msgs"),
          "--build-base", str(workspace / "build"), "--install-base", str(workspace / "install"),
          "--cmake-args", "-DBUILD_TESTING=OFF", f"-DPython3_EXECUTABLE={venv}/bin/python"],
         cwd=workspace.parent, env=env, capture_output=True, text=True, timeout=600,
