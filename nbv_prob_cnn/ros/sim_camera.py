@@ -170,6 +170,38 @@ def load_meshes(dataset: str, seed: int, mesh_file: str, room_margin_m: float = 
     )
 
 
+@dataclass(frozen=True)
+class FrameCdr:
+    """One depth frame as the CDR bytes :class:`SimCamera` publishes, all with one header stamp."""
+
+    image: bytes  #: ``sensor_msgs/Image``
+    info: bytes  #: ``sensor_msgs/CameraInfo``
+    pose: bytes  #: ``geometry_msgs/TransformStamped`` ``frame_id`` -> ``camera_frame``
+
+
+def frame_cdr(
+    depth: np.ndarray,
+    intrinsics: Intrinsics,
+    pose: np.ndarray,
+    stamp_ns: int,
+    encoding: str,
+    frame_id: str,
+    camera_frame: str,
+) -> FrameCdr:
+    """The frame of ``depth`` (metres) seen with ``intrinsics`` from ``pose`` (4×4 ``frame_id`` <-
+    ``camera_frame``), stamped ``stamp_ns``: the image (``encoding``) and camera_info in
+    ``camera_frame``, and the pose."""
+    store = typestore()
+    info = intrinsics_to_camera_info(intrinsics, stamp_ns, camera_frame)
+    image = depth_to_image_msg(depth, stamp_ns, encoding, camera_frame)
+    transform = pose_to_transform_msg(pose, stamp_ns, frame_id, camera_frame)
+    return FrameCdr(
+        image=bytes(store.serialize_cdr(image, MSG_IMAGE)),
+        info=bytes(store.serialize_cdr(info, MSG_CAMERA_INFO)),
+        pose=bytes(store.serialize_cdr(transform, MSG_TRANSFORM)),
+    )
+
+
 @dataclass
 class SimCameraConfig(RobotParams):
     """Parameters of ``sim_camera`` (all fixed after start-up): the robot description (used with
@@ -347,17 +379,15 @@ class SimCamera(Node):
                 stamp_ns = max(stamp_ns, self._last_stamp_ns + 1)
             self._last_stamp_ns = stamp_ns
             depth = self._camera.render(self._pose, occluders)
-            store = typestore()
-            info = intrinsics_to_camera_info(self.intrinsics, stamp_ns, self.config.camera_frame)
-            image = depth_to_image_msg(depth, stamp_ns, self.config.encoding, self.config.camera_frame)
+            cfg = self.config
+            cdr = frame_cdr(depth, self.intrinsics, self._pose, stamp_ns, cfg.encoding, cfg.frame_id, cfg.camera_frame)
             if self._tf_pub is not None:  # before the image, so a TF listener has the pose when the image comes
-                pose_tf = transform_stamped_msg(self._pose, stamp_ns, self.config.frame_id, self.config.camera_frame)
+                pose_tf = transform_stamped_msg(self._pose, stamp_ns, cfg.frame_id, cfg.camera_frame)
                 self._tf_pub.publish(self._tf_message(transforms=[pose_tf]))
             if self._pose_pub is not None:
-                pose = pose_to_transform_msg(self._pose, stamp_ns, self.config.frame_id, self.config.camera_frame)
-                self._pose_pub.publish(bytes(store.serialize_cdr(pose, MSG_TRANSFORM)))
-            self._info_pub.publish(bytes(store.serialize_cdr(info, MSG_CAMERA_INFO)))
-            self._image_pub.publish(bytes(store.serialize_cdr(image, MSG_IMAGE)))
+                self._pose_pub.publish(cdr.pose)
+            self._info_pub.publish(cdr.info)
+            self._image_pub.publish(cdr.image)
             self.frames += 1
             return stamp_ns
 

@@ -15,13 +15,12 @@ rclpy = pytest.importorskip("rclpy")
 pytest.importorskip("nbv_prob_cnn_msgs")
 pytest.importorskip("pinocchio")
 
-from action_msgs.msg import GoalStatus  # noqa: E402
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus  # noqa: E402
+from explore_goals import explore_client, explore_succeeds  # noqa: E402
 from geometry_msgs.msg import PoseStamped  # noqa: E402
 from nbv_prob_cnn_msgs.action import Explore  # noqa: E402
 from nbv_prob_cnn_msgs.msg import VoxelGrid  # noqa: E402
 from nbv_prob_cnn_msgs.srv import EvaluateViews, PlanNextBestView  # noqa: E402
-from rclpy.action import ActionClient  # noqa: E402
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy  # noqa: E402
 from sensor_msgs.msg import JointState  # noqa: E402
 from test_ros_explore import spun_node  # noqa: E402
@@ -279,13 +278,7 @@ def test_explore_drives_the_arm_through_arm_sim(ros):
     graph.start_node("arm_sim", "arm_sim", {"velocity_scale": 1.0, "rate_hz": 50.0})
     graph.start_node("nbv_planner", "nbv_planner", {**ARM_PLANNER, "move_mode": "arm"})
     SeeingIntegrator(node, bench)
-    client = ActionClient(node, Explore, "/nbv/explore")
-    assert client.wait_for_server(timeout_sec=120.0), "the Explore server did not come up"
-    feedback: list = []
-    handle = wait(client.send_goal_async(Explore.Goal(max_views=3), feedback_callback=feedback.append))
-    assert handle.accepted
-    done = wait(handle.get_result_async(), 300.0)
-    assert done.status == GoalStatus.STATUS_SUCCEEDED, done.result.reason_stopped
+    done, feedback = explore_succeeds(explore_client(node), Explore.Goal(max_views=3), 300.0)
     assert done.result.views == 3 == len(feedback), done.result.reason_stopped
     previous = robot.reference_q
     for message in feedback:

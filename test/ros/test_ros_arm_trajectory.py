@@ -23,6 +23,7 @@ from action_msgs.msg import GoalStatus  # noqa: E402
 from builtin_interfaces.msg import Duration  # noqa: E402
 from control_msgs.action import FollowJointTrajectory  # noqa: E402
 from control_msgs.msg import JointTolerance  # noqa: E402
+from explore_goals import explore_client, explore_succeeds  # noqa: E402
 from nbv_prob_cnn_msgs.action import Explore  # noqa: E402
 from rclpy.action import ActionClient, ActionServer, GoalResponse  # noqa: E402
 from rclpy.callback_groups import ReentrantCallbackGroup  # noqa: E402
@@ -220,9 +221,7 @@ def start_trajectory_graph(node, graph, bench: GraphBench, robot: RobotModel, re
     graph.start_node("nbv_planner", "nbv_planner", planner)
     SeeingIntegrator(node, bench)
     bench.publish_grid()
-    client = ActionClient(node, Explore, "/nbv/explore")
-    assert client.wait_for_server(timeout_sec=120.0), "the Explore server did not come up"
-    return controller, client
+    return controller, explore_client(node)
 
 
 def workspace_goal(max_views: int, low, high, **fields) -> Explore.Goal:
@@ -240,11 +239,7 @@ def test_a_rejected_trajectory_makes_the_exploration_take_the_next_ranked_view(r
     bench.joints = (robot.joint_names, robot.reference_q)
     controller, client = start_trajectory_graph(node, graph, bench, robot, reject=1, max_joint_acceleration=2.0,
                                                 max_joint_jerk=20.0)  # fmt: skip
-    feedback: list = []
-    handle = wait(client.send_goal_async(Explore.Goal(max_views=2), feedback_callback=feedback.append))
-    assert handle.accepted
-    done = wait(handle.get_result_async(), 300.0)
-    assert done.status == GoalStatus.STATUS_SUCCEEDED, done.result.reason_stopped
+    done, feedback = explore_succeeds(client, Explore.Goal(max_views=2), 300.0)
     assert done.result.views == 2 and done.result.failed_executions == 1, done.result.reason_stopped
     fbs = [m.feedback for m in feedback]
     assert [fb.executed for fb in fbs] == [False, True, True]
@@ -342,13 +337,7 @@ def test_a_second_robot_from_parameters_alone_the_xarm6(ros):
                    max_joint_acceleration=3.0, max_joint_jerk=30.0)  # fmt: skip
     graph.start_node("nbv_planner", "nbv_planner", planner)
     bench.publish_grid()
-    client = ActionClient(node, Explore, "/nbv/explore")
-    assert client.wait_for_server(timeout_sec=120.0), "the Explore server did not come up"
-    feedback: list = []
-    handle = wait(client.send_goal_async(Explore.Goal(max_views=2), feedback_callback=feedback.append))
-    assert handle.accepted
-    done = wait(handle.get_result_async(), 400.0)
-    assert done.status == GoalStatus.STATUS_SUCCEEDED, done.result.reason_stopped
+    done, feedback = explore_succeeds(explore_client(node), Explore.Goal(max_views=2), 400.0)
     assert done.result.views == 2, done.result.reason_stopped
     # our own model of the xArm as the parameters place it (independent of the description arm_sim built)
     text = mount_camera(read_description(path=str(urdf), package_dirs=[str(folder)]), "link6", translation(mount),
@@ -379,10 +368,8 @@ def test_the_camera_workspace_holds_in_explore_goals_and_parameters(ros):
     bench.joints = (robot.joint_names, robot.reference_q)
     _, client = start_trajectory_graph(node, graph, bench, robot, reject=0, min_camera_height_m=0.3)
     goal = workspace_goal(3, (0.3, 0.2, 0.0), (0.8, 1.3, 1.0), max_camera_height=0.6)
-    feedback: list = []
-    handle = wait(client.send_goal_async(goal, feedback_callback=feedback.append))
-    done = wait(handle.get_result_async(), 300.0)
-    assert done.status == GoalStatus.STATUS_SUCCEEDED and done.result.views >= 1, done.result.reason_stopped
+    done, feedback = explore_succeeds(client, goal, 300.0)
+    assert done.result.views >= 1, done.result.reason_stopped
     half = GEOMETRY_HALF_CELL
     for message in feedback:
         x, y, z = pose_to_arrays(message.feedback.pose.pose)[0]
@@ -436,10 +423,8 @@ def test_a_view_behind_a_pillar_is_reached_by_a_planned_path_over_follow_joint_t
     controller, client = start_trajectory_graph(node, graph, bench, robot, reject=0, arm_path_timeout_s=5.0)
     far_camera = robot.camera_pose(q_far)[:3, 3]
     goal = workspace_goal(1, far_camera - 0.12, far_camera + 0.12)
-    feedback: list = []
-    handle = wait(client.send_goal_async(goal, feedback_callback=feedback.append))
-    done = wait(handle.get_result_async(), 300.0)
-    assert done.status == GoalStatus.STATUS_SUCCEEDED and done.result.views == 1, done.result.reason_stopped
+    done, feedback = explore_succeeds(client, goal, 300.0)
+    assert done.result.views == 1, done.result.reason_stopped
     assert len(controller.goals) == 1
     trajectory = controller.goals[0].trajectory
     assert list(trajectory.joint_names) == robot.joint_names[:7]

@@ -26,10 +26,10 @@ rclpy = pytest.importorskip("rclpy")
 pytest.importorskip("nbv_prob_cnn_msgs")
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus  # noqa: E402
-from geometry_msgs.msg import TransformStamped  # noqa: E402
-from sensor_msgs.msg import CameraInfo, Image  # noqa: E402
+from plane_frames import DEPTH, S, plane_frame  # noqa: E402
 from std_srvs.srv import Trigger  # noqa: E402
 from test_ros_perception import (  # noqa: E402
+    SAMPLE_BAG,
     START_TIMEOUT_S,
     RosClient,
     assert_clean_stop,
@@ -39,27 +39,13 @@ from test_ros_perception import (  # noqa: E402
 )
 
 from nbv_prob_cnn.basics.camera import look_rotation  # noqa: E402
-from nbv_prob_cnn.perception import Intrinsics  # noqa: E402
-from nbv_prob_cnn.perception.bags import (  # noqa: E402
-    MSG_CAMERA_INFO,
-    MSG_IMAGE,
-    MSG_TRANSFORM,
-    TOPIC_CAMERA_INFO,
-    TOPIC_IMAGE,
-    TOPIC_POSE,
-    depth_to_image_msg,
-    intrinsics_to_camera_info,
-    pose_to_transform_msg,
-    typestore,
-)
+from nbv_prob_cnn.perception.bags import TOPIC_CAMERA_INFO, TOPIC_IMAGE, TOPIC_POSE, typestore  # noqa: E402
+from nbv_prob_cnn.perception.messages import depth_to_image_msg, pose_to_transform_msg  # noqa: E402
+from nbv_prob_cnn.ros.bag_record import TOPICS  # noqa: E402
 from nbv_prob_cnn.ros.conversions import msg_to_grid  # noqa: E402
 from nbv_prob_cnn.ros.graph import NodeGraph, leaked_segments, segment_domain, shm_segments, wait_for  # noqa: E402
 
 pytestmark = pytest.mark.slow  # multi-process ROS graphs
-
-REPO = Path(__file__).resolve().parents[2]
-SAMPLE_BAG = REPO / "bags" / "3dt_seed1000_sample"
-S = 1_000_000_000  # one second in ns
 
 
 def test_integrator_battery(ros_env: dict, tmp_path: Path) -> None:  # noqa: F811
@@ -68,7 +54,6 @@ def test_integrator_battery(ros_env: dict, tmp_path: Path) -> None:  # noqa: F81
     mcap = next(truncated.glob("*.mcap"))
     mcap.write_bytes(mcap.read_bytes()[: mcap.stat().st_size // 2])
     store = typestore()
-    intrinsics = Intrinsics.from_hfov(64, 48, 60.0)
     pose = np.eye(4)
     pose[:3, :3] = look_rotation(np.array([0.0, 0.0, -1.0]))  # looking straight down on the box
     pose[:3, 3] = [0.74, 0.74, 1.0]
@@ -81,7 +66,7 @@ def test_integrator_battery(ros_env: dict, tmp_path: Path) -> None:  # noqa: F81
         )
         with RosClient(int(ros_env["ROS_DOMAIN_ID"])) as client:
             received = []
-            for topic, cls in ((TOPIC_IMAGE, Image), (TOPIC_CAMERA_INFO, CameraInfo), (TOPIC_POSE, TransformStamped)):
+            for topic, (cls, _) in TOPICS.items():  # the camera's topics
                 client.node.create_subscription(cls, topic, lambda raw, t=topic: received.append(t), 10, raw=True)
             # a truncated bag: bag_replay fails before publishing anything, with a clear message
             replay = graph.start_node("bag_replay", "bag_replay", {"bag": str(truncated), "rate": 100.0})
@@ -93,29 +78,25 @@ def test_integrator_battery(ros_env: dict, tmp_path: Path) -> None:  # noqa: F81
             client.spin_until(lambda: False, 0.3)
             assert received == []
 
-            publishers = {
-                topic: client.node.create_publisher(cls, topic, 10)
-                for topic, cls in (
-                    (TOPIC_IMAGE, Image),
-                    (TOPIC_CAMERA_INFO, CameraInfo),
-                    (TOPIC_POSE, TransformStamped),
-                )
-            }
+            publishers = {topic: client.node.create_publisher(cls, topic, 10) for topic, (cls, _) in TOPICS.items()}
             assert client.spin_until(
                 lambda: all(p.get_subscription_count() >= 2 for p in publishers.values()), START_TIMEOUT_S
             ), "the integrator did not subscribe"
             client.spin_until(lambda: False, 0.3)
 
-            def publish(topic: str, msg, msgtype: str) -> None:
-                publishers[topic].publish(bytes(store.serialize_cdr(msg, msgtype)))
+            def publish(topic: str, msg) -> None:
+                publishers[topic].publish(bytes(store.serialize_cdr(msg, TOPICS[topic][1])))
 
             def publish_frame(stamp: int, image=None, with_pose: bool = True) -> None:
-                publish(TOPIC_CAMERA_INFO, intrinsics_to_camera_info(intrinsics, stamp), MSG_CAMERA_INFO)
+                """The plane seen from ``pose`` at ``stamp``, or ``image`` instead of its image."""
+                good = plane_frame(stamp, pose, "camera_optical")
+                publishers[TOPIC_CAMERA_INFO].publish(good.info)
                 if with_pose:
-                    publish(TOPIC_POSE, pose_to_transform_msg(pose, stamp), MSG_TRANSFORM)
+                    publishers[TOPIC_POSE].publish(good.pose)
                 if image is None:
-                    image = depth_to_image_msg(np.full(intrinsics.shape, 0.6, np.float32), stamp, "16UC1")
-                publish(TOPIC_IMAGE, image, MSG_IMAGE)
+                    publishers[TOPIC_IMAGE].publish(good.image)
+                else:
+                    publish(TOPIC_IMAGE, image)
 
             diagnostics_client = client.node.create_client(Trigger, "/integrator/diagnostics")
             arrays: list[DiagnosticArray] = []
@@ -146,14 +127,13 @@ def test_integrator_battery(ros_env: dict, tmp_path: Path) -> None:  # noqa: F81
 
             before_counts = drops()
             assert sum(before_counts.values()) == 0
-            good_depth = np.full(intrinsics.shape, 0.6, np.float32)
             # an encoding outside REP-118
-            rgb = depth_to_image_msg(good_depth, 10 * S, "16UC1")
+            rgb = depth_to_image_msg(DEPTH, 10 * S, "16UC1")
             rgb.encoding, rgb.step, rgb.data = "rgb8", 64 * 3, np.zeros(48 * 64 * 3, np.uint8)
             publish_frame(10 * S, image=rgb)
             expect_drop("bad_encoding", "unsupported encoding 'rgb8'")
             # image data shorter than its own height x step
-            short = depth_to_image_msg(good_depth, 20 * S, "16UC1")
+            short = depth_to_image_msg(DEPTH, 20 * S, "16UC1")
             short.data = short.data[:-100]
             publish_frame(20 * S, image=short)
             expect_drop("size_mismatch", "data bytes")
@@ -168,15 +148,15 @@ def test_integrator_battery(ros_env: dict, tmp_path: Path) -> None:  # noqa: F81
                 else:
                     q = bad.transform.rotation
                     q.x = q.y = q.z = q.w = 0.0
-                publish(TOPIC_POSE, bad, MSG_TRANSFORM)
+                publish(TOPIC_POSE, bad)
                 publish_frame(stamp, with_pose=False)
                 expect_drop("non_finite_pose", "non-zero quaternion")
             # a stale pose (0.5 s older than the image; tolerance 10 ms): dropped after pose_timeout_s
-            publish(TOPIC_POSE, pose_to_transform_msg(pose, 60 * S - S // 2), MSG_TRANSFORM)
+            publish(TOPIC_POSE, pose_to_transform_msg(pose, 60 * S - S // 2))
             publish_frame(60 * S, with_pose=False)
             expect_drop("no_pose", "dropped: no pose within")
             # a pose in another frame than the grid's (pose_source:=topic takes poses in the grid frame only)
-            publish(TOPIC_POSE, pose_to_transform_msg(pose, 70 * S, parent="map"), MSG_TRANSFORM)
+            publish(TOPIC_POSE, pose_to_transform_msg(pose, 70 * S, parent="map"))
             expect_drop("pose_frame", "expected the grid frame 'world'")
 
             # the drops are on /diagnostics too, one key per reason

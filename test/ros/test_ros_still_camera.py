@@ -17,30 +17,18 @@ pytest.importorskip("nbv_prob_cnn_msgs")
 
 from geometry_msgs.msg import TransformStamped  # noqa: E402
 from nbv_prob_cnn_msgs.msg import VoxelGrid  # noqa: E402
+from plane_frames import S, plane_frame  # noqa: E402
 from sensor_msgs.msg import CameraInfo, Image  # noqa: E402
 from std_srvs.srv import Trigger  # noqa: E402
 from test_ros_perception import START_TIMEOUT_S, RosClient, assert_clean_stop, counts, stamp_ns  # noqa: E402
 from test_ros_perception import domain_id as perception_domain  # noqa: E402
 
-from nbv_prob_cnn.perception import Intrinsics  # noqa: E402
-from nbv_prob_cnn.perception.bags import (  # noqa: E402
-    MSG_CAMERA_INFO,
-    MSG_IMAGE,
-    MSG_TRANSFORM,
-    depth_to_image_msg,
-    intrinsics_to_camera_info,
-    pose_to_transform_msg,
-    typestore,
-)
 from nbv_prob_cnn.ros.conversions import msg_to_grid  # noqa: E402
 from nbv_prob_cnn.ros.graph import NodeGraph  # noqa: E402
 from nbv_prob_cnn.ros.qos import GRID_QOS  # noqa: E402
 
 pytestmark = pytest.mark.slow  # multi-process ROS graphs
 
-S = 1_000_000_000
-INTRINSICS = Intrinsics.from_hfov(64, 48, 60.0)
-DEPTH = np.full(INTRINSICS.shape, 0.6, np.float32)  # a plane 0.6 m in front of the camera
 PARAMS = {"pose_source": "topic", "publish_rate_hz": 0.0, "pose_timeout_s": 1.0, "drop_when_behind": False,
           "qos_reliability": "reliable", "queue_size": 20}  # fmt: skip
 
@@ -54,7 +42,6 @@ def down_pose(x: float) -> np.ndarray:
 
 def test_a_still_camera_is_fused_once_per_pose_and_the_grid_follows_its_stamps(ros_domain, tmp_path: Path) -> None:
     env = ros_domain(perception_domain(11))
-    store = typestore()
     with NodeGraph(env, log_dir=tmp_path) as graph, RosClient(int(env["ROS_DOMAIN_ID"])) as client:
         graph.start_node("integrator", "integrator", {**PARAMS, "still_frames_fused": 2})
         graph.start_node("every_frame", "integrator", PARAMS, namespace="/ref")
@@ -75,13 +62,11 @@ def test_a_still_camera_is_fused_once_per_pose_and_the_grid_follows_its_stamps(r
         client.spin_until(lambda: False, 0.5)
 
         def frame(stamp: int, pose: np.ndarray) -> None:
+            cdr = plane_frame(stamp, pose, "cam")
             for image_pub, info_pub, pose_pub in pubs.values():
-                pose_pub.publish(bytes(store.serialize_cdr(pose_to_transform_msg(pose, stamp, "world", "cam"),
-                                                           MSG_TRANSFORM)))  # fmt: skip
-                info_pub.publish(bytes(store.serialize_cdr(intrinsics_to_camera_info(INTRINSICS, stamp, "cam"),
-                                                           MSG_CAMERA_INFO)))  # fmt: skip
-                image_pub.publish(bytes(store.serialize_cdr(depth_to_image_msg(DEPTH, stamp, "16UC1", "cam"),
-                                                            MSG_IMAGE)))  # fmt: skip
+                pose_pub.publish(cdr.pose)
+                info_pub.publish(cdr.info)
+                image_pub.publish(cdr.image)
 
         diagnostics = node.create_client(Trigger, "/integrator/diagnostics")
 

@@ -23,6 +23,7 @@ pytest.importorskip("tf2_msgs")
 
 from geometry_msgs.msg import TransformStamped  # noqa: E402
 from nbv_prob_cnn_msgs.msg import VoxelGrid  # noqa: E402
+from plane_frames import S, plane_frame  # noqa: E402
 from sensor_msgs.msg import CameraInfo, Image  # noqa: E402
 from std_srvs.srv import Trigger  # noqa: E402
 from test_ros_perception import (  # noqa: E402
@@ -36,16 +37,6 @@ from test_ros_perception import (  # noqa: E402
 from test_ros_perception import domain_id as perception_domain  # noqa: E402
 from tf2_msgs.msg import TFMessage  # noqa: E402
 
-from nbv_prob_cnn.perception import Intrinsics  # noqa: E402
-from nbv_prob_cnn.perception.bags import (  # noqa: E402
-    MSG_CAMERA_INFO,
-    MSG_IMAGE,
-    MSG_TRANSFORM,
-    depth_to_image_msg,
-    intrinsics_to_camera_info,
-    pose_to_transform_msg,
-    typestore,
-)
 from nbv_prob_cnn.ros.conversions import msg_to_grid, time_msg  # noqa: E402
 from nbv_prob_cnn.ros.graph import NodeGraph, wait_for  # noqa: E402
 from nbv_prob_cnn.ros.qos import GRID_QOS  # noqa: E402
@@ -53,9 +44,6 @@ from nbv_prob_cnn.ros.tf_listener import TF_QOS, TF_STATIC_QOS  # noqa: E402
 
 pytestmark = pytest.mark.slow  # multi-process ROS graphs
 
-S = 1_000_000_000
-INTRINSICS = Intrinsics.from_hfov(64, 48, 60.0)
-DEPTH = np.full(INTRINSICS.shape, 0.6, np.float32)  # a plane 0.6 m in front of the camera
 GRID_PARAMS = {"publish_rate_hz": 10.0, "pose_timeout_s": 1.0, "diagnostics_period_s": 0.2}
 
 
@@ -81,7 +69,6 @@ class Publishers:
 
     def __init__(self, client: RosClient) -> None:
         node = client.node
-        self.store = typestore()
         self.image = {ns: node.create_publisher(Image, f"{ns}/camera/depth/image", 10) for ns in ("", "/ref")}
         self.info = {ns: node.create_publisher(CameraInfo, f"{ns}/camera/depth/camera_info", 10) for ns in ("", "/ref")}
         self.ref_pose = node.create_publisher(TransformStamped, "/ref/camera/pose", 10)
@@ -91,16 +78,18 @@ class Publishers:
     def all(self) -> list:
         return [*self.image.values(), *self.info.values(), self.ref_pose, self.tf, self.tf_static]
 
-    def frame(self, stamp: int, frame_id: str = "camera_optical", ns: str = "") -> None:
-        info = intrinsics_to_camera_info(INTRINSICS, stamp, frame_id)
-        self.info[ns].publish(bytes(self.store.serialize_cdr(info, MSG_CAMERA_INFO)))
-        image = depth_to_image_msg(DEPTH, stamp, "16UC1", frame_id)
-        self.image[ns].publish(bytes(self.store.serialize_cdr(image, MSG_IMAGE)))
+    def frame(self, stamp: int, frame_id: str = "camera_optical") -> None:
+        """A frame to be posed by TF: the image and camera_info, no pose."""
+        cdr = plane_frame(stamp, np.eye(4), frame_id)
+        self.info[""].publish(cdr.info)
+        self.image[""].publish(cdr.image)
 
     def reference_frame(self, stamp: int, pose: np.ndarray) -> None:
-        msg = pose_to_transform_msg(pose, stamp, "world", "camera_optical")
-        self.ref_pose.publish(bytes(self.store.serialize_cdr(msg, MSG_TRANSFORM)))
-        self.frame(stamp, ns="/ref")
+        """The reference's frame, with its pose on ``/ref/camera/pose``."""
+        cdr = plane_frame(stamp, pose, "camera_optical")
+        self.ref_pose.publish(cdr.pose)
+        self.info["/ref"].publish(cdr.info)
+        self.image["/ref"].publish(cdr.image)
 
 
 def test_integrator_poses_images_by_tf(ros_domain, tmp_path: Path) -> None:

@@ -4,13 +4,14 @@ unknown fraction by replaying the logged views), and a re-run resumes without re
 
 from __future__ import annotations
 
-import csv
 import math
 
 import numpy as np
 import pytest
 
 pytest.importorskip("pinocchio")
+
+from arm_compare_runs import read, run_arm_compare, run_log  # noqa: E402
 
 from nbv_prob_cnn.arm.ik import DEFAULT_IK  # noqa: E402
 from nbv_prob_cnn.arm.kinematics import CameraChain  # noqa: E402
@@ -26,16 +27,9 @@ ARGS += ["--free-above", "0.25", "--top-k", "1000", "--motion-weight", "0.1", "-
 CONFIGS = ("free_flying", "arm_lambda_0", "arm_lambda_0.1")
 
 
-def read(path) -> list[dict]:
-    with open(path, newline="") as handle:
-        return list(csv.DictReader(handle))
-
-
 @pytest.fixture(scope="module")
 def compared(tmp_path_factory):
-    out = tmp_path_factory.mktemp("arm_compare")
-    assert main(["arm_compare", "--out", str(out), *ARGS]) == 0
-    return out
+    return run_arm_compare(tmp_path_factory.mktemp("arm_compare"), ARGS)
 
 
 def test_outputs_are_written(compared):
@@ -47,13 +41,13 @@ def test_outputs_are_written(compared):
 
 
 def test_all_configurations_share_the_first_view(compared):
-    firsts = [read(compared / "runs" / f"seed{SEED}_{c}.csv")[0] for c in CONFIGS]
+    firsts = [run_log(compared, SEED, c)[0] for c in CONFIGS]
     keys = ("cell_i", "cell_j", "cell_k", "view_index", "unknown_fraction")
     assert all(tuple(f[k] for k in keys) == tuple(firsts[0][k] for k in keys) for f in firsts)
 
 
 def test_free_flying_log_has_no_joint_columns(compared):
-    rows = read(compared / "runs" / f"seed{SEED}_free_flying.csv")
+    rows = run_log(compared, SEED, "free_flying")
     assert len(rows) == VIEWS
     assert all(row["joint_travel"] == "" and row["time_ik_collision_s"] == "" for row in rows)
     assert all(float(row["time_gain_s"]) > 0 for row in rows[1:])
@@ -63,7 +57,7 @@ def test_free_flying_log_has_no_joint_columns(compared):
 def test_arm_log_is_consistent_with_kinematics(compared, config):
     robot = RobotModel()
     chain = CameraChain(robot)
-    rows = read(compared / "runs" / f"seed{SEED}_{config}.csv")
+    rows = run_log(compared, SEED, config)
     assert len(rows) >= 2, "the arm took no planned view on the tiny case"
     qs = np.array([[float(row[f"q{j}"]) for j in range(robot.nq)] for row in rows])
     previous = np.vstack([robot.reference_q, qs[:-1]])
@@ -105,7 +99,7 @@ def test_unknown_fraction_replays(compared, config):
     context = PlanningContext.for_dataset("3dt")
     geometry = world.geometry
     state = np.full(world.shape, -1, dtype=np.int8)
-    for row in read(compared / "runs" / f"seed{SEED}_{config}.csv"):
+    for row in run_log(compared, SEED, config):
         cell = np.array([int(row[k]) for k in ("cell_i", "cell_j", "cell_k")])
         np.testing.assert_allclose(geometry.cell_centre(cell), [float(row[k]) for k in ("x", "y", "z")], atol=1e-6)
         observe(state, world.ground_truth, cell, context.orientations[int(row["view_index"])], context.active_sensor)
@@ -116,7 +110,7 @@ def test_summary_matches_the_run_logs(compared):
     summary = {row["config"]: row for row in read(compared / "summary.csv")}
     assert set(summary) == set(CONFIGS)
     for config in CONFIGS:
-        rows = read(compared / "runs" / f"seed{SEED}_{config}.csv")
+        rows = run_log(compared, SEED, config)
         assert float(summary[config]["unknown_fraction_final_mean"]) == pytest.approx(
             float(rows[-1]["unknown_fraction"]), abs=1e-6
         )
@@ -139,7 +133,7 @@ def test_rerun_skips_finished_runs(compared):
     runs = sorted((compared / "runs").glob("*.csv"))
     stamps = {p: (p.stat().st_mtime_ns, p.read_bytes()) for p in runs}
     before = (compared / "summary.csv").read_text()
-    assert main(["arm_compare", "--out", str(compared), *ARGS]) == 0
+    run_arm_compare(compared, ARGS)
     assert {p: (p.stat().st_mtime_ns, p.read_bytes()) for p in runs} == stamps
     assert (compared / "summary.csv").read_text() == before
 

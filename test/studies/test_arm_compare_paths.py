@@ -4,7 +4,6 @@ log, and the summary is recomputed from the run logs independently."""
 
 from __future__ import annotations
 
-import csv
 import math
 
 import numpy as np
@@ -12,6 +11,8 @@ import pytest
 
 pytest.importorskip("pinocchio")
 pytest.importorskip("ompl")
+
+from arm_compare_runs import read, run_arm_compare, run_log  # noqa: E402
 
 from nbv_prob_cnn.arm.robot import RobotModel  # noqa: E402
 from studies.__main__ import main  # noqa: E402
@@ -23,20 +24,13 @@ ARGS += ["--free-above", "0.25", "--top-k", "1000", "--path-timeout", "0.5", "--
 CONFIGS = ("arm_lambda_0_planned", "arm_lambda_0")
 
 
-def read(path) -> list[dict]:
-    with open(path, newline="") as handle:
-        return list(csv.DictReader(handle))
-
-
 @pytest.fixture(scope="module")
 def compared(tmp_path_factory):
-    out = tmp_path_factory.mktemp("arm_compare_paths")
-    assert main(["arm_compare", "--out", str(out), *ARGS]) == 0
-    return out
+    return run_arm_compare(tmp_path_factory.mktemp("arm_compare_paths"), ARGS)
 
 
 def test_both_configurations_are_logged_from_the_same_first_view(compared):
-    logs = {c: read(compared / "runs" / f"seed{SEED}_{c}.csv") for c in CONFIGS}
+    logs = {c: run_log(compared, SEED, c) for c in CONFIGS}
     keys = ("cell_i", "cell_j", "cell_k", "view_index", "unknown_fraction", "joint_travel")
     assert logs[CONFIGS[0]][0][keys[0]] != ""
     assert {tuple(rows[0][k] for k in keys) for rows in logs.values()} == {tuple(logs[CONFIGS[0]][0][k] for k in keys)}
@@ -46,7 +40,7 @@ def test_both_configurations_are_logged_from_the_same_first_view(compared):
 def test_straight_moves_cost_the_straight_distance(compared):
     robot = RobotModel()
     for config in CONFIGS:
-        rows = read(compared / "runs" / f"seed{SEED}_{config}.csv")
+        rows = run_log(compared, SEED, config)
         qs = np.array([[float(row[f"q{j}"]) for j in range(robot.nq)] for row in rows])
         previous = np.vstack([robot.reference_q, qs[:-1]])
         for row, q, before in zip(rows, qs, previous, strict=True):
@@ -65,7 +59,7 @@ def test_summary_is_recomputed_from_the_logs(compared):
     summary = {row["config"]: row for row in read(compared / "summary.csv")}
     assert set(summary) == set(CONFIGS)
     for config in CONFIGS:
-        rows = read(compared / "runs" / f"seed{SEED}_{config}.csv")
+        rows = run_log(compared, SEED, config)
         s = summary[config]
         assert float(s["feasible_iteration_fraction"]) == pytest.approx((len(rows) - 1) / (VIEWS - 1), abs=1e-4)
         assert float(s["joint_travel_total_rad_mean"]) == pytest.approx(
@@ -86,7 +80,7 @@ def test_bad_path_settings_give_clear_errors(tmp_path, capsys):
 def test_the_configurations_differ_only_from_the_first_planned_move(compared):
     """Path planning runs only where the straight path is blocked: until the first move along a
     planned path, both configurations take the same views with the same joint goals."""
-    planned, straight = (read(compared / "runs" / f"seed{SEED}_{c}.csv") for c in CONFIGS)
+    planned, straight = (run_log(compared, SEED, c) for c in CONFIGS)
     keys = ["cell_i", "cell_j", "cell_k", "view_index", "unknown_fraction", "joint_travel"]
     keys += [f"q{j}" for j in range(9)]
     for a, b in zip(planned, straight, strict=False):

@@ -28,15 +28,22 @@ from nbv_prob_cnn.arm.robot import (
     translation,
 )
 
-TWO_LINK = """<?xml version="1.0"?>
+
+def revolute_joint(name: str, parent: str, child: str, z: str, axis: str, velocity: str) -> str:
+    """The URDF of the toy robots' joints: ``z`` m above ``parent``'s origin, turning about
+    ``axis`` within ±1 rad at up to ``velocity`` rad/s."""
+    return f"""<joint name="{name}" type="revolute">
+    <parent link="{parent}"/><child link="{child}"/>
+    <origin xyz="0 0 {z}" rpy="0 0 0"/><axis xyz="{axis}"/>
+    <limit lower="-1" upper="1" velocity="{velocity}" effort="1"/>
+  </joint>"""
+
+
+TWO_LINK = f"""<?xml version="1.0"?>
 <robot name="two_link">
   <link name="base"><visual><geometry><mesh filename="package://toy_description/meshes/base.stl"/></geometry></visual></link>
   <link name="arm"/>
-  <joint name="shoulder" type="revolute">
-    <parent link="base"/><child link="arm"/>
-    <origin xyz="0 0 0.5" rpy="0 0 0"/><axis xyz="0 0 1"/>
-    <limit lower="-1" upper="1" velocity="2" effort="1"/>
-  </joint>
+  {revolute_joint("shoulder", "base", "arm", "0.5", "0 0 1", "2")}
 </robot>
 """
 
@@ -95,23 +102,23 @@ def test_the_xarm6_of_pybullet_data_loads_with_its_package_meshes():
 
 
 # -- xacro ---------------------------------------------------------------------------------------
-XACRO = """<?xml version="1.0"?>
+XACRO = (
+    """<?xml version="1.0"?>
 <robot name="toy" xmlns:xacro="http://www.ros.org/wiki/xacro">
   <xacro:arg name="height" default="0.5"/>
   <xacro:property name="reach" value="0.25"/>
   <xacro:macro name="segment" params="name parent z">
     <link name="${name}"/>
-    <joint name="${name}_joint" type="revolute">
-      <parent link="${parent}"/><child link="${name}"/>
-      <origin xyz="0 0 ${z}" rpy="0 0 0"/><axis xyz="0 1 0"/>
-      <limit lower="-1" upper="1" velocity="1" effort="1"/>
-    </joint>
+    """
+    + revolute_joint("${name}_joint", "${parent}", "${name}", "${z}", "0 1 0", "1")
+    + """
   </xacro:macro>
   <link name="base"/>
   <xacro:segment name="upper" parent="base" z="$(arg height)"/>
   <xacro:segment name="lower" parent="upper" z="${2 * reach}"/>
 </robot>
 """
+)
 
 
 def test_xacro_files_and_strings_expand_with_their_arguments(tmp_path):

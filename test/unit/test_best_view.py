@@ -36,6 +36,14 @@ def _setup(shape, n_rays):
     return d, member
 
 
+def _explored_views(seed: int, shape, n_rays: int, mode: str):
+    """:func:`_explored_world` of ``seed``: its state, the probabilities (``prob`` mode; None for
+    ``ig``), the ray directions and view membership, and the origins (every empty cell)."""
+    state, prob = _explored_world(np.random.default_rng(seed), shape)
+    d, member = _setup(shape, n_rays)
+    return state, (prob if mode == "prob" else None), d, member, np.argwhere(state == E)
+
+
 def _march(d, r_max, mode="prob", min_range=2.0):
     """The paper's rounded samples of ``d`` up to ``r_max`` (exact: ``eps`` 0)."""
     return RayMarch(sample_offsets(d, r_max), float(distance_weights(r_max, d.shape[1]).sum()), mode, 0.0, min_range)
@@ -53,11 +61,7 @@ def test_best_view_equals_exhaustive_and_numpy(shape, n_rays, r_max, mode, seed,
     reference, and a maximum of the reference: the reference's argmax itself unless another pair
     is within 1e-6 (relative, plus 1e-6) of it (``ig`` sums equal weights: exact ties that float32 and float64 sums in
     different orders break differently)."""
-    rng = np.random.default_rng(seed)
-    state, prob = _explored_world(rng, shape)
-    d, member = _setup(shape, n_rays)
-    p = prob if mode == "prob" else None
-    origins = np.argwhere(state == E)
+    state, p, d, member, origins = _explored_views(seed, shape, n_rays, mode)
     settings = GainSettings(mode=mode, min_range=2)
     exhaustive = origin_view_gains(state, p, d, r_max, member, origins, "opencl", settings=settings)
     reference = origin_view_gains(state, p, d, r_max, member, origins, "numpy", settings=settings)
@@ -103,10 +107,7 @@ def test_best_view_late_exploration(shape, n_rays, r_max, lanes):
 @pytest.mark.parametrize("size", [2, 3, 4])
 def test_block_bounds_bound_every_origin(shape, n_rays, r_max, mode, size):
     """Each block's per-view bound is at least the exact gain of every origin of the block."""
-    state, prob = _explored_world(np.random.default_rng(2), shape)
-    d, member = _setup(shape, n_rays)
-    p = prob if mode == "prob" else None
-    origins = np.argwhere(state == E)
+    state, p, d, member, origins = _explored_views(2, shape, n_rays, mode)
     exact = origin_view_gains(
         state, p, d, r_max, member, origins, "numpy", settings=GainSettings(mode=mode, min_range=2)
     )
@@ -185,10 +186,7 @@ def test_view_sets_give_exact_gains_of_their_views(shape, n_rays, r_max, mode):
     """View sets: one set for every origin gives the reference gains of its views and 0 for the
     others (their rays are not marched); per-origin sets sum a work-group's union of views, so
     every origin's own views are exact and every other view is exact or 0."""
-    state, prob = _explored_world(np.random.default_rng(5), shape)
-    d, member = _setup(shape, n_rays)
-    p = prob if mode == "prob" else None
-    origins = np.argwhere(state == E)
+    state, p, d, member, origins = _explored_views(5, shape, n_rays, mode)
     reference = origin_view_gains(
         state, p, d, r_max, member, origins, "numpy", settings=GainSettings(mode=mode, min_range=2)
     )
@@ -214,10 +212,7 @@ def test_best_view_evaluates_only_views_that_can_win(monkeypatch, mode):
     import nbv_prob_cnn.gain.opencl as opencl
 
     shape, n_rays, r_max = (20, 18, 16), 16, 10
-    state, prob = _explored_world(np.random.default_rng(7), shape)
-    d, member = _setup(shape, n_rays)
-    p = prob if mode == "prob" else None
-    origins = np.argwhere(state == E)
+    state, p, d, member, origins = _explored_views(7, shape, n_rays, mode)
     evaluated: list[float] = []
 
     def spy(*args):

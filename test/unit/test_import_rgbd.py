@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import math
+import re
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -102,8 +104,8 @@ def test_tum_bag_holds_millimetres_and_the_poses(tum, tmp_path, capsys):
         assert np.array_equal(frame.depth_m == 0, raw == 0)
         assert frame.intrinsics.fx == 5.0 and frame.intrinsics.cx == 3.5
         np.testing.assert_allclose(frame.pose_4x4[:3, 3], [0.1 * j, 0.5, 1.5], atol=1e-9)
-    # what bag_replay reads: the three camera topics, every message valid
-    assert set(bag_topics(bag)) == {"/camera/depth/image", "/camera/depth/camera_info", "/camera/pose"}
+    # what bag_replay reads: the camera's two topics and the poses on /tf, every message valid
+    assert set(bag_topics(bag)) == {"/camera/depth/image", "/camera/depth/camera_info", "/tf"}
     assert sum(1 for _ in read_raw_messages(bag)) == 9
 
 
@@ -137,39 +139,6 @@ def test_up_turns_the_world(tum, tmp_path):
         np.testing.assert_allclose(frame.pose_4x4, rot @ recorded.pose, atol=1e-9)
         # recorded position (x, 0.5, 1.5) -> (x, 1.5, -0.5)
         np.testing.assert_allclose(frame.pose_4x4[1:3, 3], [1.5, -0.5], atol=1e-9)
-
-
-@pytest.mark.parametrize(
-    ("damage", "message"),
-    [
-        (lambda r: (r / "depth.txt").unlink(), "depth.txt: no such file"),
-        (lambda r: (r / "groundtruth.txt").unlink(), "groundtruth.txt: no such file"),
-        (lambda r: _replace_line(r / "groundtruth.txt", 4, "1.0 0 0 0 0 0 0"), "groundtruth.txt line 4: expected 8"),
-        (lambda r: _replace_line(r / "groundtruth.txt", 5, "1.0 nan 0 0 0 0 0 1"), "groundtruth.txt line 5: NaN"),
-        (lambda r: _replace_line(r / "groundtruth.txt", 6, "1.01 0 0 0 0 0 0 2"), "line 6: quaternion"),
-        (lambda r: _replace_line(r / "depth.txt", 3, "1.0"), "depth.txt line 3: expected 'timestamp filename'"),
-        (lambda r: (r / "depth" / "1.033000.png").unlink(), "depth.txt line 4: no such depth image"),
-        (lambda r: Image.fromarray(np.zeros((H, W), np.uint8)).save(r / "depth" / "1.000000.png"), "8-bit image"),
-        (lambda r: write_png(r / "depth" / "1.067000.png", np.zeros((H + 1, W))), "image is 8x7 pixels"),
-        (lambda r: (r / "depth" / "1.000000.png").write_bytes(b"not a png"), "not a readable PNG"),
-    ],
-)
-def test_bad_tum_input_names_the_file(tum, tmp_path, capsys, damage, message):
-    damage(tum)
-    with pytest.raises(RecordingError, match=message.replace("(", r"\(")):
-        read_tum(tum, K, (W, H))
-    # the command says the same and writes nothing
-    bag = tmp_path / "bad.bag"
-    args = ["--image-size", str(W), str(H), "--intrinsics", *(str(v) for v in K)]
-    assert main(["import-rgbd", "--format", "tum", str(tum), "--out", str(bag), *args]) == 2
-    assert message.split(":")[-1].strip()[:12] in capsys.readouterr().err
-    assert not bag.exists()
-
-
-def _replace_line(path: Path, number: int, text: str) -> None:
-    lines = path.read_text().splitlines()
-    lines[number - 1] = text
-    path.write_text("\n".join(lines) + "\n")
 
 
 # ---------------------------------------------------------------------------- 7-Scenes layout
@@ -207,25 +176,77 @@ def test_7scenes_frames_stamps_and_gravity(scenes, tmp_path):
     np.testing.assert_allclose(frames[0].pose_4x4[:3, :3] @ [0, 1, 0], [0, 0, -1], atol=1e-12)
 
 
-@pytest.mark.parametrize(
-    ("damage", "message"),
-    [
-        (lambda r: (r / "frame-000005.pose.txt").unlink(), "frame-000005.depth.png: no matching frame-000005.pose"),
-        (lambda r: (r / "frame-000010.depth.png").unlink(), "frame-000010.pose.txt: no matching frame-000010.depth"),
-        (lambda r: _replace_line(r / "frame-000005.pose.txt", 2, "0 1 0 inf"), "frame-000005.pose.txt line 2: NaN"),
-        (lambda r: _replace_line(r / "frame-000005.pose.txt", 3, "0 0 1"), "frame-000005.pose.txt line 3: expected 4"),
-        (lambda r: _replace_line(r / "frame-000005.pose.txt", 1, "1.5 0 0 0"), "frame-000005.pose.txt: the rotation"),
-        (lambda r: _replace_line(r / "frame-000005.pose.txt", 1, "-1 0 0 0"), "a reflection"),
-        (lambda r: (r / "camera-intrinsics.txt").write_text("6 0 3.5\n0 6 2.5\n"), "camera-intrinsics.txt: expected 3"),
-        (lambda r: (r / "camera-intrinsics.txt").write_text("6 0 30\n0 6 2.5\n0 0 1\n"), "principal point (30, 2.5)"),
-        (lambda r: (r / "gravity-direction.txt").write_text("0 0\n"), "gravity-direction.txt: expected 3"),
-        (lambda r: write_png(r / "frame-000010.depth.png", np.zeros((H, W + 2))), "image is 10x6 pixels"),
-    ],
-)
-def test_bad_7scenes_input_names_the_file(scenes, damage, message):
-    damage(scenes)
-    with pytest.raises(RecordingError, match=message.replace("(", r"\(").replace(")", r"\)")):
-        read_7scenes(scenes, image_size=(W, H))
+# ------------------------------------------------------------------------- bad input, either layout
+def removed(name: str) -> Callable[[Path], None]:
+    """Damage to a recording folder: the file ``name`` deleted."""
+    return lambda root: (root / name).unlink()
+
+
+def line_replaced(name: str, number: int, text: str) -> Callable[[Path], None]:
+    """Damage to a recording folder: line ``number`` (from 1) of the text file ``name`` replaced by ``text``."""
+
+    def damage(root: Path) -> None:
+        path = root / name
+        lines = path.read_text().splitlines()
+        lines[number - 1] = text
+        path.write_text("\n".join(lines) + "\n")
+
+    return damage
+
+
+def rewritten(name: str, text: str) -> Callable[[Path], None]:
+    """Damage to a recording folder: the text file ``name`` holding only ``text``."""
+    return lambda root: (root / name).write_text(text)
+
+
+def png_written(name: str, pixels: np.ndarray) -> Callable[[Path], None]:
+    """Damage to a recording folder: the depth image ``name`` replaced by 16-bit ``pixels``."""
+    return lambda root: write_png(root / name, pixels)
+
+
+#: (layout, damage to the test's folder of that layout, what the error says)
+BAD_INPUT = [
+    ("tum", removed("depth.txt"), "depth.txt: no such file"),
+    ("tum", removed("groundtruth.txt"), "groundtruth.txt: no such file"),
+    ("tum", removed("depth/1.033000.png"), "depth.txt line 4: no such depth image"),
+    ("7scenes", removed("frame-000005.pose.txt"), "frame-000005.depth.png: no matching frame-000005.pose"),
+    ("7scenes", removed("frame-000010.depth.png"), "frame-000010.pose.txt: no matching frame-000010.depth"),
+    ("tum", line_replaced("groundtruth.txt", 4, "1.0 0 0 0 0 0 0"), "groundtruth.txt line 4: expected 8"),
+    ("tum", line_replaced("groundtruth.txt", 5, "1.0 nan 0 0 0 0 0 1"), "groundtruth.txt line 5: NaN"),
+    ("tum", line_replaced("groundtruth.txt", 6, "1.01 0 0 0 0 0 0 2"), "line 6: quaternion"),
+    ("tum", line_replaced("depth.txt", 3, "1.0"), "depth.txt line 3: expected 'timestamp filename'"),
+    ("7scenes", line_replaced("frame-000005.pose.txt", 2, "0 1 0 inf"), "frame-000005.pose.txt line 2: NaN"),
+    ("7scenes", line_replaced("frame-000005.pose.txt", 3, "0 0 1"), "frame-000005.pose.txt line 3: expected 4"),
+    ("7scenes", line_replaced("frame-000005.pose.txt", 1, "1.5 0 0 0"), "frame-000005.pose.txt: the rotation"),
+    ("7scenes", line_replaced("frame-000005.pose.txt", 1, "-1 0 0 0"), "a reflection"),
+    ("7scenes", rewritten("camera-intrinsics.txt", "6 0 3.5\n0 6 2.5\n"), "camera-intrinsics.txt: expected 3"),
+    ("7scenes", rewritten("camera-intrinsics.txt", "6 0 30\n0 6 2.5\n0 0 1\n"), "principal point (30, 2.5)"),
+    ("7scenes", rewritten("gravity-direction.txt", "0 0\n"), "gravity-direction.txt: expected 3"),
+    ("tum", png_written("depth/1.067000.png", np.zeros((H + 1, W))), "image is 8x7 pixels"),
+    ("7scenes", png_written("frame-000010.depth.png", np.zeros((H, W + 2))), "image is 10x6 pixels"),
+    ("tum", lambda r: Image.fromarray(np.zeros((H, W), np.uint8)).save(r / "depth" / "1.000000.png"), "8-bit image"),
+    ("tum", lambda r: (r / "depth" / "1.000000.png").write_bytes(b"not a png"), "not a readable PNG"),
+]
+#: layout -> (the fixture writing its test folder, its reader, the import-rgbd options it needs besides the image size)
+LAYOUTS = {
+    "tum": ("tum", lambda root: read_tum(root, K, (W, H)), ["--intrinsics", *(str(v) for v in K)]),
+    "7scenes": ("scenes", lambda root: read_7scenes(root, image_size=(W, H)), []),
+}
+
+
+@pytest.mark.parametrize(("layout", "damage", "message"), BAD_INPUT)
+def test_bad_input_names_the_file(layout, damage, message, request, tmp_path, capsys):
+    fixture, read, options = LAYOUTS[layout]
+    root = request.getfixturevalue(fixture)
+    damage(root)
+    with pytest.raises(RecordingError, match=re.escape(message)):
+        read(root)
+    # the command says the same and writes nothing
+    bag = tmp_path / "bad.bag"
+    args = ["--image-size", str(W), str(H), *options]
+    assert main(["import-rgbd", "--format", layout, str(root), "--out", str(bag), *args]) == 2
+    assert message.split(":")[-1].strip()[:12] in capsys.readouterr().err
+    assert not bag.exists()
 
 
 def test_refuses_an_existing_bag_and_a_missing_folder(scenes, tmp_path, capsys):
