@@ -69,13 +69,14 @@ def node_module(name: str) -> ModuleType:
 
 
 def config_class(module: ModuleType) -> type:
-    """The config dataclass the node declares its parameters from (the module's dataclass whose
-    fields are all :func:`~nbv_prob_cnn.ros.parameters.param` fields, named ``...Config``)."""
+    """The config dataclass the node declares its parameters from (the dataclass of the module, or
+    of its ``<module>_config`` companion, whose fields are all
+    :func:`~nbv_prob_cnn.ros.parameters.param` fields, named ``...Config``)."""
     found = [
         obj
         for obj in vars(module).values()
         if inspect.isclass(obj) and dataclasses.is_dataclass(obj) and obj.__name__.endswith("Config")
-        and obj.__module__ == module.__name__
+        and obj.__module__ in (module.__name__, f"{module.__name__}_config")
         and all("param" in f.metadata for f in dataclasses.fields(obj))
     ]  # fmt: skip
     if len(found) != 1:
