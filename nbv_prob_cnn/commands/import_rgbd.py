@@ -1,4 +1,6 @@
-"""``nbv import-rgbd``: turn a 7-Scenes or TUM RGB-D recording into a depth-camera rosbag2 (mcap)."""
+"""``nbv import-rgbd``: turn a 7-Scenes or TUM RGB-D recording into a depth-camera rosbag2 (mcap):
+``/camera/depth/image`` (16UC1 mm), ``/camera/depth/camera_info`` and the poses on ``/tf`` (``world`` ->
+``camera_optical``, stamped as the image; :mod:`nbv_prob_cnn.perception.rgbd_import`)."""
 
 from __future__ import annotations
 
@@ -8,8 +10,8 @@ from pathlib import Path
 
 NAME = "import-rgbd"
 HELP = (
-    "Import an RGB-D recording (7-Scenes or TUM RGB-D layout: posed 16-bit depth PNGs) as a rosbag2 (mcap) that "
-    "nbv integrate, bag_replay and plan_from_bag.py read."
+    "Import an RGB-D recording (7-Scenes or TUM RGB-D layout: posed 16-bit depth PNGs) as a rosbag2 (mcap) with the "
+    "depth images, camera_info and the poses on /tf, that nbv integrate, bag_replay and plan_from_bag.py read."
 )
 
 

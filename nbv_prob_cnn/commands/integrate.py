@@ -1,4 +1,6 @@
-"""``nbv integrate``: build a ternary grid offline from a depth-camera rosbag2 (TSDF fusion)."""
+"""``nbv integrate``: build a ternary grid offline from a depth-camera rosbag2 (TSDF fusion); each image
+is posed by ``/camera/pose`` or, in a bag without it, by ``/tf`` (+ ``/tf_static``) at its stamp
+(:func:`~nbv_prob_cnn.perception.bags.read_frames`)."""
 
 from __future__ import annotations
 
@@ -14,6 +16,7 @@ HELP = "Fuse the posed depth images of a rosbag2 (mcap) into a ternary grid (.np
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Declare the command-line options."""
+    from nbv_prob_cnn.perception.messages import WORLD_FRAME
     from nbv_prob_cnn.perception.tsdf import (
         DEFAULT_EMPTY_MARGIN_VOXELS,
         DEFAULT_ORIGIN_M,
@@ -24,6 +27,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
 
     parser.add_argument("--bag", required=True, type=Path, help="rosbag2 directory or .mcap file")
+    parser.add_argument(
+        "--fixed-frame",
+        default=WORLD_FRAME,
+        help="a bag posed by /tf: the frame each image's pose is looked up in (default: %(default)s)",
+    )
     parser.add_argument("--out", required=True, type=Path, help="output grid .npz (keys grid, origin, resolution)")
     parser.add_argument(
         "--origin",
@@ -81,7 +89,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     """Integrate every frame of the bag and write the grid."""
     from nbv_prob_cnn.basics.grid import EMPTY, OCCUPIED, UNKNOWN
-    from nbv_prob_cnn.perception.bags import read_frames
+    from nbv_prob_cnn.perception.bags import TOPIC_POSE, bag_pose_source, read_frames
     from nbv_prob_cnn.perception.surfaces import occupied_centres, render_mesh_png, write_ply
     from nbv_prob_cnn.perception.tsdf import TsdfIntegrator
 
@@ -104,7 +112,9 @@ def run(args: argparse.Namespace) -> int:
         refine_pose_icp=args.refine_pose_icp,
         fusion=args.fusion,
     )
-    frames = read_frames(args.bag)  # validates the whole bag first (BagError is a ValueError)
+    poses = TOPIC_POSE if bag_pose_source(args.bag) == "topic" else f"/tf in {args.fixed_frame!r}"
+    # validates the whole bag first (BagError is a ValueError)
+    frames = read_frames(args.bag, fixed_frame=args.fixed_frame)
     t_read = time.perf_counter()
     for frame in frames:
         integrator.integrate(frame.depth_m, frame.intrinsics, frame.pose_4x4, depth_max=args.depth_max)
@@ -115,7 +125,7 @@ def run(args: argparse.Namespace) -> int:
     labels = (("unknown", UNKNOWN), ("empty", EMPTY), ("occupied", OCCUPIED))
     counts = {name: int(np.count_nonzero(grid == value)) for name, value in labels}
     n = integrator.stats.frames
-    print(f"frames read: {n}")
+    print(f"frames read: {n} (poses from {poses})")
     print(f"grid {tuple(grid.shape)} voxel {args.voxel} m origin {[round(float(v), 6) for v in origin]} -> {args.out}")
     print(f"unknown: {counts['unknown']}  empty: {counts['empty']}  occupied: {counts['occupied']}")
     print(

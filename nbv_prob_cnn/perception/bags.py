@@ -3,12 +3,17 @@
 Topics (the defaults of docs/method.md#node-graph):
     * ``/camera/depth/image``        ``sensor_msgs/msg/Image``, ``32FC1`` metres or ``16UC1`` millimetres
     * ``/camera/depth/camera_info``  ``sensor_msgs/msg/CameraInfo`` (pinhole ``K``; rectified images assumed)
-    * ``/camera/pose``               ``geometry_msgs/msg/TransformStamped``, ``world`` -> ``camera_optical``
+    * the pose ``world`` -> the image's ``header.frame_id`` (``camera_optical``), stamped as the image, on
+        * ``/camera/pose``           ``geometry_msgs/msg/TransformStamped`` (the simulated bags), or
+        * ``/tf``                    ``tf2_msgs/msg/TFMessage`` (+ ``/tf_static``: a robot's recording, and
+          ``nbv import-rgbd``'s bags); looked up in TF at the image's stamp
+          (:mod:`nbv_prob_cnn.perception.bag_pairing`).
 
 The message codecs live in :mod:`nbv_prob_cnn.perception.messages` (re-exported here).
 Messages are CDR-serialized with the ROS 2 Jazzy type store: ``rclpy.serialization`` reads them,
 and its bytes read back here (checked field by field; only the alignment padding bytes, which
-rclpy leaves uninitialised, can differ). A frame is the triple of messages sharing one header stamp.
+rclpy leaves uninitialised, can differ). A frame is an image, its camera_info (same header stamp)
+and its pose.
 
 Reading validates the whole bag before yielding the first frame (every message is read,
 deserialized and converted, message counts are checked against the bag's own index), so a
@@ -26,6 +31,22 @@ from typing import Any
 
 import numpy as np
 
+from nbv_prob_cnn.perception.bag_pairing import (
+    CAMERA_TOPICS,
+    MSG_TF,
+    POSE_SOURCES,
+    POSE_TOPICS,
+    TOPIC_CAMERA_INFO,
+    TOPIC_IMAGE,
+    TOPIC_POSE,
+    TOPIC_TF,
+    TOPIC_TF_STATIC,
+    Frame,
+    StampPairing,
+    TfPairing,
+    pose_source_of,
+    topics_read,
+)
 from nbv_prob_cnn.perception.depth_camera import Intrinsics
 from nbv_prob_cnn.perception.messages import (
     MSG_CAMERA_INFO,
@@ -50,13 +71,18 @@ __all__ = [
     "Frame",
     "MSG_CAMERA_INFO",
     "MSG_IMAGE",
+    "MSG_TF",
     "MSG_TRANSFORM",
     "OPTICAL_FRAME",
+    "POSE_SOURCES",
     "WORLD_FRAME",
     "RawMessage",
     "TOPIC_CAMERA_INFO",
     "TOPIC_IMAGE",
     "TOPIC_POSE",
+    "TOPIC_TF",
+    "TOPIC_TF_STATIC",
+    "bag_pose_source",
     "bag_topics",
     "camera_info_to_intrinsics",
     "depth_to_image_msg",
@@ -70,12 +96,6 @@ __all__ = [
     "typestore",
 ]
 
-TOPIC_IMAGE = "/camera/depth/image"
-TOPIC_CAMERA_INFO = "/camera/depth/camera_info"
-TOPIC_POSE = "/camera/pose"
-
-_TOPICS = {TOPIC_IMAGE: MSG_IMAGE, TOPIC_CAMERA_INFO: MSG_CAMERA_INFO, TOPIC_POSE: MSG_TRANSFORM}
-
 
 class BagError(ValueError):
     """A bag that cannot be read: missing, corrupt, truncated or not a depth-camera bag."""
@@ -83,16 +103,6 @@ class BagError(ValueError):
 
 class BagWarning(UserWarning):
     """Messages of a bag that do not form complete frames (skipped)."""
-
-
-@dataclass
-class Frame:
-    """One posed depth image."""
-
-    stamp_ns: int
-    depth_m: np.ndarray  # float32 (H, W) metres, 0 or NaN = no return
-    intrinsics: Intrinsics
-    pose_4x4: np.ndarray  # float64 world_from_optical
 
 
 # ----------------------------------------------------------------------------------- writing
@@ -104,12 +114,21 @@ class BagWriter:
         with BagWriter("run1") as bag:
             bag.write_frame(stamp_ns, depth, intrinsics, pose)
 
+    Args:
+        pose_source: ``topic``: each pose on ``/camera/pose`` (``TransformStamped``, the simulated
+            bags); ``tf``: on ``/tf`` (a ``TFMessage`` holding the one transform ``world`` -> the
+            image's frame, written just before the image), as a robot's recording has it.
+
     Raises:
         BagError: the path exists already or the bag cannot be created.
+        ValueError: another pose source.
     """
 
-    def __init__(self, path: str | Path) -> None:
+    def __init__(self, path: str | Path, pose_source: str = "topic") -> None:
+        if pose_source not in POSE_SOURCES:
+            raise ValueError(f"pose_source: expected one of {POSE_SOURCES}, got {pose_source!r}")
         self.path = Path(path)
+        self.pose_source = pose_source
         self.frames = 0
         self._writer: Any = None
         self._conns: dict[str, Any] = {}
@@ -124,7 +143,7 @@ class BagWriter:
             self._writer = Writer(self.path, version=Writer.VERSION_LATEST, storage_plugin=StoragePlugin.MCAP)
             self._writer.open()
             store = typestore()
-            for topic, msgtype in _TOPICS.items():
+            for topic, msgtype in topics_read(self.pose_source, {}).items():
                 self._conns[topic] = self._writer.add_connection(topic, msgtype, typestore=store)
         except (WriterError, OSError) as exc:
             raise BagError(f"{self.path}: cannot create the bag ({exc})") from exc
@@ -138,7 +157,8 @@ class BagWriter:
         pose_4x4: np.ndarray,
         encoding: str = "32FC1",
     ) -> None:
-        """Write one frame: image, camera info and pose, all stamped ``stamp_ns``.
+        """Write one frame: pose (on ``/tf`` first, or on ``/camera/pose`` last), image and camera
+        info, all stamped ``stamp_ns``.
 
         Raises:
             ValueError: unsupported encoding, bad pose, or image shape not matching the intrinsics.
@@ -148,11 +168,15 @@ class BagWriter:
         if np.asarray(depth).shape != intrinsics.shape:
             raise ValueError(f"depth: shape {np.asarray(depth).shape} does not match the intrinsics {intrinsics.shape}")
         store = typestore()
-        msgs = (
-            (TOPIC_IMAGE, MSG_IMAGE, depth_to_image_msg(depth, stamp_ns, encoding)),
-            (TOPIC_CAMERA_INFO, MSG_CAMERA_INFO, intrinsics_to_camera_info(intrinsics, stamp_ns)),
-            (TOPIC_POSE, MSG_TRANSFORM, pose_to_transform_msg(pose_4x4, stamp_ns)),
+        camera = (
+            (TOPIC_IMAGE, MSG_IMAGE, depth_to_image_msg(depth, stamp_ns, encoding, OPTICAL_FRAME)),
+            (TOPIC_CAMERA_INFO, MSG_CAMERA_INFO, intrinsics_to_camera_info(intrinsics, stamp_ns, OPTICAL_FRAME)),
         )
+        transform = pose_to_transform_msg(pose_4x4, stamp_ns, WORLD_FRAME, OPTICAL_FRAME)
+        if self.pose_source == "tf":
+            msgs = ((TOPIC_TF, MSG_TF, store.types[MSG_TF](transforms=[transform])), *camera)
+        else:
+            msgs = (*camera, (TOPIC_POSE, MSG_TRANSFORM, transform))
         for topic, msgtype, msg in msgs:
             self._writer.write(self._conns[topic], int(stamp_ns), store.serialize_cdr(msg, msgtype))
         self.frames += 1
@@ -186,31 +210,36 @@ def _open_reader(path: Path) -> Any:
     return reader
 
 
-def _connections(reader: Any, path: Path) -> dict[str, Any]:
+def _connections(reader: Any, path: Path) -> tuple[str, dict[str, Any]]:
+    """The bag's pose source (:func:`~nbv_prob_cnn.perception.bag_pairing.pose_source_of`) and the
+    connections of the topics its frames are made of, checked."""
+    known = {**CAMERA_TOPICS, **POSE_TOPICS}
     by_topic: dict[str, Any] = {}
     for conn in reader.connections:
-        if conn.topic in _TOPICS:
-            if conn.msgtype != _TOPICS[conn.topic]:
-                raise BagError(f"{path}: topic {conn.topic} has type {conn.msgtype}, expected {_TOPICS[conn.topic]}")
+        if conn.topic in known:
+            if conn.msgtype != known[conn.topic]:
+                raise BagError(f"{path}: topic {conn.topic} has type {conn.msgtype}, expected {known[conn.topic]}")
             if conn.topic in by_topic:
                 raise BagError(f"{path}: topic {conn.topic} is recorded on more than one connection")
             by_topic[conn.topic] = conn
-    missing = sorted(set(_TOPICS) - set(by_topic))
+    pose_source = pose_source_of(by_topic)
+    wanted = topics_read(pose_source or "topic", by_topic)
+    missing = sorted(set(wanted) - set(by_topic))
     if missing:
         present = sorted({c.topic for c in reader.connections})
-        raise BagError(f"{path}: missing topic(s) {missing}; the bag has {present}")
-    return by_topic
+        poses = "" if pose_source else f" (the poses: {TOPIC_POSE} or {TOPIC_TF})"
+        raise BagError(f"{path}: missing topic(s) {missing}{poses}; the bag has {present}")
+    assert pose_source is not None  # else /camera/pose would be missing
+    return pose_source, {topic: by_topic[topic] for topic in wanted}
 
 
-def _decode(topic: str, msg: Any) -> Any:
-    if topic == TOPIC_IMAGE:
-        return image_msg_to_depth(msg)
-    if topic == TOPIC_CAMERA_INFO:
-        return camera_info_to_intrinsics(msg)
-    return transform_msg_to_pose(msg)
-
-
-def _frames(path: Path, conns: dict[str, Any], unpaired: str, counts: dict[str, int] | None = None) -> Iterator[Frame]:
+def _frames(
+    path: Path,
+    conns: dict[str, Any],
+    pairing: StampPairing | TfPairing,
+    unpaired: str,
+    counts: dict[str, int] | None = None,
+) -> Iterator[Frame]:
     """One pass over the bag, yielding complete frames; errors become :class:`BagError`.
 
     ``unpaired``: what to do at the end with messages that never formed a frame:
@@ -219,7 +248,6 @@ def _frames(path: Path, conns: dict[str, Any], unpaired: str, counts: dict[str, 
     store = typestore()
     reader = _open_reader(path)
     topic_of = {conn.id: topic for topic, conn in conns.items()}
-    pending: dict[str, dict[int, Any]] = {topic: {} for topic in _TOPICS}
     frames = 0
     try:
         stream = reader.messages(connections=list(conns.values()))
@@ -239,40 +267,48 @@ def _frames(path: Path, conns: dict[str, Any], unpaired: str, counts: dict[str, 
                 msg = store.deserialize_cdr(raw, conn.msgtype)
             except Exception as exc:
                 raise BagError(f"{where}: cannot deserialize a {conn.msgtype} message on {topic} ({exc})") from exc
-            stamp = stamp_of(msg)
             try:
-                value = _decode(topic, msg)
+                done = pairing.add(topic, msg)
             except ValueError as exc:
-                raise BagError(f"{where}: {topic} at stamp {stamp}: {exc}") from exc
-            if stamp in pending[topic]:
-                raise BagError(f"{where}: two {topic} messages with the same stamp {stamp}")
-            pending[topic][stamp] = value
-            if all(stamp in pending[t] for t in _TOPICS):
-                depth = pending[TOPIC_IMAGE].pop(stamp)
-                intrinsics = pending[TOPIC_CAMERA_INFO].pop(stamp)
-                pose = pending[TOPIC_POSE].pop(stamp)
-                if depth.shape != intrinsics.shape:
-                    raise BagError(
-                        f"{where}: image {depth.shape} and camera_info {intrinsics.shape} disagree at {stamp}"
-                    )
+                raise BagError(f"{where}: {exc}") from exc
+            for frame in done:
                 frames += 1
-                yield Frame(stamp, depth, intrinsics, pose)
+                yield frame
     finally:
         reader.close()
-    leftovers = {t: len(v) for t, v in pending.items() if v}
+    leftovers = pairing.finish()
     if leftovers and unpaired != "ignore":
-        text = f"{path}: message(s) without a matching stamp on the other topics: {leftovers}"
+        text = f"{path}: {leftovers}"
         if unpaired == "error":
             raise BagError(text)
         warnings.warn(text + "; skipped", BagWarning, stacklevel=2)
 
 
-def read_frames(path: str | Path, validate: bool = True, strict: bool = False) -> Iterator[Frame]:
+def bag_pose_source(path: str | Path) -> str:
+    """Where a depth-camera bag's poses come from: ``topic`` (``/camera/pose``) or ``tf`` (``/tf``).
+
+    Raises:
+        FileNotFoundError: no such path.
+        BagError: unreadable bag, or not a depth-camera bag (topics missing or of other types).
+    """
+    path = Path(path)
+    reader = _open_reader(path)
+    try:
+        return _connections(reader, path)[0]
+    finally:
+        reader.close()
+
+
+def read_frames(
+    path: str | Path, validate: bool = True, strict: bool = False, fixed_frame: str = WORLD_FRAME
+) -> Iterator[Frame]:
     """Posed depth frames of a bag (a rosbag2 directory or a single ``.mcap`` file), in bag order.
 
-    Messages are paired by header stamp; a frame is yielded when its image, camera info and
-    pose have all been read. Messages without partners are skipped with a :class:`BagWarning`
-    (or a :class:`BagError` when ``strict``).
+    An image and its camera_info pair by header stamp; the pose is the ``/camera/pose`` message of
+    that stamp or, in a bag without ``/camera/pose``, the image frame's pose in ``fixed_frame`` by
+    ``/tf`` (+ ``/tf_static``) at that stamp (:mod:`~nbv_prob_cnn.perception.bag_pairing`). A frame
+    is yielded when all three are there. Messages without partners, and images that TF never
+    poses, are skipped with a :class:`BagWarning` (or a :class:`BagError` when ``strict``).
 
     Args:
         validate: read and convert the whole bag once before returning, so that a corrupt,
@@ -280,23 +316,28 @@ def read_frames(path: str | Path, validate: bool = True, strict: bool = False) -
             twice). Without it a corruption raises when reached, naming the number of frames
             already read.
         strict: unpaired messages are an error.
+        fixed_frame: the frame the poses are looked up in (``/tf`` bags).
 
     Raises:
         FileNotFoundError: no such path.
         BagError: unreadable, corrupt or truncated bag, missing topics, wrong message types,
-            unsupported image encoding (named), duplicate stamps.
+            unsupported image encoding (named), duplicate stamps, invalid transforms.
     """
     path = Path(path)
     reader = _open_reader(path)
     try:
-        conns = _connections(reader, path)
+        pose_source, conns = _connections(reader, path)
         expected = {topic: int(conn.msgcount) for topic, conn in conns.items()}
     finally:
         reader.close()
+
+    def pairing() -> StampPairing | TfPairing:
+        return StampPairing() if pose_source == "topic" else TfPairing(fixed_frame)
+
     unpaired = "error" if strict else "warn"
     if validate:
         counts: dict[str, int] = {}
-        n_frames = sum(1 for _ in _frames(path, conns, unpaired, counts))
+        n_frames = sum(1 for _ in _frames(path, conns, pairing(), unpaired, counts))
         for topic, n_expected in expected.items():
             if n_expected and counts.get(topic, 0) != n_expected:
                 raise BagError(
@@ -304,7 +345,7 @@ def read_frames(path: str | Path, validate: bool = True, strict: bool = False) -
                     f"the bag index lists {n_expected} ({n_frames} complete frame(s) before the damage)"
                 )
         unpaired = "ignore"  # already reported
-    return _frames(path, conns, unpaired)
+    return _frames(path, conns, pairing(), unpaired)
 
 
 # ------------------------------------------------------------------------- raw messages

@@ -1,10 +1,13 @@
 """Write an RGB-D recording (:mod:`nbv_prob_cnn.perception.recordings`) as a depth-camera rosbag2.
 
-The bag is the one :class:`~nbv_prob_cnn.perception.bags.BagWriter` writes (mcap storage), so
-``nbv integrate --bag``, ``bag_replay`` and ``launch_scripts/plan_from_bag.py`` read it as they
-read a simulated one: ``/camera/depth/image`` (``16UC1`` millimetres, REP-118: 0 = no return),
-``/camera/depth/camera_info`` and the pose ``world`` -> ``camera_optical`` on ``/camera/pose``,
-all three stamped as the image.
+The bag is the one :class:`~nbv_prob_cnn.perception.bags.BagWriter` writes (mcap storage) with
+its poses on ``/tf``, as a robot's recording has them: ``/camera/depth/image`` (``16UC1``
+millimetres, REP-118: 0 = no return, ``header.frame_id`` ``camera_optical``),
+``/camera/depth/camera_info`` and on ``/tf`` (``tf2_msgs/TFMessage``) the one transform ``world``
+-> ``camera_optical``, all three stamped as the image. ``nbv integrate --bag`` and ``nbv
+gain-study`` look each pose up in TF at the image's stamp, ``bag_replay`` publishes ``/tf`` for
+the ``integrator`` node's ``pose_source:=tf``, and ``launch_scripts/plan_from_bag.py`` starts the
+integrator so. There is no ``/camera/pose`` (one source of truth for the poses).
 
 The world may be turned so that a given direction becomes +z (``up``): the planner's candidate
 orientations, camera heights and pictures assume a z-up world; a 7-Scenes world is the first
@@ -100,7 +103,7 @@ def import_recording(
     out = Path(out)
     valid = total = 0
     farthest = 0
-    writer = BagWriter(out)
+    writer = BagWriter(out, pose_source="tf")
     writer.open()  # BagError when out exists: nothing of ours to remove then
     try:
         for frame in tqdm(selected, desc=f"import {recording.format}", unit="frame", disable=not progress):

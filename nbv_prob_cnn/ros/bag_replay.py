@@ -10,10 +10,12 @@ types, deserialized; counts checked against the bag's index: see
 :func:`nbv_prob_cnn.perception.bags.read_raw_messages`). A missing, corrupt or truncated bag is
 logged as an error and the node exits with status 1 having published nothing.
 
-Lossless with the defaults of both nodes (``nbv node integrator --ros-args -p pose_source:=topic``,
-the bag carries its poses on ``/camera/pose``):
+Lossless with the defaults of both nodes (``nbv node integrator --ros-args -p pose_source:=topic``
+when the bag carries its poses on ``/camera/pose``, the default ``pose_source:=tf`` when on ``/tf``):
 
-* QoS reliable, volatile, depth ``queue_size``. Messages published before a subscriber is
+* QoS reliable, volatile, depth ``queue_size``; ``/tf`` and ``/tf_static`` with tf2's QoS and
+  their absolute names, as a robot's drivers publish them (``/tf_static`` transient local: a
+  volatile writer would match no TF listener). Messages published before a subscriber is
   matched would be lost (volatile), so the replay first waits until every topic has
   ``wait_for_subscribers`` (default 1) matched subscribers; after ``wait_timeout_s`` without
   them it logs an error naming the topics and exits with status 1, having published nothing
@@ -60,6 +62,7 @@ from nbv_prob_cnn.perception.replay_accounting import ReplayDelta, replay_delta,
 from nbv_prob_cnn.ros import names
 from nbv_prob_cnn.ros.parameters import declare_config, param
 from nbv_prob_cnn.ros.runtime import run_node
+from nbv_prob_cnn.ros.tf_listener import TF_QOS, TF_STATIC_QOS, TOPIC_TF, TOPIC_TF_STATIC
 
 NODE_NAME = "bag_replay"
 #: A diagnostics request not answered in this time is sent again (a request sent right after the
@@ -153,9 +156,12 @@ class BagReplay(Node):
             reliability=ReliabilityPolicy.RELIABLE,
             durability=DurabilityPolicy.VOLATILE,
         )
-        self._topic_publishers = {
-            topic: self.create_publisher(classes[topic], names.relative(topic), qos) for topic in self.topics
-        }
+        self._topic_publishers = {}
+        for topic in self.topics:
+            # /tf and /tf_static as tf2 publishes them: absolute names, tf2's QoS
+            profile = TF_QOS if topic == TOPIC_TF else TF_STATIC_QOS if topic == TOPIC_TF_STATIC else qos
+            topic_name = topic if topic in (TOPIC_TF, TOPIC_TF_STATIC) else names.relative(topic)
+            self._topic_publishers[topic] = self.create_publisher(classes[topic], topic_name, profile)
         self.published: Counter[str] = Counter()
         self.passes = 0
         self.frames_sent = 0  # depth images published
