@@ -11,6 +11,8 @@ from pathlib import Path
 
 import numpy as np
 
+from studies._command import run_command
+
 HELP = "Compare free-flying and arm-constrained 3DT explorations (unknown fraction, joint travel, stage times)."
 
 
@@ -61,6 +63,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    """Run the scenes' missing runs, then summarize every run (module docstring); 0 when done.
+
+    Raises:
+        ValueError: an option out of its range.
+    """
     from tqdm import tqdm
 
     from nbv_prob_cnn.arm.capability import load_or_build_capability_map
@@ -220,9 +227,7 @@ def _report_paths(args: argparse.Namespace, runs: dict[str, list], seeds: list[i
 
 def main(argv: list[str] | None = None) -> int:
     """``nbv study arm_compare [args]`` (or ``nbv study arm_compare``)."""
-    parser = argparse.ArgumentParser(prog="nbv study arm_compare", description=HELP)
-    add_arguments(parser)
-    return run(parser.parse_args(argv))
+    return run_command("arm_compare", HELP, add_arguments, run, argv)
 
 
 if __name__ == "__main__":

@@ -217,6 +217,48 @@ def _float(value: str) -> float:
     return float(value) if value not in ("", None) else math.nan
 
 
+def _mean(values: list[float]) -> float:
+    """The mean (NaN when a value is NaN or there is none)."""
+    return float(np.mean(values)) if values else math.nan
+
+
+def _finite_mean(values: list[float]) -> float:
+    """The mean of the values that are not NaN (NaN when there is none)."""
+    finite = [v for v in values if not math.isnan(v)]
+    return float(np.mean(finite)) if finite else math.nan
+
+
+@dataclass(frozen=True)
+class RunLogs:
+    """What the summaries read from the run logs (:func:`run_rows`) of one configuration.
+
+    Attributes:
+        curves: ``(runs, views)`` unknown fraction per view (a run that stopped keeps its last value).
+        joint_travel: total joint travel per run.
+        planned: per run, the rows of its planned views (iteration ≥ 1).
+    """
+
+    runs: int
+    views_mean: float
+    curves: np.ndarray
+    joint_travel: list[float]
+    planned: list[list[dict]]
+
+    @classmethod
+    def read(cls, logs: list[list[dict]], views: int) -> RunLogs:
+        """Of the logs of ``views`` views each at most."""
+        curves = np.empty((len(logs), views))
+        for r, rows in enumerate(logs):
+            fractions = [float(row["unknown_fraction"]) for row in rows]
+            curves[r] = (fractions + [fractions[-1]] * views)[:views]
+        travel = [sum(_float(row["joint_travel"]) for row in rows) for rows in logs]
+        return cls(len(logs), float(np.mean([len(rows) for rows in logs])), curves, travel, [r[1:] for r in logs])
+
+    def per_view(self, column: str) -> list[float]:
+        """``column`` of every planned view of every run (NaN where empty or missing)."""
+        return [_float(row.get(column, "")) for rows in self.planned for row in rows]
+
+
 @dataclass
 class ConfigSummary:
     """Mean over runs of one configuration."""
@@ -241,40 +283,23 @@ def summarize(runs: dict[str, list[list[dict]]], views: int) -> list[ConfigSumma
     """Summaries per configuration; per-view times are means over planned views (iteration ≥ 1)."""
     out = []
     for config, logs in runs.items():
-        curves = np.empty((len(logs), views))
-        travel, gain_t, cap_t, ik_t = [], [], [], []
-        checked, blocked, fallback = [], [], []
-        for r, rows in enumerate(logs):
-            fractions = [float(row["unknown_fraction"]) for row in rows]
-            curves[r] = fractions + [fractions[-1]] * (views - len(fractions))
-            travel.append(sum(_float(row["joint_travel"]) for row in rows))
-            planned = rows[1:]
-            gain_t += [_float(row["time_gain_s"]) for row in planned]
-            cap_t += [_float(row["time_capability_s"]) for row in planned]
-            ik_t += [_float(row["time_ik_collision_s"]) for row in planned]
-            checked += [_float(row.get("checked", "")) for row in planned]
-            blocked += [_float(row.get("camera_blocked", "")) for row in planned]
-            fallback.append(sum(_float(row.get("fallback", "")) for row in planned))
-
-        def mean(values: list[float]) -> float:
-            return float(np.mean(values)) if values else math.nan
-
+        run_logs = RunLogs.read(logs, views)
         out.append(
             ConfigSummary(
                 config,
-                len(logs),
-                float(np.mean([len(rows) for rows in logs])),
-                float(curves[:, -1].mean()),
-                float(curves[:, -1].std()),
-                mean(travel),
-                mean(gain_t),
-                mean(cap_t),
-                mean(ik_t),
-                curves.mean(axis=0),
+                run_logs.runs,
+                run_logs.views_mean,
+                float(run_logs.curves[:, -1].mean()),
+                float(run_logs.curves[:, -1].std()),
+                _mean(run_logs.joint_travel),
+                _mean(run_logs.per_view("time_gain_s")),
+                _mean(run_logs.per_view("time_capability_s")),
+                _mean(run_logs.per_view("time_ik_collision_s")),
+                run_logs.curves.mean(axis=0),
                 sum(len(rows) == views for rows in logs),
-                mean(checked),
-                mean(blocked),
-                mean(fallback),
+                _mean(run_logs.per_view("checked")),
+                _mean(run_logs.per_view("camera_blocked")),
+                _mean([sum(_float(row.get("fallback", "")) for row in rows) for rows in run_logs.planned]),
             )
         )
     return out
@@ -324,6 +349,16 @@ def write_summary(summaries: list[ConfigSummary], csv_path: Path, md_path: Path,
     md_path.write_text("\n".join(lines) + "\n")
 
 
+def _plot_curves(axes, summaries: list[ConfigSummary] | list[PathsSummary]) -> None:
+    """Each configuration's mean unknown fraction per view on ``axes``."""
+    for s in summaries:
+        axes.plot(np.arange(1, s.curve.size + 1), s.curve, marker=".", label=s.config)
+    axes.set_xlabel("views")
+    axes.set_ylabel("unknown fraction (mean over scenes)")
+    axes.grid(alpha=0.3)
+    axes.legend()
+
+
 def save_comparison_png(summaries: list[ConfigSummary], path: Path, title: str) -> None:
     """Unknown fraction per view per configuration, and the mean total joint travel."""
     import matplotlib
@@ -332,12 +367,7 @@ def save_comparison_png(summaries: list[ConfigSummary], path: Path, title: str) 
     import matplotlib.pyplot as plt
 
     fig, (curves, bars) = plt.subplots(1, 2, figsize=(11, 4.2), gridspec_kw={"width_ratios": [2, 1]})
-    for s in summaries:
-        curves.plot(np.arange(1, s.curve.size + 1), s.curve, marker=".", label=s.config)
-    curves.set_xlabel("views")
-    curves.set_ylabel("unknown fraction (mean over scenes)")
-    curves.grid(alpha=0.3)
-    curves.legend()
+    _plot_curves(curves, summaries)
     arm = [s for s in summaries if not math.isnan(s.joint_travel_mean)]
     bars.bar([s.config for s in arm], [s.joint_travel_mean for s in arm], color=["C1", "C2", "C3"][: len(arm)])
     bars.set_ylabel("total joint travel per run (rad, mean)")
@@ -386,43 +416,28 @@ class PathsSummary:
 
 def summarize_paths(runs: dict[str, list[list[dict]]], views: int) -> list[PathsSummary]:
     """:class:`PathsSummary` per configuration of arm run logs (:func:`run_rows`)."""
+    stages = ("gain", "capability", "ik_collision", "path_planning")
     out = []
     for config, logs in runs.items():
-        curves = np.empty((len(logs), views))
-        travel: list[float] = []
-        planned_moves: list[float] = []
-        per_view: dict[str, list[float]] = {k: [] for k in ("gain", "capability", "ik_collision", "path_planning")}
-        counts: dict[str, list[float]] = {k: [] for k in ("path_blocked", "paths_planned", "paths_not_found")}
-        for r, rows in enumerate(logs):
-            fractions = [float(row["unknown_fraction"]) for row in rows]
-            curves[r] = (fractions + [fractions[-1]] * views)[:views]
-            travel.append(sum(_float(row["joint_travel"]) for row in rows))
-            planned = rows[1:]
-            planned_moves.append(float(sum(_float(row.get("path_waypoints", "")) > 2 for row in planned)))
-            for stage in per_view:
-                per_view[stage] += [_float(row.get(f"time_{stage}_s", "")) for row in planned]
-            for name in counts:
-                counts[name] += [_float(row.get(name, "")) for row in planned]
+        run_logs = RunLogs.read(logs, views)
         taken = sum(len(rows) - 1 for rows in logs)
-
-        def mean(values: list[float]) -> float:
-            finite = [v for v in values if not math.isnan(v)]
-            return float(np.mean(finite)) if finite else math.nan
-
+        planned_moves = [
+            float(sum(_float(row.get("path_waypoints", "")) > 2 for row in rows)) for rows in run_logs.planned
+        ]
         out.append(
             PathsSummary(
                 config,
-                len(logs),
-                float(np.mean([len(rows) for rows in logs])),
+                run_logs.runs,
+                run_logs.views_mean,
                 taken / max(1, len(logs) * (views - 1)),
-                {n: float(curves[:, min(n, views) - 1].mean()) for n in CHECKPOINTS if n <= views},
-                mean(travel),
-                {stage: mean(values) for stage, values in per_view.items()},
-                mean(counts["path_blocked"]),
-                mean(counts["paths_planned"]),
-                mean(counts["paths_not_found"]),
-                mean(planned_moves),
-                curves.mean(axis=0),
+                {n: float(run_logs.curves[:, min(n, views) - 1].mean()) for n in CHECKPOINTS if n <= views},
+                _finite_mean(run_logs.joint_travel),
+                {stage: _finite_mean(run_logs.per_view(f"time_{stage}_s")) for stage in stages},
+                _finite_mean(run_logs.per_view("path_blocked")),
+                _finite_mean(run_logs.per_view("paths_planned")),
+                _finite_mean(run_logs.per_view("paths_not_found")),
+                _finite_mean(planned_moves),
+                run_logs.curves.mean(axis=0),
             )
         )
     return out
@@ -478,12 +493,7 @@ def save_paths_png(summaries: list[PathsSummary], path: Path, title: str) -> Non
     import matplotlib.pyplot as plt
 
     fig, (curves, travel, stages) = plt.subplots(1, 3, figsize=(15, 4.4), gridspec_kw={"width_ratios": [2, 1, 1.3]})
-    for s in summaries:
-        curves.plot(np.arange(1, s.curve.size + 1), s.curve, marker=".", label=s.config)
-    curves.set_xlabel("views")
-    curves.set_ylabel("unknown fraction (mean over scenes)")
-    curves.grid(alpha=0.3)
-    curves.legend()
+    _plot_curves(curves, summaries)
     names = [s.config for s in summaries]
     travel.bar(names, [s.joint_travel_mean for s in summaries], color=[f"C{i}" for i in range(len(summaries))])
     travel.set_ylabel("total joint travel per run (rad, mean)")

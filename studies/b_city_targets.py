@@ -28,13 +28,18 @@ Run: ``nbv study b_city_targets --dataset 3dt``
 from __future__ import annotations
 
 import argparse
+from collections.abc import Iterator
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 from scipy.ndimage import uniform_filter
 
 from nbv_prob_cnn.basics.grid import lattice_index
 from nbv_prob_cnn.completion.city_scores import spearman
+
+if TYPE_CHECKING:
+    from nbv_prob_cnn.completion.tasks import Example
 
 
 @dataclass(frozen=True)
@@ -71,6 +76,24 @@ def grid_agreement(target: np.ndarray, empty_lattice: np.ndarray) -> tuple[float
     )
 
 
+def validation_lattices(dataset: str, method: str) -> Iterator[tuple[Example, np.ndarray]]:
+    """The data set's cached validation examples of City-CNN ``method`` (the cache is built first
+    where it is missing), each with its empty cells on the method's lattice."""
+    from nbv_prob_cnn.basics.datasets import dataset_spec
+    from nbv_prob_cnn.completion.city_cache import CachedCityExamples, CacheLayout, ensure_chunks
+    from nbv_prob_cnn.planners.city_cnn import CityGeometry
+
+    spec = dataset_spec(dataset)
+    seeds = list(spec.validation_seeds)
+    layout = CacheLayout.for_training(dataset, spec.training.crop, spec.training.test_crop)
+    ensure_chunks(layout, {"train": list(spec.train_seeds), "eval": seeds}, progress=True)
+    examples = CachedCityExamples(method, layout, list(spec.train_seeds), seeds, [], spec.training.crop)
+    stride = CityGeometry.of(method, spec).stride
+    for example in examples.fixed(seeds):
+        empty = example.inputs[0] > 0
+        yield example, empty[lattice_index(empty.ndim, stride)]
+
+
 def tied_view_norms(view_gains: np.ndarray, unit: np.ndarray, tie: float) -> tuple[np.ndarray, np.ndarray]:
     """For cells' view gains ``(N, V)`` and the views' unit vectors ``(V, C)`` (B-City-CNN's
     convention): the norm of ``g · mean(u_v over the tied views)`` (views with a gain of at least
@@ -98,20 +121,11 @@ def tie_agreement(dataset: str, ties: tuple[float, ...] = (0.02, 0.05, 0.1, 0.2)
     """:class:`TieAgreement` per tie fraction on the data set's cached validation grids, from
     their Flat City-CNN targets (the gain of every candidate view per lattice cell)."""
     from nbv_prob_cnn.basics.datasets import dataset_spec
-    from nbv_prob_cnn.completion.city_cache import CachedCityExamples, CacheLayout, ensure_chunks
-    from nbv_prob_cnn.planners.city_cnn import CityGeometry, _view_vectors
+    from nbv_prob_cnn.planners.city_cnn import _view_vectors
 
-    spec = dataset_spec(dataset)
-    seeds = list(spec.validation_seeds)
-    layout = CacheLayout.for_training(dataset, spec.training.crop, spec.training.test_crop)
-    ensure_chunks(layout, {"train": list(spec.train_seeds), "eval": seeds}, progress=True)
-    examples = CachedCityExamples("flat_city_cnn", layout, list(spec.train_seeds), seeds, [], spec.training.crop)
-    stride = CityGeometry.of("flat_city_cnn", spec).stride
-    unit = _view_vectors(spec).astype(np.float64)
+    unit = _view_vectors(dataset_spec(dataset)).astype(np.float64)
     rows: dict[float, list[tuple[float, float, float]]] = {t: [] for t in ties}
-    for example in examples.fixed(seeds):
-        empty = example.inputs[0] > 0
-        lattice = empty[lattice_index(empty.ndim, stride)]
+    for example, lattice in validation_lattices(dataset, "flat_city_cnn"):
         cells: tuple[slice | np.ndarray, ...] = (slice(None), *np.nonzero(lattice))
         views = example.target[cells].T.astype(np.float64)  # (N, V)
         gain = views.max(axis=1)
@@ -129,20 +143,8 @@ def tie_agreement(dataset: str, ties: tuple[float, ...] = (0.02, 0.05, 0.1, 0.2)
 
 def measure(dataset: str) -> TargetAgreement:
     """:class:`TargetAgreement` of B-City-CNN's targets on the data set's cached validation grids."""
-    from nbv_prob_cnn.basics.datasets import dataset_spec
-    from nbv_prob_cnn.completion.city_cache import CachedCityExamples, CacheLayout, ensure_chunks
-    from nbv_prob_cnn.planners.city_cnn import CityGeometry
-
-    spec = dataset_spec(dataset)
-    seeds = list(spec.validation_seeds)
-    layout = CacheLayout.for_training(dataset, spec.training.crop, spec.training.test_crop)
-    ensure_chunks(layout, {"train": list(spec.train_seeds), "eval": seeds}, progress=True)
-    examples = CachedCityExamples("b_city_cnn", layout, list(spec.train_seeds), seeds, [], spec.training.crop)
-    stride = CityGeometry.of("b_city_cnn", spec).stride
     rhos = []
-    for example in examples.fixed(seeds):
-        empty = example.inputs[0] > 0
-        lattice = empty[lattice_index(empty.ndim, stride)]
+    for example, lattice in validation_lattices(dataset, "b_city_cnn"):
         rhos.append(grid_agreement(example.target, lattice))
     values = np.array(rhos, dtype=np.float64)
     defined = np.all(np.isfinite(values), axis=1)

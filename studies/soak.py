@@ -23,6 +23,8 @@ import time
 from datetime import datetime, timezone
 from pathlib import Path
 
+from studies._command import run_command
+
 HELP = "Explore with the simulated graph for a set time under a random mix of valid and invalid requests."
 
 #: The graph's nodes, started in this order (names of the processes and of the node modules).
@@ -213,9 +215,7 @@ def run(args: argparse.Namespace) -> int:
 
 def main(argv: list[str] | None = None) -> int:
     """``nbv study soak [args]`` (or ``nbv study soak``)."""
-    parser = argparse.ArgumentParser(prog="nbv study soak", description=HELP)
-    add_arguments(parser)
-    return run(parser.parse_args(argv))
+    return run_command("soak", HELP, add_arguments, run, argv)
 
 
 if __name__ == "__main__":

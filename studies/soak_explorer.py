@@ -5,7 +5,6 @@ one JSON line of its event log. Run by :mod:`studies.soak` as its own process:
 
 from __future__ import annotations
 
-import argparse
 import json
 import math
 import time
@@ -15,29 +14,22 @@ import rclpy
 from action_msgs.msg import GoalStatus
 from nbv_prob_cnn_msgs.action import Explore
 from nbv_prob_cnn_msgs.msg import VoxelGrid
-from rclpy.action import ActionClient
-from rclpy.executors import SingleThreadedExecutor
-from rclpy.node import Node
 from std_srvs.srv import Trigger
 
 from nbv_prob_cnn.ros import names
 from nbv_prob_cnn.ros.graph import call_with_resend
 from nbv_prob_cnn.ros.qos import GRID_QOS
-from studies.soak_report import EventLog
+from studies._soak_client import SoakClient, client_parser, run_session
 
 STATUS_NAMES = {GoalStatus.STATUS_SUCCEEDED: "succeeded", GoalStatus.STATUS_CANCELED: "canceled",
                 GoalStatus.STATUS_ABORTED: "aborted"}  # fmt: skip
 
 
-class SoakExplorer(Node):
+class SoakExplorer(SoakClient):
     """Explores again and again, with the integrator reset before each exploration."""
 
     def __init__(self, events: Path) -> None:
-        super().__init__("soak_explorer")
-        self.events = EventLog(events)
-        self.executor_ = SingleThreadedExecutor()
-        self.executor_.add_node(self)
-        self._action = ActionClient(self, Explore, names.EXPLORE)
+        super().__init__("soak_explorer", events)
         self._reset = self.create_client(Trigger, names.INTEGRATOR_RESET)
         self._diagnostics = self.create_client(Trigger, names.INTEGRATOR_DIAGNOSTICS)
         self._goal = None
@@ -59,9 +51,6 @@ class SoakExplorer(Node):
             if self._grids > seen and self._grid_stamp not in (None, (0, 0)):
                 return True
         return False
-
-    def log_event(self, **event) -> None:
-        self.events.write(**event)
 
     def wait_ready(self, timeout_s: float) -> bool:
         return self._action.wait_for_server(timeout_sec=timeout_s)
@@ -107,16 +96,10 @@ class SoakExplorer(Node):
         reply = call_with_resend(self._diagnostics, Trigger.Request(), 30.0, executor=self.executor_)
         self.log_event(event="diagnostics", report=json.loads(reply.message))
 
-    def destroy_node(self) -> None:
-        self.executor_.shutdown()
-        super().destroy_node()
-        self.events.close()
-
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description="Explore again and again until --until (nbv study soak).")
-    parser.add_argument("--until", type=float, required=True, help="stop starting explorations then (epoch s)")
-    parser.add_argument("--events", type=Path, required=True, help="JSON-lines event log")
+    parser = client_parser("Explore again and again until --until (nbv study soak).",
+                           "stop starting explorations then (epoch s)")  # fmt: skip
     parser.add_argument("--views", type=int, default=3)
     parser.add_argument("--method", default="")
     parser.add_argument("--timeout", type=float, default=600.0, help="longest exploration [s]")
@@ -124,25 +107,22 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     rclpy.init()
     node = SoakExplorer(args.events)
-    code = 0
-    try:
-        if not node.wait_ready(args.ready_timeout):
-            node.log_event(event="error", message=f"no Explore server within {args.ready_timeout:g} s")
+
+    def explore() -> int:
+        try:
+            if not node.wait_ready(args.ready_timeout):
+                node.log_event(event="error", message=f"no Explore server within {args.ready_timeout:g} s")
+                return 1
+            node.log_event(event="ready")
+            while time.time() < args.until:
+                node.explore_once(args.views, args.method, args.timeout)
+            node.final_diagnostics()
+        except TimeoutError as exc:
+            node.log_event(event="error", message=str(exc))
             return 1
-        node.log_event(event="ready")
-        while time.time() < args.until:
-            node.explore_once(args.views, args.method, args.timeout)
-        node.final_diagnostics()
-    except KeyboardInterrupt:
-        node.cancel()
-        code = 130
-    except TimeoutError as exc:
-        node.log_event(event="error", message=str(exc))
-        code = 1
-    finally:
-        node.destroy_node()
-        rclpy.try_shutdown()
-    return code
+        return 0
+
+    return run_session(node, explore, on_interrupt=node.cancel)
 
 
 if __name__ == "__main__":

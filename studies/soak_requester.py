@@ -7,7 +7,6 @@ graph and an invalid goal now and then to the Explore action; each request and i
 
 from __future__ import annotations
 
-import argparse
 import json
 import random
 import threading
@@ -19,14 +18,12 @@ from geometry_msgs.msg import PoseStamped
 from nbv_prob_cnn_msgs.action import Explore
 from nbv_prob_cnn_msgs.msg import VoxelGrid
 from nbv_prob_cnn_msgs.srv import CompleteGrid, EvaluateViews, MoveCamera, PlanNextBestView, RankViews, SaveGrid
-from rclpy.action import ActionClient
-from rclpy.executors import SingleThreadedExecutor
-from rclpy.node import Node
 from std_srvs.srv import Trigger
 
 from nbv_prob_cnn.ros import names
 from nbv_prob_cnn.ros.qos import GRID_QOS
-from studies.soak_report import KINDS, EventLog, RequestMix, RequestSpec
+from studies._soak_client import SoakClient, client_parser, run_session
+from studies.soak_report import KINDS, RequestMix, RequestSpec
 
 #: A service not seen this long is recorded as unavailable instead of called [s].
 UNAVAILABLE_AFTER_S = 2.0
@@ -50,17 +47,13 @@ def pose_msg(values: list[float]) -> PoseStamped:
     return pose
 
 
-class SoakRequester(Node):
+class SoakRequester(SoakClient):
     """Sends the requests of a :class:`RequestMix` one at a time and logs their outcomes."""
 
     def __init__(self, events: Path, timeout_s: float) -> None:
-        super().__init__("soak_requester")
-        self.events = EventLog(events)
+        super().__init__("soak_requester", events)
         self.timeout_s = timeout_s
-        self.executor_ = SingleThreadedExecutor()
-        self.executor_.add_node(self)
         self.clients_ = {kind: self.create_client(srv, KINDS[kind]) for kind, srv in SERVICE_TYPES.items()}
-        self._action = ActionClient(self, Explore, names.EXPLORE)
         self._grid: VoxelGrid | None = None
         self._lock = threading.Lock()
         self.create_subscription(VoxelGrid, names.GRID, self._on_grid, GRID_QOS)
@@ -68,9 +61,6 @@ class SoakRequester(Node):
     def _on_grid(self, msg: VoxelGrid) -> None:
         with self._lock:
             self._grid = msg
-
-    def log_event(self, **event) -> None:
-        self.events.write(**event)
 
     def wait_ready(self, timeout_s: float) -> list[str]:
         """Wait for every service, the action server and a first grid; returns what is missing."""
@@ -164,16 +154,9 @@ class SoakRequester(Node):
         while (remaining := end - time.monotonic()) > 0:
             self.executor_.spin_once(timeout_sec=min(remaining, 0.1))
 
-    def destroy_node(self) -> None:
-        self.executor_.shutdown()
-        super().destroy_node()
-        self.events.close()
-
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description="Send random valid and invalid requests until --until.")
-    parser.add_argument("--until", type=float, required=True, help="stop sending then (epoch s)")
-    parser.add_argument("--events", type=Path, required=True, help="JSON-lines event log")
+    parser = client_parser("Send random valid and invalid requests until --until.", "stop sending then (epoch s)")
     parser.add_argument("--save-dir", required=True, help="directory of the valid integrator/save requests")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--grid-centre", type=float, nargs=3, default=[0.37, 0.37, 0.37], metavar=("X", "Y", "Z"))
@@ -185,8 +168,8 @@ def main(argv: list[str] | None = None) -> int:
     node = SoakRequester(args.events, args.timeout)
     mix = RequestMix(args.seed, tuple(args.grid_centre), args.save_dir)
     pauses = random.Random(args.seed + 1)
-    code = 0
-    try:
+
+    def send_requests() -> int:
         missing = node.wait_ready(args.ready_timeout)
         if missing:
             node.log_event(event="error", message=f"not available within {args.ready_timeout:g} s: {missing}")
@@ -197,12 +180,9 @@ def main(argv: list[str] | None = None) -> int:
         while time.time() < args.until:
             node.send(mix.next())
             node.pause(min(pauses.expovariate(1.0 / args.period), 5 * args.period))
-    except KeyboardInterrupt:
-        code = 130
-    finally:
-        node.destroy_node()
-        rclpy.try_shutdown()
-    return code
+        return 0
+
+    return run_session(node, send_requests)
 
 
 if __name__ == "__main__":
