@@ -38,9 +38,8 @@ from sensor_msgs.msg import JointState
 from nbv_prob_cnn.arm.views import ArmPlanningSetup, reachable_poses
 from nbv_prob_cnn.basics.camera import DATASETS, quaternion_from_matrix
 from nbv_prob_cnn.basics.geometry import GridGeometry
-from nbv_prob_cnn.basics.modes import BACKEND_NAMES, Backend
+from nbv_prob_cnn.basics.modes import Backend
 from nbv_prob_cnn.gain.sampling import SAMPLINGS
-from nbv_prob_cnn.gain.variant import GAIN_VARIANTS
 from nbv_prob_cnn.perception.messages import stamp_ns
 from nbv_prob_cnn.perception.tf_buffer import TransformError, matrix_from_translation_quaternion
 from nbv_prob_cnn.planners import PlanningContext, check_ros_method
@@ -61,11 +60,13 @@ from nbv_prob_cnn.ros.conversions import (
     msg_to_grid,
     msg_to_probability,
 )
+from nbv_prob_cnn.ros.gain_params import backend_param, gain_variant_param, n_rays_param
 from nbv_prob_cnn.ros.grid_holder import LatestGrid
 from nbv_prob_cnn.ros.joint_state_intake import JointStateIntake
 from nbv_prob_cnn.ros.parameters import declare_config, param, positive_seconds
+from nbv_prob_cnn.ros.remote_planning import complete_via_service
 from nbv_prob_cnn.ros.robot_params import ArmViewParams, joint_state_msg
-from nbv_prob_cnn.ros.runtime import call_service, run_node
+from nbv_prob_cnn.ros.runtime import run_node
 from nbv_prob_cnn.ros.stream_node import StreamNode
 from nbv_prob_cnn.ros.tf_listener import TfListener
 
@@ -80,12 +81,11 @@ class GainServerConfig(SensorParams, ArmViewParams):
 
     dataset: str = param("3dt", "sensor/ray defaults and CNN weights", choices=tuple(sorted(DATASETS)))
     method: str = param("cnn_prob", "method when a request names none", dynamic=True, check=check_ros_method)
-    backend: Backend = param("auto", "ray-casting backend", choices=BACKEND_NAMES)
-    n_rays: int = param(0, "ray sub-cells per side (0 = data set default)", min_value=0, max_value=64)
-    gain_variant: str = param(
-        "paper", "gain: 'paper' (docs/method.md) or 'original' (the authors' host choices, docs/original_code.md)",
-        choices=GAIN_VARIANTS,
-    )  # fmt: skip
+    backend: Backend = backend_param("ray-casting backend")
+    n_rays: int = n_rays_param("ray sub-cells per side (0 = data set default)")
+    gain_variant: str = gain_variant_param(
+        "gain: 'paper' (docs/method.md) or 'original' (the authors' host choices, docs/original_code.md)"
+    )
     completion: str = param(
         "service", "CNN maps from the completion service or in this process", choices=("service", "in_process"),
     )  # fmt: skip
@@ -160,13 +160,9 @@ class GainServer(Node):
             return cnn_completion
 
         def via_service(state: np.ndarray, context: PlanningContext) -> np.ndarray:
-            request = CompleteGrid.Request()
-            request.grid = grid_to_msg(state, geometry, header.frame_id or self.config.frame_id, header.stamp)
-            request.dataset = self.config.dataset
-            response = call_service(self, self._complete_client, request, self.config.completion_timeout_s)
-            if not response.success:
-                raise ValueError(f"completion failed: {response.message}")
-            prob, _ = msg_to_probability(response.probability)
+            grid = grid_to_msg(state, geometry, header.frame_id or self.config.frame_id, header.stamp)
+            timeout_s = self.config.completion_timeout_s
+            prob, _ = complete_via_service(self, self._complete_client, grid, self.config.dataset, timeout_s)
             return prob
 
         return via_service

@@ -60,7 +60,7 @@ from nbv_prob_cnn.arm.views import ArmPlanningSetup
 from nbv_prob_cnn.basics.camera import DATASETS
 from nbv_prob_cnn.basics.geometry import GridGeometry
 from nbv_prob_cnn.basics.interrupt import Interrupt, WaitInterruptedError
-from nbv_prob_cnn.basics.modes import BACKEND_NAMES, MOVE_MODES, Backend, MoveMode
+from nbv_prob_cnn.basics.modes import MOVE_MODES, Backend, MoveMode
 from nbv_prob_cnn.exploration.session import (
     ExplorationSession,
     FailedMove,
@@ -71,7 +71,6 @@ from nbv_prob_cnn.exploration.session import (
 from nbv_prob_cnn.exploration.slot import ExplorationSlot
 from nbv_prob_cnn.exploration.step_log import server_stage_times, stage_times
 from nbv_prob_cnn.exploration.view_guard import ViewGuard
-from nbv_prob_cnn.gain.variant import GAIN_VARIANTS
 from nbv_prob_cnn.planners import ViewChoice, check_ros_method, make_planner, ros_method
 from nbv_prob_cnn.planners.base import OriginFilter
 from nbv_prob_cnn.planners.recording import RecordingPlanner
@@ -81,6 +80,7 @@ from nbv_prob_cnn.ros import names
 from nbv_prob_cnn.ros.camera_sensor import CameraInfoSensor, SensorParams
 from nbv_prob_cnn.ros.conversions import arrays_to_pose_stamped, geometry_of, msg_to_grid
 from nbv_prob_cnn.ros.explore_parts import NO_POSITIVE_GAIN, ExploreGrids, GoalPlanner, cancel_requested
+from nbv_prob_cnn.ros.gain_params import backend_param, gain_variant_param, n_rays_param
 from nbv_prob_cnn.ros.grid_holder import LatestGrid
 from nbv_prob_cnn.ros.joint_state_intake import JointStateIntake
 from nbv_prob_cnn.ros.markers import planning_markers
@@ -113,12 +113,11 @@ class PlannerConfig(SensorParams, ArmViewParams):
     dataset: str = param("3dt", "sensor/ray defaults and CNN weights", choices=tuple(sorted(DATASETS)))
     method: str = param("cnn_prob", "method when a request names none", dynamic=True, check=check_ros_method)
     in_process: bool = param(False, "complete and ray-cast here instead of via the servers")
-    backend: Backend = param("auto", "ray-casting backend (in-process mode)", choices=BACKEND_NAMES)
-    n_rays: int = param(0, "ray sub-cells per side (0 = default)", min_value=0, max_value=64)
-    gain_variant: str = param(
-        "paper", "gain in-process ('paper' or 'original', docs/original_code.md; else gain_server's)",
-        choices=GAIN_VARIANTS,
-    )  # fmt: skip
+    backend: Backend = backend_param("ray-casting backend (in-process mode)")
+    n_rays: int = n_rays_param("ray sub-cells per side (0 = default)")
+    gain_variant: str = gain_variant_param(
+        "gain in-process ('paper' or 'original', docs/original_code.md; else gain_server's)"
+    )
     frame_id: str = param("world", "frame of grids that carry none")
     service_timeout_s: float = param(
         60.0, "completion/ranking wait", min_value=0.1, max_value=600.0, dynamic=True, check=positive_seconds

@@ -1,6 +1,8 @@
 """A planner's completion and ranking through the servers: ``/nbv/complete`` (CompleteGrid) and
 ``/nbv/rank_views`` (RankViews) as the hooks of a core planner's
 :class:`~nbv_prob_cnn.planners.base.PlanningContext` (``completion``, ``ranker``).
+:func:`complete_via_service` alone is the completion through the service (``gain_server``'s
+``completion:=service`` too).
 
 The ranking request carries the workspace box, the origin budget and, when the arm limits the
 origins (capability map, lowest view height), the allowed origins and their allowed views; a
@@ -34,6 +36,24 @@ from nbv_prob_cnn.ros.runtime import call_service
 
 def point(values: np.ndarray) -> Point:
     return Point(x=float(values[0]), y=float(values[1]), z=float(values[2]))
+
+
+def complete_via_service(
+    node: Node, client, grid: VoxelGrid, dataset: str, timeout_s: float, interrupt: Interrupt | None = None
+) -> tuple[np.ndarray, CompleteGrid.Response]:
+    """The probability map of ``grid`` by the completion network of ``dataset``, from the server
+    that ``client`` (a CompleteGrid client of ``node``) calls, and the server's reply.
+
+    Raises:
+        ValueError: the server answered with an error.
+        TimeoutError, WaitInterruptedError: as :func:`~nbv_prob_cnn.ros.runtime.call_service`.
+    """
+    call = CompleteGrid.Request(grid=grid, dataset=dataset)
+    reply = call_service(node, client, call, timeout_s, interrupt)
+    if not reply.success:
+        raise ValueError(f"completion failed: {reply.message}")
+    prob, _ = msg_to_probability(reply.probability)
+    return prob, reply
 
 
 class RemotePlanning:
@@ -82,11 +102,9 @@ class RemotePlanning:
             return carved[0][1]
 
         def complete(state: np.ndarray, context: PlanningContext) -> np.ndarray:
-            call = CompleteGrid.Request(grid=grid_msg(state), dataset=dataset)
-            reply = call_service(node, self._complete_client, call, timeout_s, interrupt)
-            if not reply.success:
-                raise ValueError(f"completion failed: {reply.message}")
-            prob, _ = msg_to_probability(reply.probability)
+            prob, reply = complete_via_service(
+                node, self._complete_client, grid_msg(state), dataset, timeout_s, interrupt
+            )
             completed["msg"], completed["prob"] = reply.probability, prob
             self.server_times.update(cnn_server=reply.time_total_s, cnn_inference=reply.inference_time_s)
             return prob

@@ -1,0 +1,24 @@
+"""The ray-casting parameters that ``gain_server`` and ``nbv_planner`` (with ``in_process``) both
+declare, with one default and one set of allowed values; each node describes them in its own words
+(where they apply to it)."""
+
+from __future__ import annotations
+
+from nbv_prob_cnn.basics.modes import BACKEND_NAMES, Backend
+from nbv_prob_cnn.gain.variant import GAIN_VARIANTS
+from nbv_prob_cnn.ros.parameters import param
+
+
+def backend_param(description: str) -> Backend:
+    """``backend``: the ray-casting backend, ``auto`` by default."""
+    return param("auto", description, choices=BACKEND_NAMES)
+
+
+def n_rays_param(description: str) -> int:
+    """``n_rays``: ray sub-cells per side, 0 to 64 (0, the default: the data set's)."""
+    return param(0, description, min_value=0, max_value=64)
+
+
+def gain_variant_param(description: str) -> str:
+    """``gain_variant``: one of :data:`~nbv_prob_cnn.gain.variant.GAIN_VARIANTS`, ``paper`` by default."""
+    return param("paper", description, choices=GAIN_VARIANTS)
