@@ -3,7 +3,6 @@ Ctrl-C stops everything cleanly."""
 
 from __future__ import annotations
 
-import contextlib
 import csv
 import json
 import os
@@ -20,6 +19,8 @@ import pytest
 pytest.importorskip("rclpy")
 pytest.importorskip("nbv_prob_cnn_msgs")
 
+from launch_runs import descendants, run_launch_script  # noqa: E402
+
 from nbv_prob_cnn.basics.geometry import GridGeometry  # noqa: E402
 from nbv_prob_cnn.ros.graph import leaked_segments, shm_segments  # noqa: E402
 
@@ -27,48 +28,6 @@ pytestmark = pytest.mark.slow  # multi-process ROS graphs
 
 REPO = Path(__file__).resolve().parents[2]
 SCRIPT = REPO / "launch_scripts" / "explore_sim.py"
-
-
-def _descendants(pid: int) -> set[int]:
-    """Every live process whose ancestry includes ``pid``."""
-    parents = {}
-    for entry in os.listdir("/proc"):
-        if entry.isdigit():
-            try:
-                with open(f"/proc/{entry}/stat") as handle:
-                    parents[int(entry)] = int(handle.read().rsplit(")", 1)[1].split()[1])
-            except OSError:
-                continue
-    found, frontier = set(), {pid}
-    while frontier:
-        children = {p for p, parent in parents.items() if parent in frontier} - found
-        found |= children
-        frontier = children
-    return found
-
-
-def run_launch_script(cmd: list[str], timeout: float, env: dict | None = None) -> subprocess.CompletedProcess:
-    """``subprocess.run`` for a launch script that never leaves its nodes behind: past ``timeout``
-    the script gets Ctrl-C (it stops its graph), and whatever still lives 30 s later is killed,
-    descendants included (a plain ``run`` kills only the script and orphans its nodes)."""
-    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
-    try:
-        out, err = proc.communicate(timeout=timeout)
-    except subprocess.TimeoutExpired:
-        children = _descendants(proc.pid)
-        proc.send_signal(signal.SIGINT)
-        try:
-            out, err = proc.communicate(timeout=30)
-        except subprocess.TimeoutExpired:
-            for pid in {proc.pid} | children | _descendants(proc.pid):
-                with contextlib.suppress(ProcessLookupError):
-                    os.kill(pid, signal.SIGKILL)
-            out, err = proc.communicate()
-        for pid in children:
-            with contextlib.suppress(ProcessLookupError):
-                os.kill(pid, signal.SIGKILL)
-        raise AssertionError(f"{cmd[1]} did not finish within {timeout} s\n{out[-3000:]}\n{err[-3000:]}") from None
-    return subprocess.CompletedProcess(cmd, proc.returncode, out, err)
 
 
 def _domain(ros_domain, offset: int) -> str:
@@ -195,14 +154,14 @@ def test_ctrl_c_stops_the_whole_graph(tmp_path, ros_domain):
         lines.append(line)
         if "view 2/50" in line or not line:
             break
-    children = _descendants(proc.pid)
+    children = descendants(proc.pid)
     assert len(children) >= 5, "".join(lines)  # the five nodes are running
     proc.send_signal(signal.SIGINT)
     rest, _ = proc.communicate(timeout=60)
     assert proc.returncode == 130, "".join(lines) + rest
     assert "interrupted" in rest and "stopped 5 processes" in rest
     time.sleep(0.5)
-    assert not (_descendants(proc.pid) | {p for p in children if os.path.exists(f"/proc/{p}")}), "orphans left"
+    assert not (descendants(proc.pid) | {p for p in children if os.path.exists(f"/proc/{p}")}), "orphans left"
     assert not leaked_segments(before, int(domain))
 
 

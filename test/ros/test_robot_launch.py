@@ -17,7 +17,7 @@ rclpy = pytest.importorskip("rclpy")
 pytest.importorskip("nbv_prob_cnn_msgs")
 pytest.importorskip("control_msgs")
 
-from test_launch import run_launch_script  # noqa: E402
+from launch_runs import run_launch_script  # noqa: E402
 
 from nbv_prob_cnn.ros.graph import NodeGraph, ros_environment  # noqa: E402
 

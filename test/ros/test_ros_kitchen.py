@@ -29,7 +29,7 @@ pytest.importorskip("rclpy")
 pytest.importorskip("nbv_prob_cnn_msgs")
 pytest.importorskip("tf2_msgs")
 
-from test_launch import run_launch_script  # noqa: E402
+from launch_runs import run_launch_script  # noqa: E402
 from test_ros_perception import RosClient  # noqa: E402
 
 from nbv_prob_cnn import cli  # noqa: E402
