@@ -64,7 +64,8 @@ discarded) and ``/integrator/save`` (``nbv_prob_cnn_msgs/SaveGrid``: ``.npz`` wi
 working directory) and ``/integrator/save_mesh`` (``SaveGrid``: the TSDF's surface by marching
 cubes, world metres, as a binary ``.ply`` mesh). ``/integrator/occupied_cells``
 (``sensor_msgs/PointCloud2``, the occupied cell centres, for RViz) follows the grids at most
-``cloud_rate_hz`` times a second, and only while someone subscribes.
+``cloud_rate_hz`` times a second, and only while someone subscribes; the latest grid's cloud is
+always sent (later, when throttled), and again when a subscriber joins (RViz opened later).
 
 Run: ``nbv node integrator --ros-args -p publish_rate_hz:=2.0``
 """
@@ -79,6 +80,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import TransformStamped
 from nbv_prob_cnn_msgs.msg import VoxelGrid
@@ -195,6 +197,9 @@ class Integrator(Node):
         self._grid_pub = self.create_publisher(VoxelGrid, TOPIC_GRID, GRID_QOS)
         self._cloud_pub = self.create_publisher(PointCloud2, TOPIC_OCCUPIED_CELLS, 1)
         self._next_cloud = 0.0
+        self._cloud_lock = threading.Lock()  # the worker (new grids) and the cloud timer both publish clouds
+        self._cloud_grid: tuple[np.ndarray, int] | None = None  # the latest grid and its stamp
+        self._cloud_sent = (-1, 0)  # stamp of the last cloud sent, and the subscribers then
         inputs = MutuallyExclusiveCallbackGroup()
         services = MutuallyExclusiveCallbackGroup()
         image, info, pose = (
@@ -248,6 +253,8 @@ class Integrator(Node):
         self._last_grid_at = 0.0
         if cfg.republish_period_s > 0:
             self.create_timer(min(cfg.republish_period_s, 0.25), self._on_republish_timer, callback_group=services)
+        if cfg.cloud_rate_hz > 0:  # the latest grid's cloud, when throttled away or for a subscriber that came later
+            self.create_timer(max(1.0 / cfg.cloud_rate_hz, 0.05), self._publish_cloud, callback_group=services)
         self._worker = threading.Thread(target=self._work, name="tsdf_worker", daemon=True)
         self._worker.start()
         poses = f"by TF ({self._tf.backend})" if self._tf else f"from {names.CAMERA_POSE}"
@@ -510,9 +517,32 @@ class Integrator(Node):
         self._grid_pub.publish(msg)
         self._last_grid, self._last_grid_at = msg, time.monotonic()
         self.counts["grids"] += 1
+        with self._cloud_lock:
+            self._cloud_grid = (grid, stamp_ns)
+        self._publish_cloud()
+
+    def _publish_cloud(self) -> None:
+        """The occupied cells of the latest grid on ``occupied_cells``, at most ``cloud_rate_hz``
+        times a second and only while someone subscribes: when the grid is new since the last
+        cloud, or a subscriber joined since (a volatile one, such as RViz opened later, gets the
+        current cloud without waiting for the next frame)."""
         cloud_rate = self.config.cloud_rate_hz
-        if cloud_rate > 0 and time.monotonic() >= self._next_cloud and self._cloud_pub.get_subscription_count() > 0:
+        if cloud_rate <= 0 or not self.context.ok():
+            return
+        with self._cloud_lock:
+            subscribers = self._cloud_pub.get_subscription_count()
+            sent_stamp, sent_subscribers = self._cloud_sent
+            if self._cloud_grid is None or subscribers == 0:
+                self._cloud_sent = (sent_stamp, 0)  # whoever subscribes next is new
+                return
+            grid, stamp_ns = self._cloud_grid
+            if stamp_ns == sent_stamp and subscribers <= sent_subscribers:
+                self._cloud_sent = (sent_stamp, subscribers)  # sent already (someone left: fewer now)
+                return
+            if time.monotonic() < self._next_cloud:
+                return  # throttled: this timer sends it later
             self._next_cloud = time.monotonic() + 1.0 / cloud_rate
+            self._cloud_sent = (stamp_ns, subscribers)
             self._cloud_pub.publish(
                 occupied_cloud_msg(grid, self.geometry.origin, self.geometry.resolution, self.config.fixed_frame,
                                    time_msg(stamp_ns))
