@@ -49,10 +49,26 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )  # fmt: skip
     parser.add_argument("--guard-min-cells", type=int, default=None,
                         help="with --guard: threshold in cells (default: 5e-5 of the grid's cells)")  # fmt: skip
+    parser.add_argument(
+        "--chamfer", action="store_true",
+        help="3D: every run also fuses a depth image of the world's meshes per view into a TSDF and stores the Chamfer "
+        "distance of its mesh to them after the last view (a stored run without one is redone)",
+    )  # fmt: skip
+    parser.add_argument(
+        "--replay", default=None, metavar="DIR",
+        help="replay the stored runs of DIR (e.g. studies/results/evaluation) instead of planning: the same views, "
+        "their surface coverage (and with --chamfer the Chamfer distance) measured anew, stored under --out",
+    )  # fmt: skip
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
 
 
 def run(args: argparse.Namespace) -> int:
+    from nbv_prob_cnn.exploration.coverage_tables import (
+        coverage_table,
+        save_coverage_plot,
+        write_coverage_runs_csv,
+        write_views_to_coverage_csv,
+    )
     from nbv_prob_cnn.exploration.evaluation import (
         GUARDED,
         evaluate,
@@ -73,13 +89,21 @@ def run(args: argparse.Namespace) -> int:
     logs = evaluate(
         args.dataset, args.methods, seeds, args.views, out, progress=not args.quiet,
         workers=args.workers, address=args.address, backend=args.backend, gain_variant=args.gain_variant,
-        guard=args.guard, guard_min_cells=args.guard_min_cells,
+        guard=args.guard, guard_min_cells=args.guard_min_cells, chamfer=args.chamfer,
+        replay=None if args.replay is None else Path(args.replay) / args.dataset,
     )  # fmt: skip
-    table = summary_table(logs, at)
+    table = summary_table(logs, at) + "\n\n" + coverage_table(logs, at)
     stem = f"{args.dataset}_{GUARDED}" if args.guard else args.dataset
-    write_summary_csv(logs, args.views, out / f"{stem}_summary.csv")
-    (out / f"{stem}_table.md").write_text(table + "\n")
-    plots = save_plots(logs, args.views, args.dataset, out, stem)
+    written = [out / f"{stem}_summary.csv", out / f"{stem}_table.md", out / f"{stem}_views_to_coverage.csv",
+               out / f"{stem}_coverage_runs.csv"]  # fmt: skip
+    write_summary_csv(logs, args.views, written[0])
+    written[1].write_text(table + "\n")
+    write_views_to_coverage_csv(logs, written[2])
+    write_coverage_runs_csv(logs, written[3])
+    written += save_plots(logs, args.views, args.dataset, out, stem)
+    title = args.dataset.upper() + (", guarded" if args.guard else "")
+    coverage_png = save_coverage_plot(logs, args.views, title, out / f"{stem}_coverage.png")
+    written += [] if coverage_png is None else [coverage_png]
     print(table)
-    print(f"wrote {out / f'{stem}_summary.csv'}, {out / f'{stem}_table.md'}, " + ", ".join(map(str, plots)))
+    print("wrote " + ", ".join(map(str, written)))
     return 0

@@ -51,6 +51,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--guard-min-cells", type=int, default=None,
                         help="a pose whose view changed fewer cells is never planned again "
                              "(default: 5e-5 of the grid's cells)")  # fmt: skip
+    parser.add_argument("--chamfer", action="store_true",
+                        help="3D worlds: also fuse a depth image of the world's meshes per view into a TSDF and "
+                             "give the Chamfer distance of its mesh to the meshes after the last view "
+                             "(docs/evaluation.md#surface-coverage-and-chamfer-distance)")  # fmt: skip
 
 
 def run(args: argparse.Namespace) -> int:
@@ -100,8 +104,10 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError("--guard-min-cells and --no-guard exclude each other")
     guard = None if args.no_guard else ViewGuard.for_grid(world.shape, args.guard_min_cells)
 
+    if args.chamfer and world.dims != 3:
+        raise ValueError(f"--chamfer needs a 3D world with meshes (3dt, 3du), not {args.dataset}")
     result = explore(world, planner, context, args.views, progress=not args.quiet, noise=noise,
-                     room_margin_m=args.room_margin, guard=guard)  # fmt: skip
+                     room_margin_m=args.room_margin, guard=guard, chamfer=args.chamfer)  # fmt: skip
     write_csv(result.records, args.log)
     written = [args.log]
     if args.png:
@@ -119,6 +125,7 @@ def run(args: argparse.Namespace) -> int:
         f"surface coverage {last.surface_coverage:.4f}{_views_to_coverage(result)}, "
         f"mean planning time {mean_plan:.3f} s, {result.stop_reason}"
         + ("" if guard is None else f", {len(guard.ruled_out)} views ruled out (< {guard.min_changed_cells} cells)")
+        + ("" if result.chamfer is None else f", {result.chamfer.describe()}")
         + f"; wrote {', '.join(written)}"
     )
     return 0

@@ -13,6 +13,12 @@ many views) is read back, not recomputed, unless the method's weights file has c
 and the progress output says so. Methods without weights record none and are never redone.
 Worlds and weights are read on the worker (``NBV_CACHE_DIR`` and ``NBV_WEIGHTS_DIR`` are passed
 on); every node of a cluster needs this package installed (``launch_scripts/setup.sh``).
+
+With ``chamfer`` each run also measures the Chamfer distance of its TSDF mesh after the last view
+(:mod:`~nbv_prob_cnn.exploration.mesh_chamfer`, stored in its ``.json``; a stored run without one is
+redone). With ``replay`` runs are not planned but replayed from the stored runs of another folder
+(:mod:`~nbv_prob_cnn.exploration.replay`: the same views, the surface coverage and the Chamfer
+distance measured anew).
 """
 
 from __future__ import annotations
@@ -22,6 +28,7 @@ import hashlib
 import io
 import json
 import os
+import re
 import sys
 from dataclasses import dataclass
 from pathlib import Path
@@ -33,6 +40,7 @@ from tqdm import tqdm
 
 from nbv_prob_cnn.basics.datasets import EVALUATION_SEEDS, dataset_spec
 from nbv_prob_cnn.exploration.explore import explore, write_csv
+from nbv_prob_cnn.exploration.mesh_chamfer import CHAMFER_KEY
 from nbv_prob_cnn.exploration.view_guard import ViewGuard
 from nbv_prob_cnn.planners import PlanningContext, make_planner, method_spec
 
@@ -54,19 +62,41 @@ GUARDED = "guarded"
 
 @dataclass
 class RunLog:
-    """Per-view columns of one run, as read from its CSV."""
+    """Per-view columns of one run, as read from its CSV, and what its ``.json`` measured.
+
+    ``surface_coverage`` is None for a run CSV written before that column; ``chamfer`` (the
+    :class:`~nbv_prob_cnn.exploration.mesh_chamfer.ChamferResult` fields) None for a run without
+    one; ``seed`` None when the file name gives none."""
 
     unknown_fraction: np.ndarray
     unknown_fraction_all: np.ndarray
     time_total_s: np.ndarray
+    surface_coverage: np.ndarray | None = None
+    chamfer: dict | None = None
+    seed: int | None = None
 
 
 def read_run(path: Path, views: int | None = None) -> RunLog:
-    """The log of a run CSV (its first ``views`` rows when given)."""
+    """The log of a run CSV (its first ``views`` rows when given), with the Chamfer distance of
+    its ``.json`` when there is one."""
     with open(path) as handle:
-        rows = list(csv.DictReader(handle))[:views]
+        reader = csv.DictReader(handle)
+        rows = list(reader)[:views]
+        header = reader.fieldnames or []
     column = lambda name: np.array([float(r[name]) for r in rows])  # noqa: E731
-    return RunLog(column("unknown_fraction"), column("unknown_fraction_all"), column("time_total_s"))
+    meta_path = Path(path).with_suffix(".json")
+    chamfer = None
+    if meta_path.is_file():
+        try:
+            chamfer = json.loads(meta_path.read_text()).get(CHAMFER_KEY)
+        except (ValueError, AttributeError):
+            chamfer = None
+    seed = re.search(r"_seed(\d+)\.csv$", Path(path).name)
+    return RunLog(
+        column("unknown_fraction"), column("unknown_fraction_all"), column("time_total_s"),
+        column("surface_coverage") if "surface_coverage" in header else None,
+        chamfer, int(seed.group(1)) if seed else None,
+    )  # fmt: skip
 
 
 def run_path(out: Path, dataset: str, method: str, seed: int, guarded: bool = False) -> Path:
@@ -87,14 +117,20 @@ def weights_fingerprint(dataset: str, method: str) -> str | None:
 
 
 def run_status(
-    path: Path, views: int, weights: str | None = None, gain_variant: str = "paper", guard_min_cells: int | None = None
+    path: Path,
+    views: int,
+    weights: str | None = None,
+    gain_variant: str = "paper",
+    guard_min_cells: int | None = None,
+    chamfer: bool = False,
 ) -> str:
     """``"done"``: the run CSV exists for at least ``views`` views (or stopped early in a run that
     asked for as many) and was made with the weights of fingerprint ``weights`` (None: a method
     without weights); ``"missing"``, ``"short"``, ``"other weights"`` (a run of a method with
     weights whose ``.json`` records another fingerprint or none), or ``"other gain variant"`` (its
     ``.json`` records another ``gain_variant``; none recorded: ``"paper"``), or ``"other guard"``
-    (another view-guard threshold, ``guard_min_cells``; None: the plain loop, none recorded)."""
+    (another view-guard threshold, ``guard_min_cells``; None: the plain loop, none recorded), or,
+    with ``chamfer``, ``"no chamfer"`` (its ``.json`` holds no Chamfer distance)."""
     if not path.is_file():
         return "missing"
     meta_path = path.with_suffix(".json")
@@ -109,11 +145,15 @@ def run_status(
             return "other gain variant"
         if meta.get(GUARD_KEY) != guard_min_cells:
             return "other guard"
+        if chamfer and CHAMFER_KEY not in meta:
+            return "no chamfer"
     else:
         if gain_variant != "paper":
             return "other gain variant"
         if guard_min_cells is not None:
             return "other guard"
+        if chamfer:
+            return "no chamfer"
         with open(path) as handle:
             enough = sum(1 for _ in handle) - 1 >= views
         recorded = None
@@ -130,10 +170,19 @@ def run_one(
     backend: str = "auto",
     gain_variant: str = "paper",
     guard_min_cells: int | None = None,
+    chamfer: bool = False,
+    replay_from: str | None = None,
 ) -> tuple[str, dict]:
     """One run of docs/method.md#exploration-protocol-and-metrics (the body of a Ray task): the CSV text and
     its metadata.
-    ``guard_min_cells``: run with the view guard of this threshold (None: the plain loop)."""
+    ``guard_min_cells``: run with the view guard of this threshold (None: the plain loop).
+    ``chamfer``: measure the Chamfer distance of the run's TSDF mesh after its last view.
+    ``replay_from``: replay that stored run CSV instead of planning
+    (:func:`~nbv_prob_cnn.exploration.replay.replay_run`)."""
+    if replay_from is not None:
+        from nbv_prob_cnn.exploration.replay import replay_run
+
+        return replay_run(dataset, seed, views, replay_from, gain_variant, chamfer)
     from nbv_prob_cnn.worlds import load_or_generate
 
     world = load_or_generate(dataset, seed)
@@ -147,7 +196,7 @@ def run_one(
         gain_variant=gain_variant,
     )
     guard = None if guard_min_cells is None else ViewGuard(guard_min_cells)
-    result = explore(world, make_planner(method), context, views, progress=False, guard=guard)
+    result = explore(world, make_planner(method), context, views, progress=False, guard=guard, chamfer=chamfer)
     text = io.StringIO()
     write_csv(result.records, text)
     meta = {"views": views, "stop_reason": result.stop_reason, "host": os.uname().nodename, WEIGHTS_KEY: weights}
@@ -155,6 +204,8 @@ def run_one(
         meta[VARIANT_KEY] = gain_variant
     if guard_min_cells is not None:
         meta[GUARD_KEY] = guard_min_cells
+    if result.chamfer is not None:
+        meta[CHAMFER_KEY] = result.chamfer.as_dict()
     return text.getvalue(), meta
 
 
@@ -188,6 +239,8 @@ def evaluate(
     gain_variant: str = "paper",
     guard: bool = False,
     guard_min_cells: int | None = None,
+    chamfer: bool = False,
+    replay: Path | None = None,
 ) -> dict[str, list[RunLog]]:
     """Run (or read back) every method on every seed; returns the logs per method.
 
@@ -203,42 +256,64 @@ def evaluate(
             as ``<dataset>_<method>_guarded_seed<seed>.csv`` beside the plain runs; False: the
             paper's plain loop.
         guard_min_cells: the guard's threshold (default: 5e-5 of the data set's grid cells).
+        chamfer: every run also measures the Chamfer distance of its TSDF mesh after its last
+            view (3D data sets); a stored run without one is redone.
+        replay: a folder of stored runs (``runs/`` under it, as ``out``'s): each run not done in
+            ``out`` is replayed from its namesake there, which must hold at least ``views`` views
+            of the same gain variant and guard (the weights it ran with are kept with it).
+
+    Raises:
+        ValueError: ``chamfer`` on 2D, or a run ``replay`` lacks or cannot replay.
     """
     for method in methods:
         method_spec(method)  # fail early on an unknown name
+    if chamfer and dataset_spec(dataset).dims != 3:
+        raise ValueError(f"chamfer: needs a 3D data set with meshes (3dt, 3du), not {dataset}")
     threshold = None
     if guard:
         threshold = ViewGuard.for_grid(dataset_spec(dataset).shape, guard_min_cells).min_changed_cells
-    check_weights(dataset, methods)
+    if replay is None:
+        check_weights(dataset, methods)
     (out / "runs").mkdir(parents=True, exist_ok=True)
     jobs = [(seed, method) for seed in seeds for method in methods]
-    fingerprints = {method: weights_fingerprint(dataset, method) for method in methods}
-    pending: list[tuple[int, str]] = []
-    redo: dict[str, int] = {}  # method -> runs made with other weights
+    sources: dict[tuple[int, str], str | None] = dict.fromkeys(jobs)
+    if replay is None:
+        current = {method: weights_fingerprint(dataset, method) for method in methods}
+        fingerprints = {(seed, method): current[method] for seed, method in jobs}
+    else:  # a replayed run keeps the weights its source ran with
+        fingerprints = {}
+        for seed, method in jobs:
+            source = run_path(replay, dataset, method, seed, guard)
+            fingerprints[seed, method] = recorded_weights(source)
+            status = run_status(source, views, fingerprints[seed, method], gain_variant, threshold)
+            if status != "done":
+                raise ValueError(f"replay: {source}: {status} (needs {views} views of this gain variant and guard)")
+            sources[seed, method] = str(source)
+    pending: dict[tuple[int, str], tuple] = {}  # (seed, method) -> the arguments of run_one
+    redo: dict[str, tuple[int, str | None]] = {}  # method -> runs made with other weights, the weights now
     for seed, method in jobs:
         status = run_status(
-            run_path(out, dataset, method, seed, guard), views, fingerprints[method], gain_variant, threshold
-        )
+            run_path(out, dataset, method, seed, guard), views, fingerprints[seed, method], gain_variant, threshold,
+            chamfer,
+        )  # fmt: skip
         if status != "done":
-            pending.append((seed, method))
+            pending[seed, method] = (dataset, method, seed, views, backend, gain_variant, threshold, chamfer,
+                                     sources[seed, method])  # fmt: skip
         if status == "other weights":
-            redo[method] = redo.get(method, 0) + 1
+            redo[method] = (redo.get(method, (0, None))[0] + 1, fingerprints[seed, method])
     bar = tqdm(total=len(jobs), initial=len(jobs) - len(pending), desc=f"evaluate {dataset}", unit="run",
                disable=not progress)  # fmt: skip
-    for method, count in redo.items():
+    for method, (count, weights) in redo.items():
         if progress:
             bar.write(f"{dataset} {method}: redoing {count} run(s) made with other weights than the current "
-                      f"ones (sha256 {fingerprints[method]})", file=sys.stderr)  # fmt: skip
+                      f"ones (sha256 {weights})", file=sys.stderr)  # fmt: skip
     if pending and workers == 0 and address is None:
-        for seed, method in pending:
-            _store(
-                run_path(out, dataset, method, seed, guard),
-                *run_one(dataset, method, seed, views, backend, gain_variant, threshold),
-            )
+        for (seed, method), arguments in pending.items():
+            _store(run_path(out, dataset, method, seed, guard), *run_one(*arguments))
             bar.update(1)
             bar.set_postfix(seed=seed, method=method)
     elif pending:
-        _run_on_ray(dataset, pending, views, out, workers, address, backend, bar, gain_variant, threshold)
+        _run_on_ray(pending, out, guard, workers, address, bar)
     bar.close()
     logs: dict[str, list[RunLog]] = {m: [] for m in methods}
     for seed, method in jobs:
@@ -246,9 +321,18 @@ def evaluate(
     return logs
 
 
+def recorded_weights(path: Path) -> str | None:
+    """The weights fingerprint a stored run's ``.json`` records (None: none, or no ``.json``)."""
+    try:
+        return json.loads(path.with_suffix(".json").read_text()).get(WEIGHTS_KEY)
+    except (OSError, ValueError, AttributeError):
+        return None
+
+
 def _run_on_ray(
-    dataset, pending, views, out, workers, address, backend, bar, gain_variant="paper", guard_min_cells=None
+    pending: dict[tuple[int, str], tuple], out: Path, guard: bool, workers: int | None, address: str | None, bar
 ) -> None:
+    """:func:`run_one` of each ``pending`` job's arguments as a Ray task; each run stored as it ends."""
     import ray
 
     env = {k: os.environ[k] for k in FORWARDED_ENV if k in os.environ}
@@ -260,15 +344,12 @@ def _run_on_ray(
         ray.init(address=address, **options)
     try:
         task = ray.remote(num_cpus=1, max_retries=1)(run_one)
-        futures = {
-            task.remote(dataset, method, seed, views, backend, gain_variant, guard_min_cells): (seed, method)
-            for seed, method in pending
-        }
+        futures = {task.remote(*arguments): job for job, arguments in pending.items()}
         remaining = list(futures)
         while remaining:
             done, remaining = ray.wait(remaining, num_returns=1)
             seed, method = futures[done[0]]
-            path = run_path(out, dataset, method, seed, guard_min_cells is not None)
+            path = run_path(out, pending[seed, method][0], method, seed, guard)
             _store(path, *ray.get(done[0]))  # written as soon as it finishes
             bar.update(1)
             bar.set_postfix(seed=seed, method=method)
@@ -340,11 +421,29 @@ def save_plots(
 
 
 def write_summary_csv(logs: dict[str, list[RunLog]], views: int, path: Path) -> None:
-    """Per view and method: mean and std of the unknown fraction."""
+    """Per view and method: mean and std of the unknown fraction, then of the surface coverage
+    (``n/a`` for a method with a run CSV written before that column)."""
     with open(path, "w", newline="") as handle:
         writer = csv.writer(handle)
-        writer.writerow(["method", "view", "runs", "mean_unknown_fraction", "std_unknown_fraction"])
+        writer.writerow(["method", "view", "runs", "mean_unknown_fraction", "std_unknown_fraction",
+                         "mean_surface_coverage", "std_surface_coverage"])  # fmt: skip
         for method, runs in logs.items():
             curves = padded([r.unknown_fraction for r in runs], views)
+            coverage = coverage_curves(runs, views)
             for v in range(views):
-                writer.writerow([method, v + 1, len(runs), f"{curves[:, v].mean():.6f}", f"{curves[:, v].std():.6f}"])
+                seen = (
+                    ["n/a", "n/a"]
+                    if coverage is None
+                    else [f"{coverage[:, v].mean():.6f}", f"{coverage[:, v].std():.6f}"]
+                )
+                writer.writerow(
+                    [method, v + 1, len(runs), f"{curves[:, v].mean():.6f}", f"{curves[:, v].std():.6f}", *seen]
+                )
+
+
+def coverage_curves(runs: list[RunLog], views: int) -> np.ndarray | None:
+    """The surface coverage per run and view ``(runs, views)`` (:func:`padded`); None when a run
+    CSV predates the column."""
+    if any(r.surface_coverage is None for r in runs):
+        return None
+    return padded([r.surface_coverage for r in runs if r.surface_coverage is not None], views)

@@ -15,6 +15,7 @@ from tqdm import tqdm
 
 from nbv_prob_cnn.basics.grid import unknown_fraction
 from nbv_prob_cnn.basics.interrupt import Interrupt
+from nbv_prob_cnn.exploration.mesh_chamfer import ChamferResult
 from nbv_prob_cnn.exploration.session import ExplorationSession, NoView, PlannedView, TakenView
 from nbv_prob_cnn.exploration.surface_metrics import SurfaceCoverage
 from nbv_prob_cnn.exploration.view_guard import ViewGuard
@@ -32,8 +33,8 @@ CSV_COLUMNS = [
 #: position in metres of the grid frame (``_m``); the quaternion (x, y, z, w) of the camera;
 #: counts of cells (``changed_cells``: cells whose state the view changed) and of views
 #: (``ruled_out_views``: poses the view guard has ruled out after this view; 0 without a guard);
-#: ``surface_coverage``: the share of the ground-truth surface seen so far
-#: (:func:`~nbv_prob_cnn.exploration.surface_metrics.surface_coverage`).
+#: ``surface_coverage``: the share of the ground-truth surface seen so far, of the surface facing
+#: the first view's free space (:meth:`~nbv_prob_cnn.exploration.surface_metrics.SurfaceCoverage.seen_from`).
 
 
 @dataclass
@@ -75,11 +76,13 @@ class IterationRecord:
 
 @dataclass
 class ExplorationResult:
-    """The per-view log, the final grid and why the run stopped."""
+    """The per-view log, the final grid and why the run stopped; with ``chamfer``, the Chamfer
+    distance of the run's TSDF mesh to the world's meshes after the last view."""
 
     records: list[IterationRecord]
     state: np.ndarray
     stop_reason: str
+    chamfer: ChamferResult | None = None
 
 
 def first_view(world: World, context: PlanningContext) -> ViewChoice:
@@ -101,6 +104,7 @@ def explore(
     room_margin_m: float | None = None,
     first: ViewChoice | None = None,
     guard: ViewGuard | None = None,
+    chamfer: bool = False,
 ) -> ExplorationResult:
     """Run one exploration of ``world`` with ``planner`` for at most ``views`` views.
 
@@ -115,17 +119,26 @@ def explore(
     poses and stops when nothing else has positive gain (:mod:`~nbv_prob_cnn.exploration.view_guard`);
     None: the paper's plain loop. The loop and its stop rules are the
     :class:`~nbv_prob_cnn.exploration.session.ExplorationSession`'s, with the world as grid source
-    and mover.
+    and mover. ``chamfer``: also fuse a depth image of the world's meshes per view into a TSDF and
+    give the Chamfer distance of its mesh after the last view
+    (:class:`~nbv_prob_cnn.exploration.mesh_chamfer.MeshReconstruction`; 3D worlds only).
     """
     if views < 1:
         raise ValueError(f"views: expected at least 1 view, got {views}")
     simulated = SimulatedWorld(world, context, noise, room_margin_m)
     records: list[IterationRecord] = []
-    coverage = SurfaceCoverage(world.ground_truth)
+    coverages: list[SurfaceCoverage] = []  # of the first view's free space, made at the first view
+    reconstruction = None
+    if chamfer:
+        from nbv_prob_cnn.exploration.mesh_chamfer import MeshReconstruction  # open3d only when asked
+
+        reconstruction = MeshReconstruction(world, context.active_sensor, noise, room_margin_m)
     bar = tqdm(total=views, desc=f"{world.dataset} {planner.name}", unit="view", disable=not progress)
 
     def record(taken: TakenView[ViewChoice]) -> None:
         choice = taken.planned.target
+        if not coverages:
+            coverages.append(SurfaceCoverage.seen_from(world.ground_truth, choice.cell))
         records.append(
             IterationRecord(
                 iteration=taken.index,
@@ -141,9 +154,11 @@ def explore(
                 quaternion=context.view_quaternion(choice.view_index),
                 changed_cells=taken.changed_cells,
                 ruled_out_views=taken.ruled_out_views,
-                surface_coverage=coverage(taken.grid),
+                surface_coverage=coverages[0](taken.grid),
             )
         )
+        if reconstruction is not None:
+            reconstruction.add_view(records[-1].position_m, records[-1].quaternion)
         bar.update(1)
         bar.set_postfix(
             unknown=f"{records[-1].unknown_fraction:.3f}",
@@ -158,7 +173,8 @@ def explore(
     bar.close()
     if result.error is not None:
         raise result.error
-    return ExplorationResult(records, simulated.state, result.reason)
+    distance = None if reconstruction is None else reconstruction.chamfer()
+    return ExplorationResult(records, simulated.state, result.reason, distance)
 
 
 class SimulatedWorld:
