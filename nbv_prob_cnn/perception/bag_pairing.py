@@ -33,12 +33,12 @@ from nbv_prob_cnn.perception.messages import (
     WORLD_FRAME,
     camera_info_to_intrinsics,
     image_msg_to_depth,
-    pose_to_transform_msg,
     stamp_ns,
     stamp_of,
     transform_msg_to_pose,
 )
 from nbv_prob_cnn.perception.tf_buffer import DEFAULT_CACHE_TIME_S, TfBuffer, TransformError
+from nbv_prob_cnn.perception.tf_poses import image_pose_msg
 
 TOPIC_IMAGE = "/camera/depth/image"
 TOPIC_CAMERA_INFO = "/camera/depth/camera_info"
@@ -207,9 +207,7 @@ class TfPairing:
         for stamp in sorted(self.unposed):
             waiting = self.unposed[stamp]
             try:
-                if not waiting.frame_id:
-                    raise TransformError("the image has no header.frame_id (its optical frame) to look up in TF")
-                matrix, _ = self.buffer.lookup(self.fixed_frame, waiting.frame_id, stamp)
+                pose_msg = image_pose_msg(self.buffer.lookup, self.fixed_frame, waiting.frame_id, stamp)
             except TransformError as exc:
                 waiting.error = exc
                 if self.newest_tf_ns is not None and self.newest_tf_ns - stamp > self.buffer.cache_ns:
@@ -217,7 +215,7 @@ class TfPairing:
                     del self.unposed[stamp]
                 continue
             del self.unposed[stamp]
-            pose = transform_msg_to_pose(pose_to_transform_msg(matrix, stamp, self.fixed_frame, waiting.frame_id))
+            pose = transform_msg_to_pose(pose_msg)
             done.append(Frame(stamp, waiting.depth, waiting.intrinsics, pose))
         return done
 

@@ -12,6 +12,7 @@ and, when the sync drops it for want of a pose, counted under that TF failure
 from __future__ import annotations
 
 from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 
@@ -29,6 +30,20 @@ TF_DROP_REASONS = {
 Lookup = Callable[[str, str, int], tuple[np.ndarray, int]]
 
 
+def image_pose_msg(lookup: Lookup, fixed_frame: str, frame: str, stamp: int) -> Any:
+    """The pose of image frame ``frame`` (its ``header.frame_id``) in ``fixed_frame`` at ``stamp``, as
+    the ``TransformStamped`` a pose topic would carry (the node and the bag reader take the same road,
+    so both integrate the same poses bit for bit).
+
+    Raises:
+        TransformError: no frame to look up, or TF cannot give the transform (yet).
+    """
+    if not frame:
+        raise TransformError("the image has no header.frame_id (its optical frame) to look up in TF")
+    matrix, _ = lookup(fixed_frame, frame, stamp)
+    return pose_to_transform_msg(matrix, stamp, fixed_frame, frame)
+
+
 class TfPoses:
     """The TF poses of the images of a :class:`StampSync` in ``fixed_frame``. Not thread-safe (the
     node calls it under the sync's lock)."""
@@ -43,14 +58,12 @@ class TfPoses:
         """Add the pose of image frame ``frame`` at ``stamp`` to the sync and return the frames it
         completes; none when the transform is not available (yet): the error is kept in :attr:`errors`."""
         try:
-            if not frame:
-                raise TransformError("the image has no header.frame_id (its optical frame) to look up in TF")
-            matrix, _ = self._lookup(self._fixed_frame, frame, stamp)
+            pose = image_pose_msg(self._lookup, self._fixed_frame, frame, stamp)
         except TransformError as exc:
             self.errors[stamp] = exc
             return []
         self.errors.pop(stamp, None)
-        return self._sync.add_pose(stamp, pose_to_transform_msg(matrix, stamp, self._fixed_frame, frame))
+        return self._sync.add_pose(stamp, pose)
 
     def to_retry(self) -> list[tuple[int, str]]:
         """``(stamp, frame)`` of every image still waiting in the sync whose lookup failed, in stamp
