@@ -119,6 +119,11 @@ def run(args: argparse.Namespace) -> int:
     for frame in frames:
         integrator.integrate(frame.depth_m, frame.intrinsics, frame.pose_4x4, depth_max=args.depth_max)
     t_extract = time.perf_counter()
+    if integrator.stats.frames == 0:
+        raise ValueError(
+            f"--bag {args.bag}: no depth image could be posed (poses from {poses}), nothing was fused and no grid "
+            "was written; the warnings above name the skipped messages"
+        )
     grid = integrator.save(args.out)
     origin, shape = integrator.grid_box()
     t_end = time.perf_counter()

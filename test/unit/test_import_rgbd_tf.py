@@ -115,9 +115,11 @@ def test_integrate_of_the_imported_bag_is_the_grid_of_the_frames_posed_directly(
         assert resolution == VOXEL
     occupied, empty = int(np.count_nonzero(expected == 1)), int(np.count_nonzero(expected == 0))
     assert occupied > 50 and empty > 500, (occupied, empty)  # the wall and the space in front of it
-    # a fixed frame that the bag's TF does not hold poses nothing, and says so
+    # a fixed frame that the bag's TF does not hold poses nothing, says so and fails without a grid
     with pytest.warns(BagWarning, match=r"4 image\(s\) without a transform from 'map' in /tf"):
         assert (
-            main(["integrate", "--bag", str(imported), "--fixed-frame", "map", "--out", str(tmp_path / "m.npz")]) == 0
+            main(["integrate", "--bag", str(imported), "--fixed-frame", "map", "--out", str(tmp_path / "m.npz")]) == 2
         )
-    assert "frames read: 0 (poses from /tf in 'map')" in capsys.readouterr().out
+    err = capsys.readouterr().err
+    assert f"--bag {imported}: no depth image could be posed (poses from /tf in 'map')" in err, err
+    assert not (tmp_path / "m.npz").exists()
