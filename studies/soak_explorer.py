@@ -1,5 +1,6 @@
-"""The exploring client of ``nbv study soak``: until a set time, resets the integrator and runs one
-Explore goal after another; every exploration (and, at the end, the integrator's diagnostics) is
+"""The exploring client of ``nbv study soak``: until a set time (and at least once, as the
+requester sends its first round whatever the time), resets the integrator and runs one Explore
+goal after another; every exploration (and, at the end, the integrator's diagnostics) is
 one JSON line of its event log. Run by :mod:`studies.soak` as its own process:
 ``nbv study soak_explorer --until EPOCH --events FILE``."""
 
@@ -114,6 +115,7 @@ def main(argv: list[str] | None = None) -> int:
                 node.log_event(event="error", message=f"no Explore server within {args.ready_timeout:g} s")
                 return 1
             node.log_event(event="ready")
+            node.explore_once(args.views, args.method, args.timeout)  # at least one, however short the soak
             while time.time() < args.until:
                 node.explore_once(args.views, args.method, args.timeout)
             node.final_diagnostics()
