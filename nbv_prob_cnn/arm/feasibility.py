@@ -94,6 +94,8 @@ class FeasibilityReport:
     path_blocked: int = 0
     budget_exhausted: bool = False
     fallback: bool = False  # set by callers that ranked again with a narrower origin filter
+    #: with ``fallback``: the report of the first pass (the wider filter), which found no view
+    first_pass: FeasibilityReport | None = None
     paths_planned: int = 0  # straight path blocked, a planned path found (``path_planner``)
     paths_not_found: int = 0  # straight path blocked, path planning failed too
     times: dict[str, float] = field(default_factory=lambda: {"capability": 0.0, "ik_collision": 0.0})
@@ -114,7 +116,8 @@ class FeasibilityReport:
         seconds = {**self.parts, **{k: v for k, v in self.times.items() if k == "path_planning"}}
         parts = _seconds_text(seconds)
         paths = f" (path: {_seconds_text(self.path_stages)}; length {self.path_length_rad:.2f} rad)"
-        return (
+        first = "" if self.first_pass is None else f"{self.first_pass.summary()}, no view; near the camera: "
+        return first + (
             f"{self.checked} checked of {self.candidates} candidates ({self.camera_blocked} camera-blocked skipped, "
             f"{self.unreachable} unreachable, {self.in_collision} in collision, {self.path_blocked} path blocked; "
             f"paths planned {self.paths_planned}, not found {self.paths_not_found}); s: {parts or 'none'}"

@@ -102,7 +102,7 @@ class ArmViewSelector:
         if report.view is None and self.fallback_radius_m > 0:
             first = report
             report = plan_with_arm(*args, origin_filter=self.near_camera(current_q), view_mask=self.not_taken)
-            report.fallback = True
+            report.fallback, report.first_pass = True, first
             for stage, seconds in first.times.items():
                 report.times[stage] = report.times.get(stage, 0.0) + seconds
         return report

@@ -58,8 +58,16 @@ def test_our_nodes_explore_beside_a_robot_graph(tmp_path):
         robot.start_node("sim_camera", "sim_camera", {"camera_frame": frame, "follow_arm": True, "render_arm": True,
                                                       "encoding": "16UC1", "hfov_deg": 87.0})  # fmt: skip
         out = tmp_path / "run"
+        # the example file, with the arm moved at its full URDF speeds: the file's careful 0.2 of them (and its
+        # acceleration and jerk limits) made the two moves take 13 of the test's 45 s
+        params = yaml.safe_load((CONFIG / "panda_d435.yaml").read_text())
+        params["nbv_planner"]["ros__parameters"].update(
+            trajectory_velocity_scale=1.0, max_joint_acceleration=4.0, max_joint_jerk=40.0
+        )
+        params_file = tmp_path / "panda_d435_fast.yaml"
+        params_file.write_text(yaml.safe_dump(params))
         cmd = [sys.executable, str(REPO / "launch_scripts" / "robot.py"), "--views", "2", "--method", "prob_ig",
-               "--params-file", str(CONFIG / "panda_d435.yaml"), "--out", str(out)]  # fmt: skip
+               "--params-file", str(params_file), "--out", str(out)]  # fmt: skip
         run = run_launch_script(cmd, timeout=900, env=env)
         assert run.returncode == 0, run.stdout[-3000:] + run.stderr[-3000:]
     assert "done: 2 views" in run.stdout

@@ -149,3 +149,17 @@ def test_unreachable_message_counts_the_exact_stage():
         "no view the arm reaches collision-free: 30 ranked views checked (4 without IK solution, 25 in collision, "
         "1 with a blocked path, check budget spent, near the camera too)"
     )
+
+
+def test_the_check_summary_shows_the_first_pass_before_the_near_camera_one():
+    first = FeasibilityReport(view=None, ranked=900, candidates=800, checked=300, camera_blocked=673, in_collision=300,
+                              budget_exhausted=True)  # fmt: skip
+    first.parts = {"ik": 2.44, "collision": 2.26}
+    near = FeasibilityReport(view=None, ranked=40, candidates=40, checked=1, fallback=True, first_pass=first)
+    near.parts = {"ik": 0.11}
+    assert near.summary() == (
+        "300 checked of 800 candidates (673 camera-blocked skipped, 0 unreachable, 300 in collision, 0 path blocked; "
+        "paths planned 0, not found 0); s: ik 2.44, collision 2.26, no view; near the camera: "
+        "1 checked of 40 candidates (0 camera-blocked skipped, 0 unreachable, 0 in collision, 0 path blocked; "
+        "paths planned 0, not found 0); s: ik 0.11"
+    )
