@@ -145,8 +145,15 @@ def test_reliability_by_hand():
         reliability(np.array([1.5]), np.array([1]))
 
 
+@pytest.fixture(scope="module")
+def tiny_city_cache(tmp_path_factory):
+    """One data cache for the three methods' tiny trainings: the same grids and seeds, so the
+    simulated samples and the (method-independent) example chunks are made once, not per method."""
+    return tmp_path_factory.mktemp("tiny_city_cache")
+
+
 @pytest.mark.parametrize("method", ["flat_city_cnn", "b_city_cnn", "d_city_cnn"])
-def test_train_and_plan_with_a_tiny_city_cnn(tmp_path, monkeypatch, method):
+def test_train_and_plan_with_a_tiny_city_cnn(tmp_path, monkeypatch, method, tiny_city_cache):
     """`train --method` on tiny grids, then the registry planner uses the weights; missing
     weights name the training command."""
     from nbv_prob_cnn.completion import WeightsError, inference
@@ -161,7 +168,7 @@ def test_train_and_plan_with_a_tiny_city_cnn(tmp_path, monkeypatch, method):
             grid[x : x + 5, y : y + 4] = 1
         return grid, 1
 
-    monkeypatch.setenv("NBV_CACHE_DIR", str(tmp_path / "cache"))
+    monkeypatch.setenv("NBV_CACHE_DIR", str(tiny_city_cache))
     monkeypatch.setattr(data_mod, "load_environment", boxes)
     monkeypatch.setattr(data_mod, "current_generator_version", lambda: 1)
     out = tmp_path / f"2d_{method}.pt"
