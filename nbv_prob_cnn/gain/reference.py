@@ -20,13 +20,27 @@ from nbv_prob_cnn.gain.variant import ORIGINAL_IG_MIN_RANGE, ORIGINAL_NEAR_HIT, 
 _CHUNK = 2048  # origins per block, bounds the (chunk, R, dims) temporaries
 
 
+def _sample_cells(shape: tuple[int, ...], origins: np.ndarray, offset_t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Whether each sample cell ``origins[:, None] + offset_t[None]`` lies inside the grid, and its
+    flat (C-order) index, clamped into the grid, each ``(N, R)``. Axis by axis on ``(N, R)``
+    arrays: one flat gather per grid instead of an ``(N, R, dims)`` cell array, its clip against
+    a shape array (numpy's slow path) and a tuple index (2.5x faster, the same cells)."""
+    offset = offset_t.astype(np.int64)
+    flat = np.zeros((origins.shape[0], offset.shape[0]), dtype=np.int64)
+    inside = np.ones(flat.shape, dtype=bool)
+    for axis, size in enumerate(shape):
+        coord = origins[:, axis, None].astype(np.int64) + offset[None, :, axis]
+        inside &= (coord >= 0) & (coord < size)
+        flat *= size
+        flat += np.minimum(np.maximum(coord, 0), size - 1)
+    return inside, flat
+
+
 def _sample(state: np.ndarray, values: np.ndarray, outside: float, origins: np.ndarray, offset_t: np.ndarray):
     """``values`` at sample cells ``origins[:, None] + offset_t[None]`` (``outside`` where a
     cell is outside the grid), plus the state there (1 = occupied outside)."""
-    cells = origins[:, None, :] + offset_t[None, :, :].astype(np.int64)
-    inside = np.all((cells >= 0) & (cells < np.array(state.shape)), axis=2)
-    index = tuple(np.clip(cells, 0, np.array(state.shape) - 1).transpose(2, 0, 1))
-    return np.where(inside, values[index], outside), np.where(inside, state[index], 1)
+    inside, flat = _sample_cells(state.shape, origins, offset_t)
+    return np.where(inside, np.take(values, flat), outside), np.where(inside, np.take(state, flat), 1)
 
 
 def ray_terms(
@@ -114,9 +128,9 @@ def original_ray_terms(
         running = np.ones(hits[block].shape, dtype=bool)
         before = 0.0  # weights of the samples before t
         for t in range(n):
-            p_unknown, value = _sample(state, values, 0.0, origins[block], offsets[:, t])
-            cells = origins[block][:, None, :] + offsets[None, :, t, :].astype(np.int64)
-            inside = np.all((cells >= 0) & (cells < np.array(state.shape)), axis=2)
+            inside, flat = _sample_cells(state.shape, origins[block], offsets[:, t])
+            p_unknown = np.where(inside, np.take(values, flat), 0.0)
+            value = np.where(inside, np.take(state, flat), 1)
             unknown = inside & (value == -1)
             occupied = inside & (value == 1)
             if mode == "ig":

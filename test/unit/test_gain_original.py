@@ -1,6 +1,8 @@
 """The ``original`` gain variant (the authors' host choices, docs/original_code.md): hand-worked
 rays and views, the kernel against the numpy reference, the exact pruned search, validation."""
 
+import functools
+
 import numpy as np
 import pytest
 
@@ -147,21 +149,29 @@ def test_lanes_give_the_same_original_gains(lanes, mode, free):
     assert np.abs(got - want).max() < 2e-6
 
 
-@pytest.mark.parametrize("dims,shape,n_rays,r_max", CASES)
-@pytest.mark.parametrize("mode,free", KINDS)
-@pytest.mark.parametrize("prune_views", [True, False])
-def test_pruned_search_is_exact(dims, shape, n_rays, r_max, mode, free, prune_views):
+@functools.cache
+def _pruned_case(dims, shape, n_rays, r_max, mode, free):
+    """The grid, rays, views and settings of one pruned-search case, and its numpy reference's
+    best (origin, view, gain): computed once for both ``prune_views`` (it does not depend on it)."""
     state, prob = _random_case(np.random.default_rng(3 + dims + n_rays), dims, shape, p_unknown=0.3)
     directions = ray_directions(dims, n_rays)
     member = view_membership(directions, orientations(dims), 60.0, None if dims == 2 else 46.0)
     settings = GainSettings(mode=mode, min_range=5.0, variant="original", free_hits=free)
+    reference = best_origin_view(state, prob, directions, r_max, member, backend="numpy", settings=settings)
+    return state, prob, directions, member, settings, reference
+
+
+@pytest.mark.parametrize("dims,shape,n_rays,r_max", CASES)
+@pytest.mark.parametrize("mode,free", KINDS)
+@pytest.mark.parametrize("prune_views", [True, False])
+def test_pruned_search_is_exact(dims, shape, n_rays, r_max, mode, free, prune_views):
+    state, prob, directions, member, settings, reference = _pruned_case(dims, shape, n_rays, r_max, mode, free)
     exhaustive = origin_view_gains(state, prob, directions, r_max, member, backend="opencl", settings=settings)
     flat = int(np.argmax(exhaustive))  # the first of equal maxima, origin-major
     found = best_origin_view(state, prob, directions, r_max, member, backend="opencl", prune_views=prune_views,
                              block_size=2, settings=settings)  # fmt: skip
     assert (found[0], found[1]) == divmod(flat, exhaustive.shape[1])
     assert found[2] == exhaustive.flat[flat]
-    reference = best_origin_view(state, prob, directions, r_max, member, backend="numpy", settings=settings)
     assert reference[2] == pytest.approx(found[2], abs=2e-6)
 
 
@@ -273,3 +283,28 @@ def test_context_with_the_original_view_set_plans():
     assert choice is not None and choice.gain > 0
     with pytest.raises(ValueError, match="view_set"):
         PlanningContext.for_dataset("2d", view_set="original", n_rays=8)
+
+
+@pytest.mark.parametrize("shape", [(7, 5), (5, 6, 4)])
+def test_reference_samples_the_literal_cells(shape):
+    """The numpy reference's gather (axis by axis, flat indices, clamped) reads every sample cell
+    ``origin + offset`` as a literal per-cell lookup: its value and state inside the grid,
+    ``outside`` and occupied beyond it."""
+    from nbv_prob_cnn.gain.reference import _sample
+
+    rng = np.random.default_rng(len(shape))
+    state = rng.choice(np.array([U, E, O], dtype=np.int8), size=shape)
+    values = rng.random(shape).astype(np.float32)
+    origins = np.argwhere(np.ones(shape, dtype=bool))[::3]
+    offsets = rng.integers(-6, 7, size=(13, len(shape))).astype(np.int16)
+    got_values, got_state = _sample(state, values, 2.5, origins, offsets)
+    assert got_values.shape == got_state.shape == (origins.shape[0], offsets.shape[0])
+    n_inside = 0
+    for i, origin in enumerate(origins):
+        for j, offset in enumerate(offsets):
+            cell = tuple(int(c) for c in origin + offset)
+            inside = all(0 <= c < n for c, n in zip(cell, shape, strict=True))
+            n_inside += inside
+            assert got_values[i, j] == (values[cell] if inside else 2.5), (cell, shape)
+            assert got_state[i, j] == (state[cell] if inside else 1), (cell, shape)
+    assert 0 < n_inside < got_state.size  # both sides of the border sampled
