@@ -1,5 +1,7 @@
 """Coarse-to-fine best-view search (``best_origin_view``): exact for the argmax."""
 
+import functools
+
 import numpy as np
 import pytest
 
@@ -79,6 +81,17 @@ def test_best_view_equals_exhaustive_and_numpy(shape, n_rays, r_max, mode, seed,
     assert abs(gain - reference.max()) <= 1e-4
 
 
+@functools.cache
+def _late_exploration(shape, n_rays, r_max):
+    """The late-exploration grid, rays, views, origins and the numpy reference's gains: computed
+    once for both lane widths (the reference does not depend on them)."""
+    state, prob = _explored_world(np.random.default_rng(7), shape, explored_fraction=1.0)
+    d, member = _setup(shape, n_rays)
+    origins = np.argwhere(state == E)
+    reference = origin_view_gains(state, prob, d, r_max, member, origins, "numpy", settings=GainSettings(min_range=2))
+    return state, prob, d, member, origins, reference
+
+
 @pytest.mark.parametrize("shape,n_rays,r_max", [((18, 17, 16), 16, 10), ((44, 40), 16, 24)])
 @pytest.mark.parametrize("lanes", [1, None])
 def test_best_view_late_exploration(shape, n_rays, r_max, lanes):
@@ -87,13 +100,10 @@ def test_best_view_late_exploration(shape, n_rays, r_max, lanes):
     the exhaustive argmax, gain within 1e-4 of the numpy reference's maximum."""
     from nbv_prob_cnn.gain.opencl import OpenCLRayCaster
 
-    state, prob = _explored_world(np.random.default_rng(7), shape, explored_fraction=1.0)
-    d, member = _setup(shape, n_rays)
-    origins = np.argwhere(state == E)
+    state, prob, d, member, origins, reference = _late_exploration(shape, n_rays, r_max)
     caster = get_ray_caster() if lanes is None else OpenCLRayCaster(lanes)
     code, march = encode_grid(state, prob), _march(d, r_max)
     exhaustive = caster.run_views(code, origins, march, member)
-    reference = origin_view_gains(state, prob, d, r_max, member, origins, "numpy", settings=GainSettings(min_range=2))
     index, view, gain, evaluated = caster.best_view(code, origins, march, member, first_batch=16)
     assert np.count_nonzero(state == U) < 0.25 * state.size and reference.max() > 0.01
     assert (index, view) == divmod(int(np.argmax(exhaustive)), exhaustive.shape[1])
