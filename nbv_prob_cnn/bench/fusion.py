@@ -192,7 +192,7 @@ class FusionResult:
     block_resolution: int
 
 
-def _recording_frames(folder: str, limit: int):
+def recording_frames(folder: str, limit: int):
     """``(depth metres, intrinsics, pose)`` of a 7-Scenes folder, z up (minus gravity), read lazily."""
     from nbv_prob_cnn.perception.recordings import depth_mm, read_7scenes, read_depth_png, up_rotation
 
@@ -219,7 +219,7 @@ def _run_fusion_case(case: FusionCase, out_dir: str) -> FusionResult:
     from nbv_prob_cnn.basics.peak_memory import peak_rss_mb
     from nbv_prob_cnn.perception import TsdfIntegrator
 
-    frames = _rendered_frames(case.frames) if case.scene == "3dt" else _recording_frames(case.scene, case.frames)
+    frames = _rendered_frames(case.frames) if case.scene == "3dt" else recording_frames(case.scene, case.frames)
     rss_before = peak_rss_mb()
     integrator = TsdfIntegrator(np.asarray(case.origin), case.shape, case.voxel_m, fusion=case.fusion)
     seconds = []
@@ -243,7 +243,7 @@ def recording_box(folder: str | Path, voxel_m: float, margin_m: float, depth_max
     """``(origin, shape)`` of the box of every return (within ``depth_max``) and camera position of a
     7-Scenes folder (z up), grown by ``margin_m``; the origin on the ``voxel_m`` lattice through 0."""
     lo, hi = np.full(3, np.inf), np.full(3, -np.inf)
-    for depth, intrinsics, pose in _recording_frames(str(folder), 10**9):
+    for depth, intrinsics, pose in recording_frames(str(folder), 10**9):
         metres = np.where(depth <= depth_max, depth, 0.0)
         points = intrinsics.backproject(metres) @ pose[:3, :3].T + pose[:3, 3]
         points = np.vstack([points, pose[:3, 3]])

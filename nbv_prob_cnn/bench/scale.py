@@ -23,8 +23,7 @@ the grid (weights, kernels) and then times one step:
 
 Workspace rows: the 256×256×192 grid with a centred box of camera positions 0.5, 1.0 and 1.5 m wide
 standing on the table, ``local`` and ``window`` (today's path there is the size row's whole-grid CNN
-and a search over fewer origins). The kitchen row (``../shared/data/rgbd/7scenes_redkitchen``) needs an in-process
-fusion of the recording, which this tree does not have yet: it is skipped with that reason.
+and a search over fewer origins). The kitchen rows: :mod:`nbv_prob_cnn.bench.scale_kitchen`.
 """
 
 from __future__ import annotations
@@ -47,8 +46,8 @@ SIZES: tuple[tuple[int, int, int], ...] = ((128, 128, 96), (192, 192, 96), (256,
 WORKSPACES_M = (0.5, 1.0, 1.5)
 #: Margin (cells) of the ``window`` path's CNN window around the workspace.
 WINDOW_MARGIN = 48
-#: Where the kitchen recording would be (the row is skipped without an in-process fusion).
-KITCHEN = Path(__file__).resolve().parents[3] / "shared" / "data" / "rgbd" / "7scenes_redkitchen"
+#: Row groups of the suite: the tabletop-like grids (sizes and workspaces) and the real kitchen.
+GROUPS = ("grids", "kitchen")
 #: Corner of the grid the child plans on first (weights, kernels).
 WARM_UP_CELLS = 48
 #: Colour of each path in the plot.
@@ -218,42 +217,58 @@ def measure(path: str, state: np.ndarray, box: tuple[np.ndarray, np.ndarray] | N
     return result
 
 
-def scale_benchmark(seed: int = 1000, out_dir: str | Path = "docs", sizes=SIZES, workspaces=WORKSPACES_M) -> str:
-    """Every row in one run, each printed as it is measured: CSV and PNG in ``out_dir`` (``scale.csv``,
-    ``scale.png``); returns the closing report (ratios, targets, files)."""
+def scale_benchmark(
+    seed: int = 1000, out_dir: str | Path = "docs", sizes=SIZES, workspaces=WORKSPACES_M, groups=GROUPS
+) -> str:
+    """Every row of ``groups`` (``grids``: the size and workspace rows; ``kitchen``: the recording's rows) in
+    one run, each printed as it is measured: CSV and PNG in ``out_dir`` (``scale.csv``, ``scale.png``; the
+    kitchen alone: ``scale_kitchen.csv``); returns the closing report (ratios, targets, files)."""
     from nbv_prob_cnn.basics.camera import dataset_defaults
+    from nbv_prob_cnn.bench.scale_kitchen import KITCHEN, kitchen_steps, kitchen_targets
 
+    unknown = set(groups) - set(GROUPS)
+    if unknown or not groups:
+        raise ValueError(f"groups: expected some of {GROUPS}, got {list(groups)}")
     resolution = dataset_defaults("3dt").resolution_m
     rows: list[ScaleRow] = []
-    states = {}
-    for shape in sizes:
-        state = scale_state(shape, seed)
-        states[shape] = state
-        label = "×".join(str(s) for s in shape)
-        for path in ("today", "local"):
-            result = measure(path, state)
-            rows.append(ScaleRow(label, int(np.prod(shape)), path, 0.0, **_fields(result)))
-            print(_line(rows[-1]), flush=True)
-    largest = max(sizes, key=lambda s: int(np.prod(s)))
-    for width in workspaces:
-        box = workspace_box(largest, width, resolution)
-        label = "×".join(str(s) for s in largest)
-        for path in ("local", "window"):
-            result = measure(path, states[largest], box)
-            rows.append(ScaleRow(label, int(np.prod(largest)), path, width, **_fields(result)))
-            print(_line(rows[-1]), flush=True)
+    report: list[str] = []
+    if "grids" in groups:
+        states = {}
+        for shape in sizes:
+            state = scale_state(shape, seed)
+            states[shape] = state
+            label = "×".join(str(s) for s in shape)
+            for path in ("today", "local"):
+                result = measure(path, state)
+                rows.append(ScaleRow(label, int(np.prod(shape)), path, 0.0, **_fields(result)))
+                print(_line(rows[-1]), flush=True)
+        largest = max(sizes, key=lambda s: int(np.prod(s)))
+        for width in workspaces:
+            box = workspace_box(largest, width, resolution)
+            label = "×".join(str(s) for s in largest)
+            for path in ("local", "window"):
+                result = measure(path, states[largest], box)
+                rows.append(ScaleRow(label, int(np.prod(largest)), path, width, **_fields(result)))
+                print(_line(rows[-1]), flush=True)
+        report += ratio_lines(rows, sizes)
+    if "kitchen" in groups:
+        if KITCHEN.is_dir():
+            for step in kitchen_steps(measure):
+                rows.append(ScaleRow(step.grid, step.cells, step.path, step.workspace_m, **_fields(step.result)))
+                print(_line(rows[-1]), flush=True)
+            report.append(kitchen_targets(rows))
+        else:
+            report.append(f"kitchen: skipped, {KITCHEN} is absent")
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     load = ", ".join(f"{x:.1f}" for x in os.getloadavg())
-    csv_path = write_scale_csv(rows, out / "scale.csv")
-    png = plot_scale(rows, out / "scale.png", note=f"load average at the end {load}")
-    kitchen = (
-        f"kitchen: skipped, {KITCHEN} is absent"
-        if not KITCHEN.is_dir()
-        else "kitchen: skipped, the recording is here but this tree has no in-process fusion of it into a grid yet"
-    )
-    return "\n".join(["", *ratio_lines(rows, sizes), kitchen, f"load average at the end: {load}",
-                      f"wrote {csv_path}, {png}"])  # fmt: skip
+    files = []
+    if "grids" in groups:
+        files.append(write_scale_csv(rows, out / "scale.csv"))
+        files.append(plot_scale(rows, out / "scale.png", note=f"load average at the end {load}"))
+    elif rows:
+        files.append(write_scale_csv(rows, out / "scale_kitchen.csv"))
+    return "\n".join(["", *report, f"load average at the end: {load}", f"wrote {', '.join(map(str, files))}"])
 
 
 def _fields(result: dict) -> dict:
@@ -317,6 +332,14 @@ def plot_scale(rows: list[ScaleRow], path: Path, note: str = "") -> Path:
 
     fig, axes = plt.subplots(2, 2, figsize=(11, 8))
     paths = sorted({r.path for r in rows}, key=list(PATH_COLOURS).index)
+    kitchen = [r for r in rows if r.grid.startswith("kitchen")]
+    rows = [r for r in rows if not r.grid.startswith("kitchen")]
+    for r in kitchen:  # the real room: one star per step, beside the tabletop curves
+        ax_time, ax_rss, x = (
+            (axes[0, 1], axes[1, 1], r.workspace_m) if r.workspace_m else (axes[0, 0], axes[1, 0], r.cells / 1e6)
+        )
+        for ax, y in ((ax_time, r.seconds), (ax_rss, r.peak_rss_mb / 1024)):
+            ax.plot([x], [y], "*", markersize=12, color=PATH_COLOURS[r.path], label=f"kitchen, {r.path}")
     for path_name in paths:
         size_rows = [r for r in rows if r.path == path_name and not r.workspace_m]
         if size_rows:

@@ -43,6 +43,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )  # fmt: skip
     parser.add_argument("--views", type=int, default=20, help="sweep: views of the timed exploration")
     parser.add_argument("--out", default="docs", help="sweep, scale: folder of the CSV and PNG")
+    parser.add_argument(
+        "--scale-rows",
+        nargs="+",
+        choices=("grids", "kitchen"),
+        default=["grids", "kitchen"],
+        help="scale: the row groups, tabletop-like grids and/or the real kitchen (default: both; the kitchen "
+        "alone writes scale_kitchen.csv)",
+    )
     parser.add_argument("--every", type=int, default=1, help="sweep: time every N-th planned view")
     parser.add_argument("--loop-views", type=int, default=6, help="arm_loop: planning steps timed (first included)")
     parser.add_argument("--log-dir", default="", help="arm_loop: folder of the nodes' logs (default: none)")
@@ -82,7 +90,7 @@ def run(args: argparse.Namespace) -> int:
 def run_scale(args: argparse.Namespace) -> None:
     from nbv_prob_cnn.bench.scale import scale_benchmark
 
-    print(scale_benchmark(seed=args.seed, out_dir=args.out), flush=True)
+    print(scale_benchmark(seed=args.seed, out_dir=args.out, groups=tuple(args.scale_rows)), flush=True)
 
 
 def run_ros_streams(args: argparse.Namespace) -> None:
