@@ -28,6 +28,7 @@ from rclpy.signals import SignalHandlerOptions
 from nbv_prob_cnn.basics.grid import unknown_fraction_all
 from nbv_prob_cnn.ros import names
 from nbv_prob_cnn.ros.conversions import msg_to_grid, pose_to_arrays
+from nbv_prob_cnn.ros.graph import send_goal_with_resend
 from nbv_prob_cnn.ros.qos import GRID_QOS
 from nbv_prob_cnn.ros.readiness import TOPIC_DIAGNOSTICS, planner_readiness
 from nbv_prob_cnn.ros.runtime import SPIN_PERIOD_S
@@ -62,8 +63,12 @@ class ExploreClient:
         Raises:
             KeyboardInterrupt: ``stop_requested`` was set (only when ``stoppable``).
         """
+        self._spin_while_not(future.done, timeout_s, stoppable)
+
+    def _spin_while_not(self, predicate, timeout_s: float, stoppable: bool = True) -> None:
+        """Spin until ``predicate()`` holds or ``timeout_s`` passes (see :meth:`_spin_until`)."""
         deadline = time.monotonic() + timeout_s
-        while not future.done() and (remaining := deadline - time.monotonic()) > 0:
+        while not predicate() and (remaining := deadline - time.monotonic()) > 0:
             if stoppable and self.stop_requested.is_set():
                 raise KeyboardInterrupt
             self._executor.spin_once(timeout_sec=min(SPIN_PERIOD_S, remaining))
@@ -119,10 +124,13 @@ class ExploreClient:
             if on_feedback:
                 on_feedback(message.feedback, time.monotonic() - start)
 
-        send = self._action.send_goal_async(goal, feedback_callback=feedback_cb)
-        self._spin_until(send, 30.0)
-        handle = send.result()
-        if handle is None or not handle.accepted:
+        try:  # the same goal sent again while no answer comes (a first request can be lost, see graph)
+            handle = send_goal_with_resend(
+                self._action, goal, 30.0, feedback_callback=feedback_cb, wait=self._spin_while_not, resend_s=5.0
+            )
+        except TimeoutError as exc:
+            raise RuntimeError(f"the Explore goal got no answer: {exc}") from exc
+        if not handle.accepted:
             raise RuntimeError(
                 "the Explore goal was rejected (max_views < 1, a non-finite threshold, or another exploration "
                 "is running: see nbv_planner's log)"

@@ -318,6 +318,72 @@ def call_with_resend(client, request, timeout_s: float, *, executor=None, resend
     raise TimeoutError(f"service {client.srv_name}: no answer within {timeout_s:g} s ({sent} request(s) sent)")
 
 
+def send_goal_with_resend(
+    client,
+    goal,
+    timeout_s: float,
+    *,
+    feedback_callback=None,
+    wait: Callable[[Callable[[], bool], float], object] | None = None,
+    resend_s: float = 10.0,
+):
+    """Send an action goal and return its goal handle, sending the same goal (the same goal ID) again
+    every ``resend_s`` seconds until an answer comes or ``timeout_s`` passes.
+
+    The goal request is a service call and is lost as :func:`call_with_resend` describes: most often
+    the server receives it, starts the goal, and its answer never reaches this client. A copy with the
+    same goal ID is then refused as a duplicate (the server never runs one ID twice). So:
+
+    * a copy accepted: that goal handle;
+    * every copy sent answered, and refused: the refusal (the goal was refused for its own reason);
+    * a later copy refused while an earlier one is unanswered: the server holds the goal (the first copy
+      arrived and only its answer was lost): an accepted handle of that goal ID, whose result request
+      reaches the running goal. Had the first copy been lost too, the server answers that result request
+      at once with status UNKNOWN, and the caller sees that status.
+
+    Args:
+        client: an rclpy ``ActionClient`` (``wait_for_server`` is called first).
+        goal: the goal message; its copies are identical.
+        timeout_s: longest wait in total, ``wait_for_server`` included.
+        feedback_callback: as for ``send_goal_async`` (feedback is routed by the goal ID).
+        wait: ``wait(predicate, seconds)`` returns when ``predicate()`` holds or the seconds pass,
+            spinning the client's node if nothing else does (default: :func:`wait_for`, for a node
+            that a background thread spins).
+        resend_s: wait for one answer at most this long before sending again.
+
+    Raises:
+        TimeoutError: the server did not appear, or nothing answered within ``timeout_s``.
+    """
+    import uuid
+
+    from rclpy.action.client import ClientGoalHandle
+    from unique_identifier_msgs.msg import UUID
+
+    deadline = time.monotonic() + timeout_s
+    if not client.wait_for_server(timeout_sec=timeout_s):
+        raise TimeoutError(f"action server {client._action_name} did not appear within {timeout_s:g} s")
+    goal_id = UUID(uuid=list(uuid.uuid4().bytes))
+    pending: list = []
+    while (remaining := deadline - time.monotonic()) > 0:
+        pending.append(client.send_goal_async(goal, feedback_callback=feedback_callback, goal_uuid=goal_id))
+        wait_s = min(resend_s, remaining)
+        if wait is None:
+            wait_for(lambda: any(f.done() for f in pending), wait_s, 0.01)
+        else:
+            wait(lambda: any(f.done() for f in pending), wait_s)
+        answered = [f.result() for f in pending if f.done()]
+        accepted = next((handle for handle in answered if handle.accepted), None)
+        if accepted is not None:
+            return accepted
+        if answered and len(answered) == len(pending):
+            return answered[0]  # refused for its own reason
+        if answered:  # a duplicate refused: the first copy's goal runs, its answer was lost
+            response = client._action_type.Impl.SendGoalService.Response(accepted=True)
+            return ClientGoalHandle(client, goal_id, response)
+    sent = len(pending)
+    raise TimeoutError(f"action {client._action_name}: no answer to the goal within {timeout_s:g} s ({sent} sent)")
+
+
 __all__ = [
     "NodeGraph",
     "call_with_resend",
@@ -328,6 +394,7 @@ __all__ = [
     "remove_stale_shm",
     "ros_environment",
     "run_graph",
+    "send_goal_with_resend",
     "shm_segments",
     "wait_for",
 ]

@@ -95,3 +95,65 @@ def test_no_answer_and_no_service_raise_timeout_errors():
     assert 2 <= len(client.sent) <= 4
     with pytest.raises(TimeoutError, match="did not appear"):
         call_with_resend(LossyClient(lost=0, available=False), 1, 0.3)
+
+
+class GoalResponse:
+    def __init__(self, accepted: bool) -> None:
+        self.accepted = accepted
+
+
+class LossyActionClient:
+    """An action client whose server runs each goal ID once: a copy of a goal it holds is refused as a
+    duplicate. ``fate`` says what happens to each copy sent: "lost" (the request never arrives),
+    "unanswered" (it arrives and the goal starts, the answer is lost), "answered" (it arrives and the
+    answer comes), "refused" (the goal itself is refused)."""
+
+    _action_name = "/explore"
+
+    def __init__(self, *fate: str) -> None:
+        from nbv_prob_cnn_msgs.action import Explore
+
+        self._action_type = Explore
+        self.fate, self.held, self.ids = list(fate), set(), []
+
+    def wait_for_server(self, timeout_sec: float) -> bool:
+        return True
+
+    def send_goal_async(self, goal, feedback_callback=None, goal_uuid=None) -> Future:
+        key = bytes(goal_uuid.uuid)
+        self.ids.append(key)
+        fate = self.fate.pop(0)
+        if fate == "lost":
+            return Future()
+        if key in self.held:
+            return Future(GoalResponse(False))  # a duplicate ID
+        if fate == "refused":
+            return Future(GoalResponse(False))
+        self.held.add(key)
+        return Future(None if fate == "unanswered" else GoalResponse(True))
+
+
+def test_a_goal_is_sent_again_with_its_id_and_a_lost_answer_is_recognised():
+    pytest.importorskip("nbv_prob_cnn_msgs")
+    from nbv_prob_cnn_msgs.action import Explore
+
+    from nbv_prob_cnn.ros.graph import send_goal_with_resend
+
+    goal = Explore.Goal(max_views=2)
+    # the first request lost: the second copy starts the goal
+    client = LossyActionClient("lost", "answered")
+    assert send_goal_with_resend(client, goal, 5.0, resend_s=0.05).accepted
+    assert len(client.ids) == 2 and client.ids[0] == client.ids[1]
+    # the first request arrived and the goal runs, only its answer was lost: the copy is refused as a
+    # duplicate and the handle is the running goal's (its ID)
+    client = LossyActionClient("unanswered", "answered")
+    handle = send_goal_with_resend(client, goal, 5.0, resend_s=0.05)
+    assert handle.accepted and bytes(handle.goal_id.uuid) == client.ids[0]
+    # a goal refused for its own reason is a refusal, sent once
+    client = LossyActionClient("refused")
+    assert not send_goal_with_resend(client, goal, 5.0, resend_s=0.05).accepted
+    assert len(client.ids) == 1
+    # nothing ever answers: a timeout naming the action and the copies sent
+    client = LossyActionClient(*["lost"] * 100)
+    with pytest.raises(TimeoutError, match=r"action /explore: no answer to the goal within 0.3 s \(\d+ sent\)"):
+        send_goal_with_resend(client, goal, 0.3, resend_s=0.05)

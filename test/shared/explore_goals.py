@@ -12,7 +12,7 @@ from action_msgs.msg import GoalStatus
 from nbv_prob_cnn_msgs.action import Explore
 from rclpy.action import ActionClient
 
-from nbv_prob_cnn.ros.graph import wait_for
+from nbv_prob_cnn.ros.graph import send_goal_with_resend, wait_for
 
 #: Longest accepted exit after SIGINT (target 2 s; margin for a loaded 2-core machine). Before the
 #: fix of issue 18 the planner first waited out its pending service calls and grid waits.
@@ -37,7 +37,9 @@ def explore_succeeds(client: ActionClient, goal: Any, timeout_s: float = 300.0) 
     """Sends ``goal``, which is accepted and ends SUCCEEDED within ``timeout_s``; returns its result
     (status and result) and the feedback messages it sent."""
     feedback: list = []
-    handle = answer(client.send_goal_async(goal, feedback_callback=feedback.append))
+    # the goal sent again (same goal ID) while no answer comes: a first goal request, or its answer, can be
+    # lost while DDS still matches the client with the server (seen under load: no answer in 120 s)
+    handle = send_goal_with_resend(client, goal, 120.0, feedback_callback=feedback.append)
     assert handle.accepted
     done = answer(handle.get_result_async(), timeout_s)
     assert done.status == GoalStatus.STATUS_SUCCEEDED, done.result.reason_stopped
