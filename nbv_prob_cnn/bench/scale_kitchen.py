@@ -22,8 +22,10 @@ from pathlib import Path
 
 import numpy as np
 
+from nbv_prob_cnn.bench.fusion import SHARED_RECORDING
+
 #: Where the recording is (the rows are skipped with that reason when it is absent).
-KITCHEN = Path(__file__).resolve().parents[3] / "shared" / "data" / "rgbd" / "7scenes_redkitchen"
+KITCHEN = SHARED_RECORDING
 #: Cell of the kitchen grid (the shipped 3DT CNN's) [m].
 KITCHEN_VOXEL_M = 0.0116
 #: Returns beyond this are not fused [m] (the Kinect's useful range).
