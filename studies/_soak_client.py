@@ -11,11 +11,11 @@ from pathlib import Path
 
 import rclpy
 from nbv_prob_cnn_msgs.action import Explore
-from rclpy.action import ActionClient
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 
 from nbv_prob_cnn.ros import names
+from nbv_prob_cnn.ros.action_client import LockedActionClient
 from studies.soak_report import EventLog
 
 
@@ -28,7 +28,7 @@ class SoakClient(Node):
         self.events = EventLog(events)
         self.executor_ = SingleThreadedExecutor()
         self.executor_.add_node(self)
-        self._action = ActionClient(self, Explore, names.EXPLORE)
+        self._action = LockedActionClient(self, Explore, names.EXPLORE)
 
     def log_event(self, **event) -> None:
         """Append one event (a JSON line) to the event log."""

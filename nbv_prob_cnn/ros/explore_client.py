@@ -21,12 +21,12 @@ from action_msgs.msg import GoalStatus
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from nbv_prob_cnn_msgs.action import Explore
 from nbv_prob_cnn_msgs.msg import VoxelGrid
-from rclpy.action import ActionClient
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.signals import SignalHandlerOptions
 
 from nbv_prob_cnn.basics.grid import unknown_fraction_all
 from nbv_prob_cnn.ros import names
+from nbv_prob_cnn.ros.action_client import LockedActionClient
 from nbv_prob_cnn.ros.conversions import msg_to_grid, pose_to_arrays
 from nbv_prob_cnn.ros.graph import send_goal_with_resend
 from nbv_prob_cnn.ros.qos import GRID_QOS
@@ -44,7 +44,7 @@ class ExploreClient:
 
     def __init__(self) -> None:
         self.node = rclpy.create_node("explore_client")
-        self._action = ActionClient(self.node, Explore, names.EXPLORE)
+        self._action = LockedActionClient(self.node, Explore, names.EXPLORE)
         self._grid: VoxelGrid | None = None
         self._grid_lock = threading.Lock()
         self.node.create_subscription(VoxelGrid, names.GRID, self._on_grid, GRID_QOS)

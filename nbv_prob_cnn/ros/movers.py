@@ -27,7 +27,6 @@ from control_msgs.action import FollowJointTrajectory
 from control_msgs.msg import JointTolerance
 from geometry_msgs.msg import PoseStamped, TransformStamped
 from nbv_prob_cnn_msgs.srv import MoveCamera, MoveToJoints, PlanNextBestView
-from rclpy.action import ActionClient
 from rclpy.node import Node
 from trajectory_msgs.msg import JointTrajectoryPoint
 
@@ -38,7 +37,9 @@ from nbv_prob_cnn.exploration.session import MoveError, PlannedView
 from nbv_prob_cnn.perception.messages import stamp_ns
 from nbv_prob_cnn.perception.tf_buffer import TransformError
 from nbv_prob_cnn.ros import names
+from nbv_prob_cnn.ros.action_client import LockedActionClient
 from nbv_prob_cnn.ros.conversions import pose_to_arrays
+from nbv_prob_cnn.ros.graph import send_goal_with_resend
 from nbv_prob_cnn.ros.robot_params import JointStateTracker
 from nbv_prob_cnn.ros.runtime import call_service
 from nbv_prob_cnn.ros.tf_listener import TfListener
@@ -206,7 +207,7 @@ class TrajectoryMover:
         self, node: Node, params: MoverParams, joints: JointStateTracker, arm: ArmSession, callback_group=None
     ) -> None:
         self._node, self._params, self._joints, self._arm = node, params, joints, arm
-        self._client = ActionClient(node, FollowJointTrajectory, params.trajectory_action,
+        self._client = LockedActionClient(node, FollowJointTrajectory, params.trajectory_action,
                                     callback_group=callback_group)  # fmt: skip
         self._limits = TrajectoryLimits(params.trajectory_velocity_scale, params.max_joint_acceleration,
                                         params.max_joint_jerk, params.trajectory_dt_s)  # fmt: skip
@@ -252,8 +253,13 @@ class TrajectoryMover:
         if not interrupt.wait_until(self._client.server_is_ready, min(params.move_timeout_s, 10.0)):
             raise MoveError(f"action {action} is not available")
         sent = self._node.get_clock().now().nanoseconds
-        handle = wait_future(self._client.send_goal_async(request), params.move_timeout_s, "goal acceptance", interrupt)
-        if handle is None or not handle.accepted:
+        try:  # the same goal sent again while no answer comes (a first request can be lost, see graph)
+            handle = send_goal_with_resend(
+                self._client, request, params.move_timeout_s, wait=interrupt.wait_until, resend_s=5.0
+            )
+        except TimeoutError as exc:
+            raise MoveError(f"{action}: the trajectory goal got no answer ({exc})") from exc
+        if not handle.accepted:
             raise MoveError(f"{action} rejected the trajectory (see the controller's log)")
         try:
             outcome = wait_future(

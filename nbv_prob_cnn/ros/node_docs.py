@@ -1,7 +1,7 @@
 """What each node offers, read from its code without starting it: the parameters from its config
 dataclass (:func:`~nbv_prob_cnn.ros.parameters.param` fields) and its topics, services and actions
 from the ``create_publisher`` / ``create_subscription`` / ``create_service`` / ``create_client`` /
-``ActionServer`` / ``ActionClient`` calls of its module.
+``ActionServer`` / ``ActionClient`` (``LockedActionClient``) calls of its module.
 
 ``nbv node NAME --help`` prints one node; ``nbv docs nodes --out docs/nodes.md`` writes the
 reference page (a test fails when that page is stale).
@@ -30,6 +30,7 @@ _CALLS = {
     "create_client": ("service", "calls"),
     "ActionServer": ("action", "serves"),
     "ActionClient": ("action", "calls"),
+    "LockedActionClient": ("action", "calls"),  # nbv_prob_cnn.ros.action_client
 }
 
 
@@ -277,7 +278,7 @@ def _scan(source: str, module: ModuleType, outer: str = "") -> list[InterfaceDoc
         if called not in _CALLS:
             continue
         kind, direction = _CALLS[called]
-        args = node.args[1:] if called.startswith("Action") else node.args  # ActionServer(self, Type, name)
+        args = node.args[1:] if kind == "action" else node.args  # ActionServer(self, Type, name)
         if len(args) < 2:
             continue
         qos = args[3] if kind == "topic" and direction == "subscribes" and len(args) > 3 else None

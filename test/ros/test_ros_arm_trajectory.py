@@ -25,7 +25,7 @@ from control_msgs.action import FollowJointTrajectory  # noqa: E402
 from control_msgs.msg import JointTolerance  # noqa: E402
 from explore_goals import explore_client, explore_succeeds  # noqa: E402
 from nbv_prob_cnn_msgs.action import Explore  # noqa: E402
-from rclpy.action import ActionClient, ActionServer, GoalResponse  # noqa: E402
+from rclpy.action import ActionServer, GoalResponse  # noqa: E402
 from rclpy.callback_groups import ReentrantCallbackGroup  # noqa: E402
 from sensor_msgs.msg import JointState  # noqa: E402
 from std_msgs.msg import String  # noqa: E402
@@ -37,6 +37,7 @@ from trajectory_msgs.msg import JointTrajectoryPoint  # noqa: E402
 
 from nbv_prob_cnn.arm.description import read_description  # noqa: E402
 from nbv_prob_cnn.arm.robot import DEFAULT_BASE_XYZ, DEFAULT_HAND_FROM_CAMERA_XYZ, RobotModel  # noqa: E402
+from nbv_prob_cnn.ros.action_client import LockedActionClient  # noqa: E402
 from nbv_prob_cnn.ros.conversions import pose_to_arrays  # noqa: E402
 from nbv_prob_cnn.ros.graph import NodeGraph  # noqa: E402
 from nbv_prob_cnn.ros.robot_params import DESCRIPTION_QOS, description_config  # noqa: E402
@@ -84,7 +85,7 @@ def test_arm_sim_is_a_robot_driver_with_a_trajectory_controller(ros):
     node.create_subscription(TFMessage, "/tf_static", lambda m: seen.setdefault("static", m), DESCRIPTION_QOS)
     node.create_subscription(TFMessage, "/tf", lambda m: seen.__setitem__("tf", m), 10)
     node.create_subscription(JointState, "/joint_states", states.append, 100)
-    client = ActionClient(node, FollowJointTrajectory, ACTION)
+    client = LockedActionClient(node, FollowJointTrajectory, ACTION)
     assert client.wait_for_server(timeout_sec=120.0)
     deadline = time.monotonic() + 30.0
     while time.monotonic() < deadline and (len(seen) < 3 or len(states) < 4):

@@ -19,11 +19,11 @@ from action_msgs.msg import GoalStatus  # noqa: E402
 from nbv_prob_cnn_msgs.action import Explore  # noqa: E402
 from nbv_prob_cnn_msgs.msg import VoxelGrid  # noqa: E402
 from nbv_prob_cnn_msgs.srv import MoveCamera  # noqa: E402
-from rclpy.action import ActionClient  # noqa: E402
 from rclpy.callback_groups import ReentrantCallbackGroup  # noqa: E402
 from rclpy.executors import MultiThreadedExecutor  # noqa: E402
 
 from nbv_prob_cnn.basics.geometry import GridGeometry  # noqa: E402
+from nbv_prob_cnn.ros.action_client import LockedActionClient  # noqa: E402
 from nbv_prob_cnn.ros.conversions import grid_to_msg  # noqa: E402
 from nbv_prob_cnn.ros.graph import NodeGraph  # noqa: E402
 from nbv_prob_cnn.ros.qos import GRID_QOS  # noqa: E402
@@ -100,7 +100,7 @@ def explore_graph(tmp_path, ros_domain):
             "nbv_planner",
             {"dataset": "3du", "method": "prob_ig", "in_process": True, "backend": "numpy", "markers_top_k": 1},
         )
-        client = ActionClient(node, Explore, "/nbv/explore")
+        client = LockedActionClient(node, Explore, "/nbv/explore")
         assert client.wait_for_server(timeout_sec=60.0), "the Explore server did not come up"
         yield client, camera, graph
         graph.stop()

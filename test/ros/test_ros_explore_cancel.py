@@ -23,9 +23,9 @@ pytest.importorskip("nbv_prob_cnn_msgs")
 from action_msgs.msg import GoalStatus  # noqa: E402
 from explore_goals import EXIT_BOUND_S, assert_sigint_exit_aborts  # noqa: E402
 from nbv_prob_cnn_msgs.action import Explore  # noqa: E402
-from rclpy.action import ActionClient  # noqa: E402
 from test_ros_explore import FakeCamera, send, spun_node, wait  # noqa: E402
 
+from nbv_prob_cnn.ros.action_client import LockedActionClient  # noqa: E402
 from nbv_prob_cnn.ros.graph import NodeGraph, wait_for  # noqa: E402
 
 pytestmark = pytest.mark.slow  # multi-process ROS graphs
@@ -68,7 +68,7 @@ def planner_graph(tmp_path, ros_domain):
             {"dataset": "3du", "method": "prob_ig", "in_process": True, "backend": "numpy", "markers_top_k": 1,
              "grid_timeout_s": GRID_TIMEOUT_S},
         )  # fmt: skip
-        client = ActionClient(node, Explore, "/nbv/explore")
+        client = LockedActionClient(node, Explore, "/nbv/explore")
         try:
             assert client.wait_for_server(timeout_sec=60.0), "the Explore server did not come up"
             yield client, camera, planner

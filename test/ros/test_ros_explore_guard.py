@@ -14,9 +14,9 @@ pytest.importorskip("nbv_prob_cnn_msgs")
 
 from action_msgs.msg import GoalStatus  # noqa: E402
 from nbv_prob_cnn_msgs.action import Explore  # noqa: E402
-from rclpy.action import ActionClient  # noqa: E402
 from test_ros_explore import FakeCamera, send, spun_node, wait  # noqa: E402
 
+from nbv_prob_cnn.ros.action_client import LockedActionClient  # noqa: E402
 from nbv_prob_cnn.ros.graph import NodeGraph  # noqa: E402
 
 pytestmark = pytest.mark.slow  # multi-process ROS graphs
@@ -37,7 +37,7 @@ def test_explore_rules_out_views_that_change_nothing(tmp_path, ros_domain, guard
                   "markers_top_k": 1, "guard_min_cells": guard_min_cells}  # fmt: skip
         graph.start_node("nbv_planner", "nbv_planner", params)
         try:
-            client = ActionClient(node, Explore, "/nbv/explore")
+            client = LockedActionClient(node, Explore, "/nbv/explore")
             assert client.wait_for_server(timeout_sec=60.0), "the Explore server did not come up"
             feedback: list = []
             done = wait(send(client, Explore.Goal(max_views=3), feedback).get_result_async(), 120.0)

@@ -10,8 +10,8 @@ from typing import Any
 
 from action_msgs.msg import GoalStatus
 from nbv_prob_cnn_msgs.action import Explore
-from rclpy.action import ActionClient
 
+from nbv_prob_cnn.ros.action_client import LockedActionClient
 from nbv_prob_cnn.ros.graph import send_goal_with_resend, wait_for
 
 #: Longest accepted exit after SIGINT (target 2 s; margin for a loaded 2-core machine). Before the
@@ -26,14 +26,14 @@ def answer(future: Any, timeout_s: float = 120.0) -> Any:
     return future.result()
 
 
-def explore_client(node: Any, timeout_s: float = 120.0) -> ActionClient:
+def explore_client(node: Any, timeout_s: float = 120.0) -> LockedActionClient:
     """A client of ``/nbv/explore`` on ``node`` whose server came up within ``timeout_s``."""
-    client = ActionClient(node, Explore, "/nbv/explore")
+    client = LockedActionClient(node, Explore, "/nbv/explore")
     assert client.wait_for_server(timeout_sec=timeout_s), "the Explore server did not come up"
     return client
 
 
-def explore_succeeds(client: ActionClient, goal: Any, timeout_s: float = 300.0) -> tuple[Any, list]:
+def explore_succeeds(client: LockedActionClient, goal: Any, timeout_s: float = 300.0) -> tuple[Any, list]:
     """Sends ``goal``, which is accepted and ends SUCCEEDED within ``timeout_s``; returns its result
     (status and result) and the feedback messages it sent."""
     feedback: list = []
