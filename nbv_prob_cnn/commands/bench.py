@@ -51,6 +51,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="scale: the row groups, tabletop-like grids and/or the real kitchen (default: both; the kitchen "
         "alone writes scale_kitchen.csv)",
     )
+    parser.add_argument(
+        "--ros-grid", default="",
+        help="ros: plan on the scale suite's tabletop-like grid of this size, e.g. 256x256x192 "
+        "(default: a half-explored 3DU world)",
+    )  # fmt: skip
     parser.add_argument("--every", type=int, default=1, help="sweep: time every N-th planned view")
     parser.add_argument("--loop-views", type=int, default=6, help="arm_loop: planning steps timed (first included)")
     parser.add_argument("--log-dir", default="", help="arm_loop: folder of the nodes' logs (default: none)")
@@ -160,7 +165,13 @@ def run_arm_render(args: argparse.Namespace) -> None:
 def run_ros(args: argparse.Namespace) -> None:
     from nbv_prob_cnn.bench.ros_latency import ros_latency_benchmark
 
-    print(ros_latency_benchmark(seed=args.seed))
+    shape = None
+    if args.ros_grid:
+        sizes = args.ros_grid.lower().split("x")
+        if len(sizes) != 3 or not all(v.isdigit() and int(v) > 0 for v in sizes):
+            raise SystemExit(f"--ros-grid: expected three positive sizes like 256x256x192, got {args.ros_grid!r}")
+        shape = (int(sizes[0]), int(sizes[1]), int(sizes[2]))
+    print(ros_latency_benchmark(seed=args.seed, shape=shape))
 
 
 def run_cnn(args: argparse.Namespace) -> None:

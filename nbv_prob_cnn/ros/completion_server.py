@@ -102,6 +102,10 @@ class CompletionServer(Node):
                 prob, geometry, request.grid.header.frame_id, request.grid.header.stamp
             )
             response.success = True
+            self.get_logger().info(
+                f"complete: {dataset} {'x'.join(map(str, state.shape))} in {time.perf_counter() - received:.2f} s "
+                f"(inference {response.inference_time_s:.2f} s)"
+            )
         except ValueError as exc:  # WeightsError is a ValueError
             response.success = False
             response.message = str(exc)

@@ -296,6 +296,10 @@ class GainServer(Node):
                 response.time_views_s = ranked[0].times["views"]
             response.success = True
             response.message = "" if ranked else "no view with positive gain"
+            self.get_logger().info(
+                f"rank_views: {request.method or self.config.method}, {response.evaluated_origins} origins, "
+                f"{len(ranked)} views in {time.perf_counter() - start:.2f} s"
+            )
         except (ValueError, TimeoutError, RuntimeError) as exc:
             response.success = False
             response.message = str(exc)

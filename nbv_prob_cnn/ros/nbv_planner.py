@@ -365,6 +365,9 @@ class NbvPlanner(Node):
                 response.joint_path_length = report.view.path_length
             response.ranked = ranked_msgs[: max(1, int(request.top_k))]
             response.success = True
+            self.get_logger().info(
+                f"plan: {planner.name}, best gain {response.best_gain:.4g} in {time.perf_counter() - start:.2f} s"
+            )
             self._nbv_pub.publish(response.best_pose)
             sensor = context.active_sensor
             depth = sensor.r_max * geometry.resolution * 0.5
