@@ -39,7 +39,7 @@ from nbv_prob_cnn.arm.description import read_description  # noqa: E402
 from nbv_prob_cnn.arm.robot import DEFAULT_BASE_XYZ, DEFAULT_HAND_FROM_CAMERA_XYZ, RobotModel  # noqa: E402
 from nbv_prob_cnn.ros.action_client import LockedActionClient  # noqa: E402
 from nbv_prob_cnn.ros.conversions import pose_to_arrays  # noqa: E402
-from nbv_prob_cnn.ros.graph import NodeGraph  # noqa: E402
+from nbv_prob_cnn.ros.graph import NodeGraph, send_goal_with_resend  # noqa: E402
 from nbv_prob_cnn.ros.robot_params import DESCRIPTION_QOS, description_config  # noqa: E402
 
 pytestmark = pytest.mark.slow  # multi-process ROS graphs
@@ -117,12 +117,14 @@ def test_arm_sim_is_a_robot_driver_with_a_trajectory_controller(ros):
         goal_of(arm, [(2.0, [*target[:3], 0.5, *target[4:]])]),  # panda_joint4 must stay below 0
         goal_of(arm, [(0.1, list(target))]),  # 0.3 rad in 0.1 s: over the 2.175 rad/s limit
     ):
-        handle = wait(client.send_goal_async(bad))
+        handle = send_goal_with_resend(client, bad, 60.0, resend_s=5.0)
         assert not handle.accepted
     # accepted and executed: SUCCESSFUL, the joints at the goal, feedback on the way
     feedback: list = []
-    handle = wait(client.send_goal_async(goal_of(arm, [(1.0, list(start + (target - start) / 2)), (2.0, list(target))]),
-                                         feedback_callback=feedback.append))  # fmt: skip
+    handle = send_goal_with_resend(
+        client, goal_of(arm, [(1.0, list(start + (target - start) / 2)), (2.0, list(target))]), 60.0,
+        feedback_callback=feedback.append, resend_s=5.0,
+    )  # fmt: skip
     assert handle.accepted
     done = wait(handle.get_result_async(), 30.0)
     assert done.status == GoalStatus.STATUS_SUCCEEDED
@@ -140,7 +142,7 @@ def test_arm_sim_is_a_robot_driver_with_a_trajectory_controller(ros):
     back = goal_of(arm, [(0.3 / 2.175 * 1.01, list(target - np.array([0.3, 0, 0, 0, 0, 0, 0])))],
                    goal_tolerance=[JointTolerance(name=n, position=1e-3) for n in arm],
                    goal_time_tolerance=seconds(0.01))  # fmt: skip
-    handle = wait(client.send_goal_async(back))
+    handle = send_goal_with_resend(client, back, 60.0, resend_s=5.0)
     assert handle.accepted
     done = wait(handle.get_result_async(), 30.0)
     assert done.status == GoalStatus.STATUS_ABORTED
@@ -149,7 +151,7 @@ def test_arm_sim_is_a_robot_driver_with_a_trajectory_controller(ros):
     assert graph.alive()["arm_sim"]
     # SIGINT during a 20 s trajectory: the goal is aborted where the arm is and arm_sim exits at
     # once (as a controller deactivated mid-goal), not after running the trajectory to its end
-    handle = wait(client.send_goal_async(goal_of(arm, [(20.0, list(start))])))
+    handle = send_goal_with_resend(client, goal_of(arm, [(20.0, list(start))]), 60.0, resend_s=5.0)
     assert handle.accepted
     time.sleep(0.5)
     result_future = handle.get_result_async()

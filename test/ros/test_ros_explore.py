@@ -25,7 +25,7 @@ from rclpy.executors import MultiThreadedExecutor  # noqa: E402
 from nbv_prob_cnn.basics.geometry import GridGeometry  # noqa: E402
 from nbv_prob_cnn.ros.action_client import LockedActionClient  # noqa: E402
 from nbv_prob_cnn.ros.conversions import grid_to_msg  # noqa: E402
-from nbv_prob_cnn.ros.graph import NodeGraph  # noqa: E402
+from nbv_prob_cnn.ros.graph import NodeGraph, send_goal_with_resend  # noqa: E402
 from nbv_prob_cnn.ros.qos import GRID_QOS  # noqa: E402
 
 pytestmark = pytest.mark.slow  # multi-process ROS graphs
@@ -115,8 +115,10 @@ def wait(future, timeout_s: float = 60.0):
 
 
 def send(client, goal: Explore.Goal, feedback: list | None = None):
+    """The goal's handle; the goal is sent again (same ID) while no answer comes: the planner's
+    answer to a client it has not matched yet is dropped ("failed to send response (timeout)")."""
     callback = feedback.append if feedback is not None else None
-    return wait(client.send_goal_async(goal, feedback_callback=callback))
+    return send_goal_with_resend(client, goal, 60.0, feedback_callback=callback, resend_s=5.0)
 
 
 def test_explore_goal_states_match_what_happened(explore_graph):
