@@ -30,6 +30,7 @@ from plane_frames import DEPTH, S, plane_frame  # noqa: E402
 from std_srvs.srv import Trigger  # noqa: E402
 from test_ros_perception import (  # noqa: E402
     SAMPLE_BAG,
+    SHM_RELEASE_S,
     START_TIMEOUT_S,
     RosClient,
     assert_clean_stop,
@@ -182,7 +183,7 @@ def test_integrator_battery(ros_env: dict, tmp_path: Path) -> None:  # noqa: F81
             assert integrator.poll() is None
         assert_clean_stop(graph, expected={"bag_replay": 1})
     domain = int(ros_env["ROS_DOMAIN_ID"])
-    assert wait_for(lambda: not leaked_segments(before, domain), 5.0), leaked_segments(before, domain)
+    assert wait_for(lambda: not leaked_segments(before, domain), SHM_RELEASE_S), leaked_segments(before, domain)
 
 
 def test_planning_battery(tmp_path: Path, ros_domain) -> None:

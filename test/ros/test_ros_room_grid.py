@@ -14,7 +14,7 @@ rclpy = pytest.importorskip("rclpy")
 pytest.importorskip("nbv_prob_cnn_msgs")
 
 from nbv_prob_cnn_msgs.msg import VoxelGrid  # noqa: E402
-from nbv_prob_cnn_msgs.srv import PlanNextBestView  # noqa: E402
+from nbv_prob_cnn_msgs.srv import CompleteGrid, PlanNextBestView, RankViews  # noqa: E402
 from test_ros_planning import ros_fixture  # noqa: E402
 
 from nbv_prob_cnn.basics.camera import dataset_defaults  # noqa: E402
@@ -64,6 +64,10 @@ def test_a_room_sized_grid_is_planned_on_through_the_servers(ros):
     request = PlanNextBestView.Request(top_k=5, use_workspace=True)
     request.workspace_min.x, request.workspace_min.y, request.workspace_min.z = (float(v) for v in BOX_MIN)
     request.workspace_max.x, request.workspace_max.y, request.workspace_max.z = (float(v) for v in BOX_MAX)
+    # the planner fails a plan at once while a server is not up (completion_server loads torch and
+    # warms the network up first: over a minute at load 11), so the test waits for both servers
+    for service_type, name in ((CompleteGrid, "/nbv/complete"), (RankViews, "/nbv/rank_views")):
+        assert node.create_client(service_type, name).wait_for_service(timeout_sec=300.0), f"{name} did not come up"
     client = node.create_client(PlanNextBestView, "/nbv/plan")
     executor = rclpy.executors.SingleThreadedExecutor(context=context)
     executor.add_node(node)
