@@ -200,12 +200,15 @@ def segment_domain(name: str) -> int | None:
     return (int(match.group(1)) - 7400) // 250
 
 
-def leaked_segments(before: set[str], domain: int, ignore_pids: frozenset[int] = frozenset()) -> set[str]:
+def leaked_segments(
+    before: set[str], domain: int, ignore_pids: frozenset[int] = frozenset(), among: set[str] | None = None
+) -> set[str]:
     """Fast DDS segments created since ``before`` that no live process uses any more; segments of
-    other domains (graphs of concurrent test runs) are not ours to judge."""
-    return {
-        name for name in shm_segments() - before if segment_domain(name) in (None, domain) and not segment_in_use(name)
-    }
+    other domains (graphs of concurrent test runs) are not ours to judge. ``among``: judge only
+    these names (a :class:`NodeGraph`'s :attr:`~NodeGraph.shm_seen`): a segment without a domain in
+    its name may be another graph's that ran meanwhile."""
+    new = shm_segments() - before if among is None else (shm_segments() - before) & among
+    return {name for name in new if segment_domain(name) in (None, domain) and not segment_in_use(name)}
 
 
 def hear_ctrl_c() -> None:
