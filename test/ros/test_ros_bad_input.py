@@ -30,10 +30,10 @@ from plane_frames import DEPTH, S, plane_frame  # noqa: E402
 from std_srvs.srv import Trigger  # noqa: E402
 from test_ros_perception import (  # noqa: E402
     SAMPLE_BAG,
-    SHM_RELEASE_S,
     START_TIMEOUT_S,
     RosClient,
     assert_clean_stop,
+    assert_no_shm_left,
     counts,
     log_text,
     ros_env,  # noqa: F401 - the fixture
@@ -183,12 +183,7 @@ def test_integrator_battery(ros_env: dict, tmp_path: Path) -> None:  # noqa: F81
             assert integrator.poll() is None
         assert_clean_stop(graph, expected={"bag_replay": 1})
     domain = int(ros_env["ROS_DOMAIN_ID"])
-    # judged among the files this graph's nodes mapped: the suite's other pytest process runs graphs too
-    seen = graph.shm_seen
-    assert seen, "the nodes mapped no shared memory: the check below would prove nothing"
-    assert wait_for(lambda: not leaked_segments(before, domain, among=seen), SHM_RELEASE_S), leaked_segments(
-        before, domain, among=seen
-    )
+    assert_no_shm_left(graph, before, domain)
 
 
 def test_planning_battery(tmp_path: Path, ros_domain) -> None:

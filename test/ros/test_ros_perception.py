@@ -61,6 +61,17 @@ START_TIMEOUT_S = 120.0
 SHM_RELEASE_S = 30.0
 
 
+def assert_no_shm_left(graph: NodeGraph, before: set[str], domain: int) -> None:
+    """Within :data:`SHM_RELEASE_S`, none of the shared-memory files that ``graph``'s nodes mapped
+    (and that were not there ``before``) is left unused; judged among those files only, since the
+    suite's other pytest process runs graphs too."""
+    seen = graph.shm_seen
+    assert seen, "the nodes mapped no shared memory: the check below would prove nothing"
+    assert wait_for(lambda: not leaked_segments(before, domain, among=seen), SHM_RELEASE_S), leaked_segments(
+        before, domain, among=seen
+    )
+
+
 def domain_id(index: int) -> int:
     """A domain per test (and per test process): 120..219, away from the graph default 1..100."""
     return 120 + (os.getpid() * 7 + index) % 100
@@ -232,12 +243,7 @@ def test_sim_camera_to_integrator(ros_env: dict, tmp_path: Path) -> None:
     assert recorded[moved[-1]].depth_m.shape == (480, 640)
     assert "integrated" in log_text(tmp_path, "integrator")
     domain = int(ros_env["ROS_DOMAIN_ID"])
-    # judged among the files this graph's nodes mapped: the suite's other pytest process runs graphs too
-    seen = graph.shm_seen
-    assert seen, "the nodes mapped no shared memory: the check below would prove nothing"
-    assert wait_for(lambda: not leaked_segments(before, domain, among=seen), SHM_RELEASE_S), leaked_segments(
-        before, domain, among=seen
-    )
+    assert_no_shm_left(graph, before, domain)
 
 
 def test_bag_replay_matches_offline_integration(ros_env: dict, tmp_path: Path) -> None:
@@ -285,9 +291,4 @@ def test_bag_replay_matches_offline_integration(ros_env: dict, tmp_path: Path) -
     assert np.array_equal(grid, offline)
     assert f"published {3 * len(frames)} message(s)" in log_text(tmp_path, "bag_replay")
     domain = int(ros_env["ROS_DOMAIN_ID"])
-    # judged among the files this graph's nodes mapped: the suite's other pytest process runs graphs too
-    seen = graph.shm_seen
-    assert seen, "the nodes mapped no shared memory: the check below would prove nothing"
-    assert wait_for(lambda: not leaked_segments(before, domain, among=seen), SHM_RELEASE_S), leaked_segments(
-        before, domain, among=seen
-    )
+    assert_no_shm_left(graph, before, domain)
