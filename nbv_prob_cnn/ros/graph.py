@@ -208,7 +208,7 @@ def leaked_segments(
     these names (a :class:`NodeGraph`'s :attr:`~NodeGraph.shm_seen`): a segment without a domain in
     its name may be another graph's that ran meanwhile."""
     new = shm_segments() - before if among is None else (shm_segments() - before) & among
-    return {name for name in new if segment_domain(name) in (None, domain) and not segment_in_use(name)}
+    return {name for name in new if segment_domain(name) in (None, domain) and not segment_in_use(name, ignore_pids)}
 
 
 def hear_ctrl_c() -> None:
