@@ -56,7 +56,8 @@ class SoakExplorer(SoakClient):
     def wait_ready(self, timeout_s: float) -> bool:
         return self._action.wait_for_server(timeout_sec=timeout_s)
 
-    def explore_once(self, views: int, method: str, timeout_s: float) -> None:
+    def explore_once(self, views: int, method: str, timeout_s: float) -> int:
+        """One exploration after a reset; returns the views it took (0 when it ended without one)."""
         start = time.time()
         reset = call_with_resend(self._reset, Trigger.Request(), 60.0, executor=self.executor_)
         fresh = self.wait_for_frame(30.0)
@@ -69,7 +70,7 @@ class SoakExplorer(SoakClient):
             self.log_event(event="exploration", start_wall=start, end_wall=time.time(), status="rejected",
                            views=0, reason="goal rejected or not answered")  # fmt: skip
             time.sleep(1.0)
-            return
+            return 0
         self._goal = handle
         result = handle.get_result_async()
         self.executor_.spin_until_future_complete(result, timeout_sec=timeout_s)
@@ -78,7 +79,7 @@ class SoakExplorer(SoakClient):
             self.log_event(event="exploration", start_wall=start, end_wall=time.time(), status="timeout",
                            views=0, reason=f"no result within {timeout_s:g} s")  # fmt: skip
             handle.cancel_goal_async()
-            return
+            return 0
         answer = result.result()
         unknown = float(answer.result.final_unknown_fraction)
         self.log_event(
@@ -87,6 +88,7 @@ class SoakExplorer(SoakClient):
             final_unknown_fraction=unknown if math.isfinite(unknown) else None,
             reason=answer.result.reason_stopped, failed_executions=int(answer.result.failed_executions),
         )  # fmt: skip
+        return int(answer.result.views)
 
     def cancel(self) -> None:
         if self._goal is not None:
@@ -105,6 +107,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--method", default="")
     parser.add_argument("--timeout", type=float, default=600.0, help="longest exploration [s]")
     parser.add_argument("--ready-timeout", type=float, default=120.0)
+    parser.add_argument("--first-tries", type=int, default=3,
+                        help="explorations tried for a first one with a view, whatever --until")  # fmt: skip
     args = parser.parse_args(argv)
     rclpy.init()
     node = SoakExplorer(args.events)
@@ -115,7 +119,12 @@ def main(argv: list[str] | None = None) -> int:
                 node.log_event(event="error", message=f"no Explore server within {args.ready_timeout:g} s")
                 return 1
             node.log_event(event="ready")
-            node.explore_once(args.views, args.method, args.timeout)  # at least one, however short the soak
+            # at least one exploration with a view, however short the soak: the requester's own
+            # integrator_reset can empty the grid under the first one, which then ends at once
+            # without a view (its reason is in the report); --first-tries bounds the repeats
+            for _ in range(args.first_tries):
+                if node.explore_once(args.views, args.method, args.timeout) > 0:
+                    break
             while time.time() < args.until:
                 node.explore_once(args.views, args.method, args.timeout)
             node.final_diagnostics()

@@ -298,7 +298,7 @@ class SoakReport:
                     f"{tally.unavailable} with the service unavailable"
                 )
         if self.first_exploration_end_s is None:
-            out.append("no exploration finished")
+            out.append("no exploration finished with a view")
         else:
             for node in self.nodes():
                 for key in ("rss_kib", "fds"):
@@ -418,6 +418,11 @@ def write_report(report: SoakReport, out_dir: Path, title: str, context: list[st
     reasons = Counter(str(e.get("reason", "")) for e in report.explorations if e.get("status") != "succeeded")
     if reasons:
         lines += [f"- not succeeded: {r!r} x {n}" for r, n in reasons.most_common()] + [""]
+    viewless = Counter(
+        str(e.get("reason", "")) for e in report.explorations if e.get("status") == "succeeded" and not e.get("views")
+    )
+    if viewless:
+        lines += [f"- succeeded without a view: {r!r} x {n}" for r, n in viewless.most_common()] + [""]
     lines += [
         "## Crashes",
         "",

@@ -25,6 +25,7 @@ from studies.soak_report import (
     read_events,
     sample_process,
     tally_requests,
+    write_report,
 )
 
 REPO = Path(__file__).resolve().parents[2]
@@ -105,6 +106,27 @@ def test_report_invariants_hand_worked() -> None:
     tallies = tally_requests(bad)
     assert (tallies[("plan", False)].sent, tallies[("plan", False)].error, tallies[("plan", False)].success) == (
         2, 1, 1)  # fmt: skip
+
+
+def test_an_exploration_without_a_view_does_not_start_the_growth_window(tmp_path: Path) -> None:
+    """The requester's integrator_reset can empty the grid under an exploration, which then
+    succeeds at once with no view: it is not the "first exploration" that memory growth is
+    measured from, and the report says why it ended."""
+    requests = [_request(k, True, "success") for k in KINDS if k not in ALWAYS_INVALID]
+    requests += [_request(k, False, "error") for k in KINDS if k not in ALWAYS_VALID]
+    viewless = {"event": "exploration", "status": "succeeded", "views": 0, "start_wall": 1005.0,
+                "end_wall": 1006.0, "reason": "no view with positive gain after 0 views"}  # fmt: skip
+    samples = [ProcessSample(t, "integrator", 1, rss, 20) for t, rss in ((5, 100), (60, 1000), (600, 1100))]
+    report = build_report(0.5, requests, [viewless], samples, 1000.0, [], {}, [], [])
+    assert report.first_exploration_end_s is None
+    assert report.violations() == ["no exploration finished with a view"]
+    with_view = dict(viewless, views=2, end_wall=1060.0)
+    report = build_report(0.5, requests, [viewless, with_view], samples, 1000.0, [], {}, [], [])
+    assert report.first_exploration_end_s == 60.0 and report.violations() == []
+    write_report(report, tmp_path, "t", [])
+    text = (tmp_path / "soak.md").read_text()
+    assert "2 explorations: 2 succeeded; 2 views in all (0-2 each)" in text
+    assert "- succeeded without a view: 'no view with positive gain after 0 views' x 1" in text
 
 
 @pytest.mark.slow
