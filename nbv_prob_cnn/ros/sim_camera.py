@@ -288,7 +288,12 @@ class SimCamera(Node):
         self._camera = DepthCamera(
             meshes, self.intrinsics, noise=noise, depth_min=depth_min, depth_max=depth_max, noise_seed=noise_seed
         )
-        self._lock = threading.Lock()
+        # one frame at a time (pose, stamp, render, publish in order); the render runs outside
+        # _lock, so joint states and arm poses keep arriving on the stream thread meanwhile (a
+        # render that held _lock kept them out: the next frame then found its newest joint state
+        # older than ARM_STATE_MAX_AGE_NS and was stamped now, while the arm moved on)
+        self._frame_lock = threading.RLock()
+        self._lock = threading.Lock()  # the pose, the arm's joint states and poses: held briefly
         self._last_stamp_ns = 0
         self._arm_pose: tuple[np.ndarray, int] | None = None  # follow_arm: latest pose and its stamp (ns)
         self.frames = 0
@@ -360,29 +365,29 @@ class SimCamera(Node):
         Raises:
             ValueError: ``render_arm`` and no joint state received yet (or none of stamp ``at_ns``).
         """
-        with self._lock:
-            occluders = []
-            stamp_ns = self.get_clock().now().nanoseconds if at_ns is None else at_ns
-            if self._arm is not None:
-                q = self._arm_q
-                if at_ns is not None:
-                    q = self._arm_qs.get(at_ns)
-                if q is None:
-                    which = "" if at_ns is None else f" stamped {at_ns} ns (the arm pose's)"
-                    raise ValueError(f"render_arm: no {names.JOINT_STATES}{which} received yet, no frame")
-                occluders.append(self._arm.scene(q))  # rebuilt only when the joints moved
-                # the frame shows the arm as it was at that joint state: it carries its stamp (unless
-                # the joint states stopped: then the frame is stamped now and shows the last known arm)
-                if at_ns is None and 0 <= stamp_ns - self._arm_stamp_ns <= ARM_STATE_MAX_AGE_NS:
-                    stamp_ns = self._arm_stamp_ns
-            if at_ns is None:
-                stamp_ns = max(stamp_ns, self._last_stamp_ns + 1)
-            self._last_stamp_ns = stamp_ns
-            depth = self._camera.render(self._pose, occluders)
+        with self._frame_lock:
+            with self._lock:
+                stamp_ns = self.get_clock().now().nanoseconds if at_ns is None else at_ns
+                q = None
+                if self._arm is not None:
+                    q = self._arm_q if at_ns is None else self._arm_qs.get(at_ns)
+                    if q is None:
+                        which = "" if at_ns is None else f" stamped {at_ns} ns (the arm pose's)"
+                        raise ValueError(f"render_arm: no {names.JOINT_STATES}{which} received yet, no frame")
+                    # the frame shows the arm as it was at that joint state: it carries its stamp (unless
+                    # the joint states stopped: then the frame is stamped now and shows the last known arm)
+                    if at_ns is None and 0 <= stamp_ns - self._arm_stamp_ns <= ARM_STATE_MAX_AGE_NS:
+                        stamp_ns = self._arm_stamp_ns
+                if at_ns is None:
+                    stamp_ns = max(stamp_ns, self._last_stamp_ns + 1)
+                self._last_stamp_ns = stamp_ns
+                pose = self._pose
+            occluders = [] if q is None else [self._arm.scene(q)]  # rebuilt only when the joints moved
+            depth = self._camera.render(pose, occluders)
             cfg = self.config
-            cdr = frame_cdr(depth, self.intrinsics, self._pose, stamp_ns, cfg.encoding, cfg.frame_id, cfg.camera_frame)
+            cdr = frame_cdr(depth, self.intrinsics, pose, stamp_ns, cfg.encoding, cfg.frame_id, cfg.camera_frame)
             if self._tf_pub is not None:  # before the image, so a TF listener has the pose when the image comes
-                pose_tf = transform_stamped_msg(self._pose, stamp_ns, cfg.frame_id, cfg.camera_frame)
+                pose_tf = transform_stamped_msg(pose, stamp_ns, cfg.frame_id, cfg.camera_frame)
                 self._tf_pub.publish(self._tf_message(transforms=[pose_tf]))
             if self._pose_pub is not None:
                 self._pose_pub.publish(cdr.pose)
@@ -410,9 +415,10 @@ class SimCamera(Node):
         if self.config.follow_arm:
             raise ValueError("follow_arm is set: the camera moves with the arm (arm_sim/move_to_joints)")
         pose = self._target_pose(msg)
-        with self._lock:
-            self._pose = pose
-        return self.publish_frame()
+        with self._frame_lock:  # the frame shows this pose, not a pose another request set meanwhile
+            with self._lock:
+                self._pose = pose
+            return self.publish_frame()
 
     # --------------------------------------------------------------- callbacks
     def _on_timer(self) -> None:
@@ -427,14 +433,15 @@ class SimCamera(Node):
             return
         if self._tf is not None:
             self._arm_pose_from_tf()
-        with self._lock:
-            latest = self._arm_pose
-            if latest is None or latest[1] <= self._last_stamp_ns:
-                return  # no arm pose yet, or none newer than the last frame
-            if self._arm is not None and latest[1] not in self._arm_qs:
-                return  # the joint state of that instant has not arrived yet: next tick
-            self._pose = latest[0]
-        self.publish_frame(latest[1])
+        with self._frame_lock:
+            with self._lock:
+                latest = self._arm_pose
+                if latest is None or latest[1] <= self._last_stamp_ns:
+                    return  # no arm pose yet, or none newer than the last frame
+                if self._arm is not None and latest[1] not in self._arm_qs:
+                    return  # the joint state of that instant has not arrived yet: next tick
+                self._pose = latest[0]
+            self.publish_frame(latest[1])
 
     def _on_joint_states(self, msg: JointState) -> None:
         if self._arm is None:
