@@ -382,7 +382,7 @@ class SimCamera(Node):
                     stamp_ns = max(stamp_ns, self._last_stamp_ns + 1)
                 self._last_stamp_ns = stamp_ns
                 pose = self._pose
-            occluders = [] if q is None else [self._arm.scene(q)]  # rebuilt only when the joints moved
+            occluders = [] if q is None or self._arm is None else [self._arm.scene(q)]  # rebuilt when the joints moved
             depth = self._camera.render(pose, occluders)
             cfg = self.config
             cdr = frame_cdr(depth, self.intrinsics, pose, stamp_ns, cfg.encoding, cfg.frame_id, cfg.camera_frame)
