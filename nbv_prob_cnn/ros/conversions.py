@@ -9,18 +9,26 @@ from __future__ import annotations
 
 import array
 import math
+import zlib
 
 import numpy as np
 from builtin_interfaces.msg import Time
 from geometry_msgs.msg import Pose, PoseStamped, TransformStamped
-from nbv_prob_cnn_msgs.msg import ProbabilityGrid, VoxelGrid
+from nbv_prob_cnn_msgs.msg import CompressedVoxelGrid, ProbabilityGrid, VoxelGrid
 
 from nbv_prob_cnn.basics.camera import quaternion_from_matrix
 from nbv_prob_cnn.basics.geometry import GridGeometry
 from nbv_prob_cnn.perception.messages import stamp_parts
 
-#: Largest grid accepted from the wire (cells); bigger requests are refused with a reason.
-MAX_GRID_CELLS = 2**24  # 256³; a 50 MB grid is refused
+#: Largest grid accepted from the wire (cells); bigger requests are refused with a reason. A room:
+#: the 7-Scenes kitchen at 1.16 cm over its bounding box is 52.5 M cells (52 MB as a VoxelGrid).
+MAX_GRID_CELLS = 2**26  # 67 M cells
+
+#: The formats of :class:`CompressedVoxelGrid` this package writes and reads.
+GRID_FORMATS = ("zlib",)
+#: zlib level of the compressed grid: 1 compresses a half-explored 256 × 256 × 192 grid (12.6 MB)
+#: about 50-fold in about 50 ms; higher levels gain little on these runs of equal cells.
+ZLIB_LEVEL = 1
 
 
 def time_msg(stamp_ns: int) -> Time:
@@ -35,7 +43,7 @@ def _check_identity_orientation(pose: Pose, what: str) -> None:
         raise ValueError(f"{what}: only axis-aligned grids are supported (origin orientation must be identity)")
 
 
-def geometry_of(msg: VoxelGrid | ProbabilityGrid) -> GridGeometry:
+def geometry_of(msg: VoxelGrid | ProbabilityGrid | CompressedVoxelGrid) -> GridGeometry:
     """Grid geometry of a grid message (``size_z == 1`` means a 2D grid).
 
     Raises:
@@ -79,6 +87,47 @@ def probability_to_msg(
     _fill_geometry(msg, geometry, frame_id, stamp)
     msg.data = array.array("f", np.asarray(prob, dtype=np.float32).ravel(order="F").tobytes())
     return msg
+
+
+def compress_grid_msg(msg: VoxelGrid, level: int = ZLIB_LEVEL) -> CompressedVoxelGrid:
+    """The :class:`CompressedVoxelGrid` (format ``zlib``) of a :class:`VoxelGrid`: the same header,
+    origin, resolution and sizes, the data compressed as one zlib stream."""
+    out = CompressedVoxelGrid(
+        header=msg.header, origin=msg.origin, resolution=msg.resolution,
+        size_x=msg.size_x, size_y=msg.size_y, size_z=msg.size_z, format="zlib",
+    )  # fmt: skip
+    out.data = array.array("B", zlib.compress(_data_array(msg, np.int8).tobytes(), level))
+    return out
+
+
+def decompress_grid_msg(msg: CompressedVoxelGrid) -> VoxelGrid:
+    """The :class:`VoxelGrid` a :class:`CompressedVoxelGrid` carries.
+
+    Raises:
+        ValueError: a format other than ``zlib``, bad sizes (:func:`geometry_of`: checked before
+            anything is decompressed), a stream that is not zlib, or data of another length than
+            the sizes say.
+    """
+    if msg.format not in GRID_FORMATS:
+        raise ValueError(f"compressed grid: format {msg.format!r} is not one of {list(GRID_FORMATS)}")
+    cells = math.prod(geometry_of(msg).shape)
+    inflate = zlib.decompressobj()
+    try:  # at most one byte more than the sizes say: a stream that inflates further is refused unread
+        data = inflate.decompress(bytes(msg.data), cells + 1)
+    except zlib.error as exc:
+        raise ValueError(f"compressed grid: data is not a zlib stream ({exc})") from exc
+    if len(data) > cells or (len(data) == cells and inflate.unconsumed_tail):
+        raise ValueError(f"compressed grid: data inflates to more than size_x*size_y*size_z = {cells} cells")
+    if len(data) < cells:
+        raise ValueError(f"compressed grid: data inflates to {len(data)} cells but size_x*size_y*size_z = {cells}")
+    if not inflate.eof:
+        raise ValueError("compressed grid: the zlib stream is truncated (no end of stream)")
+    out = VoxelGrid(
+        header=msg.header, origin=msg.origin, resolution=msg.resolution,
+        size_x=msg.size_x, size_y=msg.size_y, size_z=msg.size_z,
+    )  # fmt: skip
+    out.data = array.array("b", data)
+    return out
 
 
 def _data_array(msg, dtype) -> np.ndarray:

@@ -61,7 +61,7 @@ from nbv_prob_cnn.ros.conversions import (
     msg_to_probability,
 )
 from nbv_prob_cnn.ros.gain_params import backend_param, gain_variant_param, n_rays_param
-from nbv_prob_cnn.ros.grid_holder import LatestGrid
+from nbv_prob_cnn.ros.grid_holder import LatestGrid, grid_transport_param
 from nbv_prob_cnn.ros.joint_state_intake import JointStateIntake
 from nbv_prob_cnn.ros.parameters import declare_config, param, positive_seconds
 from nbv_prob_cnn.ros.remote_planning import complete_via_service
@@ -93,6 +93,7 @@ class GainServerConfig(SensorParams, ArmViewParams):
         60.0, "wait for nbv/complete", min_value=0.1, max_value=600.0, dynamic=True, check=positive_seconds
     )
     frame_id: str = param("world", "frame of the grid when the grid message has none")
+    grid_transport: str = grid_transport_param()
     evaluate_rays_across: int = param(
         EVALUATE_RAYS_ACROSS, "evaluate_views: rays across each pose's own image, its gain in steradians (0 = the "
         "view search's rays inside the pose's frustum, n_rays: the gain /nbv/rank_views gives that pose)",
@@ -124,7 +125,7 @@ class GainServer(Node):
         self._streams = StreamNode(self)
         if self._arm is not None:
             self._joints = JointStateIntake(self._arm.robot, self, self._streams.node)
-        self._grid = LatestGrid(self, callback_group=group)
+        self._grid = LatestGrid(self, callback_group=group, transport=cfg.grid_transport)
         self._tf = TfListener(self._streams.node)
         self._sensor = CameraInfoSensor(self, cfg, cfg.dataset, callback_group=group)
         self._complete_client = self.create_client(CompleteGrid, names.COMPLETE, callback_group=group)

@@ -25,7 +25,10 @@ default QoS (volatile) also gets the current grid within that period),
 at most ``publish_rate_hz`` times a second, whenever a frame
 was integrated since the last grid. ``header.stamp`` is the stamp of the newest integrated frame,
 so a client that moved the camera and got frame stamp ``T`` waits for a grid stamped ``>= T``
-(an all-unknown grid stamped 0 follows a reset).
+(an all-unknown grid stamped 0 follows a reset). The same grids, compressed
+(``nbv_prob_cnn_msgs/CompressedVoxelGrid``, zlib, the same QoS and republishing), go on
+``/nbv/grid/compressed``, made only while that topic has a subscriber (as image_transport's
+``compressed``): a room-sized grid is 52 MB raw.
 
 With ``self_filter:=true`` the node also subscribes ``joint_states`` (``sensor_msgs/JointState``,
 e.g. from ``arm_sim``), pairs each image with the joint state nearest to its stamp (± the same
@@ -83,7 +86,7 @@ from typing import Any
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import TransformStamped
-from nbv_prob_cnn_msgs.msg import VoxelGrid
+from nbv_prob_cnn_msgs.msg import CompressedVoxelGrid, VoxelGrid
 from nbv_prob_cnn_msgs.srv import SaveGrid
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
 from rclpy.event_handler import SubscriptionEventCallbacks
@@ -110,7 +113,7 @@ from nbv_prob_cnn.perception.messages import (
 )
 from nbv_prob_cnn.perception.tf_poses import TfPoses
 from nbv_prob_cnn.ros import names
-from nbv_prob_cnn.ros.conversions import grid_to_msg, time_msg
+from nbv_prob_cnn.ros.conversions import compress_grid_msg, grid_to_msg, time_msg
 from nbv_prob_cnn.ros.drop_report import DropReport
 from nbv_prob_cnn.ros.integrator_config import IntegratorConfig
 from nbv_prob_cnn.ros.occupied_cloud import occupied_cloud_msg
@@ -182,7 +185,9 @@ class Integrator(Node):
             robot = RobotModel(cfg.robot_config(self))
             self_filter = RobotSelfFilter(robot, cfg.self_filter_bodies, cfg.self_filter_tolerance_m)
             self._joint_merger = JointStateMerger(robot.joint_names)  # arm and gripper may come separately
-        self.counts = dict.fromkeys(("images", "integrated", "skipped_still", "grids", "grids_republished"), 0)
+        self.counts = dict.fromkeys(
+            ("images", "integrated", "skipped_still", "grids", "grids_compressed", "grids_republished"), 0
+        )
         if cfg.self_filter:
             self.counts["self_filtered_pixels"] = 0
         self._fusion = cfg.frame_fusion(self.counts, self_filter)
@@ -195,6 +200,9 @@ class Integrator(Node):
         self._store = typestore()
 
         self._grid_pub = self.create_publisher(VoxelGrid, TOPIC_GRID, GRID_QOS)
+        self._compressed_pub = self.create_publisher(CompressedVoxelGrid, names.GRID_COMPRESSED, GRID_QOS)
+        self._compressed_lock = threading.Lock()  # the worker (new grids) and a timer both send compressed grids
+        self._compressed_sent: tuple[VoxelGrid | None, int] = (None, 0)  # the grid sent compressed, subscribers then
         self._cloud_pub = self.create_publisher(PointCloud2, TOPIC_OCCUPIED_CELLS, 1)
         self._next_cloud = 0.0
         self._cloud_lock = threading.Lock()  # the worker (new grids) and the cloud timer both publish clouds
@@ -253,6 +261,7 @@ class Integrator(Node):
         self._last_grid_at = 0.0
         if cfg.republish_period_s > 0:
             self.create_timer(min(cfg.republish_period_s, 0.25), self._on_republish_timer, callback_group=services)
+        self.create_timer(0.25, self._publish_compressed, callback_group=services)  # for subscribers that came later
         if cfg.cloud_rate_hz > 0:  # the latest grid's cloud, when throttled away or for a subscriber that came later
             self.create_timer(max(1.0 / cfg.cloud_rate_hz, 0.05), self._publish_cloud, callback_group=services)
         self._worker = threading.Thread(target=self._work, name="tsdf_worker", daemon=True)
@@ -517,9 +526,28 @@ class Integrator(Node):
         self._grid_pub.publish(msg)
         self._last_grid, self._last_grid_at = msg, time.monotonic()
         self.counts["grids"] += 1
+        self._publish_compressed()
         with self._cloud_lock:
             self._cloud_grid = (grid, stamp_ns)
         self._publish_cloud()
+
+    def _publish_compressed(self) -> None:
+        """The latest grid on ``nbv/grid/compressed`` while that topic has subscribers: each new
+        grid, and the current one again when a subscriber joined since it was sent (a subscriber
+        that comes later gets the current grid at once, as on ``nbv/grid``). The worker (new
+        grids) and a timer call it."""
+        with self._compressed_lock:
+            msg, subscribers = self._last_grid, self._compressed_pub.get_subscription_count()
+            sent, sent_subscribers = self._compressed_sent
+            if msg is None or subscribers == 0 or not self.context.ok():
+                self._compressed_sent = (sent, 0)  # whoever subscribes next is new
+                return
+            if msg is sent and subscribers <= sent_subscribers:
+                self._compressed_sent = (sent, subscribers)  # sent already (someone left: fewer now)
+                return
+            self._compressed_pub.publish(compress_grid_msg(msg))
+            self._compressed_sent = (msg, subscribers)
+            self.counts["grids_compressed"] += 1
 
     def _publish_cloud(self) -> None:
         """The occupied cells of the latest grid on ``occupied_cells``, at most ``cloud_rate_hz``
@@ -556,12 +584,13 @@ class Integrator(Node):
             return
         if time.monotonic() - self._last_grid_at < self.config.republish_period_s:
             return
-        subscribers = self.get_subscriptions_info_by_topic(self._grid_pub.topic_name)
-        if not any(s.qos_profile.durability == DurabilityPolicy.VOLATILE for s in subscribers):
-            return
-        self._grid_pub.publish(msg)
-        self._last_grid_at = time.monotonic()
-        self.counts["grids_republished"] += 1
+        for publisher in (self._grid_pub, self._compressed_pub):
+            subscribers = self.get_subscriptions_info_by_topic(publisher.topic_name)
+            if not any(s.qos_profile.durability == DurabilityPolicy.VOLATILE for s in subscribers):
+                continue
+            publisher.publish(msg if publisher is self._grid_pub else compress_grid_msg(msg))
+            self._last_grid_at = time.monotonic()
+            self.counts["grids_republished"] += 1
 
     def destroy_node(self) -> None:
         with self._cv:

@@ -18,6 +18,7 @@ def relative(name: str) -> str:
 
 # topics
 GRID = "nbv/grid"
+GRID_COMPRESSED = GRID + "/compressed"  # the same grids as CompressedVoxelGrid (image_transport's naming)
 NEXT_BEST_VIEW = "nbv/next_best_view"
 MARKERS = "nbv/markers"
 DEPTH_IMAGE = relative(TOPIC_IMAGE)

@@ -81,7 +81,7 @@ from nbv_prob_cnn.ros.camera_sensor import CameraInfoSensor, SensorParams
 from nbv_prob_cnn.ros.conversions import arrays_to_pose_stamped, geometry_of, msg_to_grid
 from nbv_prob_cnn.ros.explore_parts import NO_POSITIVE_GAIN, ExploreGrids, GoalPlanner, cancel_requested
 from nbv_prob_cnn.ros.gain_params import backend_param, gain_variant_param, n_rays_param
-from nbv_prob_cnn.ros.grid_holder import LatestGrid
+from nbv_prob_cnn.ros.grid_holder import LatestGrid, grid_transport_param
 from nbv_prob_cnn.ros.joint_state_intake import JointStateIntake
 from nbv_prob_cnn.ros.markers import planning_markers
 from nbv_prob_cnn.ros.movers import (
@@ -119,6 +119,7 @@ class PlannerConfig(SensorParams, ArmViewParams):
         "gain in-process ('paper' or 'original', docs/original_code.md; else gain_server's)"
     )
     frame_id: str = param("world", "frame of grids that carry none")
+    grid_transport: str = grid_transport_param()
     service_timeout_s: float = param(
         60.0, "completion/ranking wait", min_value=0.1, max_value=600.0, dynamic=True, check=positive_seconds
     )
@@ -223,7 +224,9 @@ class NbvPlanner(Node):
         if self._arm is not None and self._streams is not None:
             on_configuration = self._arm.saw_configuration if cfg.arm_carve_swept else None
             self._joints = JointStateIntake(self._arm.robot, self, self._streams.node, on_configuration)
-        self._grid = LatestGrid(self, callback_group=group, on_grid=self._prepare_arm if self._arm else None)
+        self._grid = LatestGrid(
+            self, callback_group=group, on_grid=self._prepare_arm if self._arm else None, transport=cfg.grid_transport
+        )
         # the scan of docs/nodes.md reads this expression: _streams is not None whenever pose_source is tf
         self._tf = TfListener(self._streams.node) if cfg.pose_source == "tf" else None  # type: ignore[union-attr]
         self._camera = CameraPosition(self._tf, cfg.camera_frame)

@@ -13,11 +13,13 @@ import pytest
 
 pytest.importorskip("rclpy")
 
-from nbv_prob_cnn_msgs.msg import VoxelGrid  # noqa: E402
+from nbv_prob_cnn_msgs.msg import CompressedVoxelGrid, VoxelGrid  # noqa: E402
 from sensor_msgs.msg import JointState  # noqa: E402
 
+from nbv_prob_cnn.basics.geometry import GridGeometry  # noqa: E402
 from nbv_prob_cnn.basics.interrupt import Interrupt, WaitInterruptedError  # noqa: E402
 from nbv_prob_cnn.ros import names  # noqa: E402
+from nbv_prob_cnn.ros.conversions import compress_grid_msg, grid_to_msg, msg_to_grid, time_msg  # noqa: E402
 from nbv_prob_cnn.ros.grid_holder import LatestGrid  # noqa: E402
 from nbv_prob_cnn.ros.joint_state_intake import ERROR_LOG_PERIOD_S, JointStateIntake  # noqa: E402
 from nbv_prob_cnn.ros.qos import GRID_QOS  # noqa: E402
@@ -46,6 +48,30 @@ def grid_at(sec: int) -> VoxelGrid:
     msg = VoxelGrid()
     msg.header.stamp.sec = sec
     return msg
+
+
+def test_latest_grid_reads_the_compressed_topic_and_refuses_bad_grids() -> None:
+    node, seen = RecordingNode(), []
+    grids = LatestGrid(node, on_grid=seen.append, transport="compressed")  # type: ignore[arg-type]
+    [(msg_type, topic, callback, qos, _)] = node.subscriptions
+    assert (msg_type, topic, qos) == (CompressedVoxelGrid, names.GRID_COMPRESSED, GRID_QOS)
+    with pytest.raises(ValueError, match="no grid received yet on /nbv/grid/compressed"):
+        grids.latest()
+    state = np.full((6, 5, 4), -1, np.int8)
+    state[:, :, :2] = 0
+    state[1, 2, 1] = 1
+    raw = grid_to_msg(state, GridGeometry((0.0, 0.0, 0.0), 0.05, state.shape), "world", time_msg(3_000_000_000))
+    callback(compress_grid_msg(raw))
+    assert grids.latest() == raw and seen == [grids.latest()]
+    assert np.array_equal(msg_to_grid(grids.wait_for_stamp(3_000_000_000, 0.05))[0], state)
+    bad = compress_grid_msg(grid_at(4))
+    bad.format = "png"
+    callback(bad)  # logged and counted; the newest good grid stays
+    assert grids.refused == 1 and grids.latest() == raw and len(seen) == 1
+    [(text, _)] = node.errors
+    assert text.startswith("nbv/grid/compressed: grid refused (1 so far): compressed grid: format 'png'")
+    with pytest.raises(ValueError, match="grid_transport: 'theora' is not one of \\['raw', 'compressed'\\]"):
+        LatestGrid(node, transport="theora")  # type: ignore[arg-type]
 
 
 def test_latest_grid_keeps_the_newest_and_waits_for_a_stamp() -> None:

@@ -25,7 +25,7 @@ pytest.importorskip("nbv_prob_cnn_msgs")
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus  # noqa: E402
 from geometry_msgs.msg import PoseStamped  # noqa: E402
-from nbv_prob_cnn_msgs.msg import VoxelGrid  # noqa: E402
+from nbv_prob_cnn_msgs.msg import CompressedVoxelGrid, VoxelGrid  # noqa: E402
 from nbv_prob_cnn_msgs.srv import MoveCamera, SaveGrid  # noqa: E402
 from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 
@@ -37,7 +37,7 @@ from nbv_prob_cnn.perception.bags import (  # noqa: E402
     BagWarning,
     read_frames,
 )
-from nbv_prob_cnn.ros.conversions import msg_to_grid  # noqa: E402
+from nbv_prob_cnn.ros.conversions import decompress_grid_msg, msg_to_grid  # noqa: E402
 from nbv_prob_cnn.ros.graph import (  # noqa: E402
     NodeGraph,
     call_with_resend,
@@ -209,6 +209,14 @@ def test_sim_camera_to_integrator(ros_env: dict, tmp_path: Path) -> None:
             reply = client.call(move, MoveCamera.Request(target=zero))
             assert not reply.success and "quaternion" in reply.message
 
+            # the compressed twin of /nbv/grid (issue 35): made while this subscription listens
+            compressed: dict[int, CompressedVoxelGrid] = {}
+            client.node.create_subscription(
+                CompressedVoxelGrid, "/nbv/grid/compressed",
+                lambda m: compressed.__setitem__(stamp_ns(m.header.stamp), m), GRID_QOS,
+            )  # fmt: skip
+            # the integrator sends the current grid when it sees a new subscriber, then every new one
+            assert client.spin_until(lambda: bool(compressed), 30.0), "no compressed grid"
             unknown, moved = [], []
             for position in ([0.74, 0.15, 0.80], [1.30, 0.90, 0.70], [0.20, 1.20, 0.75]):
                 reply = client.call(move, MoveCamera.Request(target=look_at(position)))
@@ -216,7 +224,12 @@ def test_sim_camera_to_integrator(ros_env: dict, tmp_path: Path) -> None:
                 frame_stamp = stamp_ns(reply.frame_stamp)
                 assert frame_stamp > 0
                 moved.append(frame_stamp)
-                grid, geometry = msg_to_grid(client.wait_grid(frame_stamp))
+                raw = client.wait_grid(frame_stamp)
+                raw_stamp = stamp_ns(raw.header.stamp)
+                assert client.spin_until(lambda s=raw_stamp: s in compressed, 20.0), sorted(compressed)
+                assert compressed[raw_stamp].format == "zlib" and len(compressed[raw_stamp].data) < len(raw.data) / 5
+                assert decompress_grid_msg(compressed[raw_stamp]) == raw
+                grid, geometry = msg_to_grid(raw)
                 assert grid.shape == (128, 128, 96) and geometry.resolution == pytest.approx(0.0116)
                 n = counts(grid)
                 assert n["occupied"] > 1000 and n["empty"] > 10000, n

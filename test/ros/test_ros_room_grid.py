@@ -1,5 +1,5 @@
 """Issue 35, "through the nodes": a 256 × 256 × 192 grid (12.6 M cells: a 12.6 MB ``VoxelGrid``, a
-50 MB ``ProbabilityGrid``) published as the integrator's ``/nbv/grid`` and planned on by
+50 MB ``ProbabilityGrid``) published as the integrator's ``/nbv/grid/compressed`` and planned on by
 ``nbv_planner`` through ``completion_server`` and ``gain_server``, ``cnn_prob`` in a workspace box:
 the same ranking as the in-process planner on the same grid."""
 
@@ -13,7 +13,7 @@ import pytest
 rclpy = pytest.importorskip("rclpy")
 pytest.importorskip("nbv_prob_cnn_msgs")
 
-from nbv_prob_cnn_msgs.msg import VoxelGrid  # noqa: E402
+from nbv_prob_cnn_msgs.msg import CompressedVoxelGrid  # noqa: E402
 from nbv_prob_cnn_msgs.srv import CompleteGrid, PlanNextBestView, RankViews  # noqa: E402
 from test_ros_planning import ros_fixture  # noqa: E402
 
@@ -22,7 +22,7 @@ from nbv_prob_cnn.basics.geometry import GridGeometry  # noqa: E402
 from nbv_prob_cnn.planners import GainPlanner, PlanningContext  # noqa: E402
 from nbv_prob_cnn.planners.methods import GAIN_METHODS  # noqa: E402
 from nbv_prob_cnn.planners.requests import origin_filter  # noqa: E402
-from nbv_prob_cnn.ros.conversions import grid_to_msg  # noqa: E402
+from nbv_prob_cnn.ros.conversions import compress_grid_msg, grid_to_msg  # noqa: E402
 from nbv_prob_cnn.ros.graph import call_with_resend  # noqa: E402
 from nbv_prob_cnn.ros.qos import GRID_QOS  # noqa: E402
 
@@ -54,12 +54,16 @@ def test_a_room_sized_grid_is_planned_on_through_the_servers(ros):
     node, graph, context = ros
     graph.start_node("completion_server", "completion_server", {"dataset": "3dt"})
     graph.start_node("gain_server", "gain_server", {"dataset": "3dt", "backend": "opencl"})
-    graph.start_node("nbv_planner", "nbv_planner", {"dataset": "3dt", "method": "cnn_prob", "service_timeout_s": 300.0})
+    # the planner reads the compressed topic (a room-sized grid: 12.6 MB raw)
+    planner = {"dataset": "3dt", "method": "cnn_prob", "service_timeout_s": 300.0, "grid_transport": "compressed"}
+    graph.start_node("nbv_planner", "nbv_planner", planner)
     state = room_grid()
     message = grid_to_msg(state, GEOMETRY)
     assert len(message.data) == 256 * 256 * 192
-    publisher = node.create_publisher(VoxelGrid, "/nbv/grid", GRID_QOS)
-    publisher.publish(message)
+    packed = compress_grid_msg(message)
+    assert len(packed.data) < len(message.data) / 20
+    publisher = node.create_publisher(CompressedVoxelGrid, "/nbv/grid/compressed", GRID_QOS)
+    publisher.publish(packed)
 
     request = PlanNextBestView.Request(top_k=5, use_workspace=True)
     request.workspace_min.x, request.workspace_min.y, request.workspace_min.z = (float(v) for v in BOX_MIN)
