@@ -84,7 +84,7 @@ class CompletionServer(Node):
         return self._load_model(path, dataset, self._device)
 
     def _complete(self, request: CompleteGrid.Request, response: CompleteGrid.Response):
-        from nbv_prob_cnn.completion import complete
+        from nbv_prob_cnn.completion.tiled import complete_region
 
         received = time.perf_counter()
         try:
@@ -96,7 +96,9 @@ class CompletionServer(Node):
                 raise ValueError(f"a {geometry.dims}D grid cannot use the {dataset} ({DATASETS[dataset].dims}D) model")
             model = self._model_for(dataset)
             start = time.perf_counter()
-            prob = complete(state, model=model, device=self._device)
+            # by tiles of at most MAX_WINDOW_CELLS (16 M) cells with the receptive field as halo: a room
+            # (up to MAX_GRID_CELLS, 67 M) in bounded memory; one pass, as before, up to that size
+            prob = complete_region(state, None, model=model, device=self._device)
             response.inference_time_s = time.perf_counter() - start
             response.probability = probability_to_msg(
                 prob, geometry, request.grid.header.frame_id, request.grid.header.stamp

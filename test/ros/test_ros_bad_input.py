@@ -217,12 +217,13 @@ def test_planning_battery(tmp_path: Path, ros_domain) -> None:
         reply = client.call(plan, PlanNextBestView.Request(), timeout_s=START_TIMEOUT_S)
         assert not reply.success and "no grid" in reply.message
 
-        # 2^24 + 1 cells (97 x 257 x 673): refused with a reason by both servers
-        huge = VoxelGrid(size_x=97, size_y=257, size_z=673, resolution=0.01)
-        huge.data = bytes(97 * 257 * 673)
+        # 2^26 + 1 cells (5 x 53 x 253241): refused with a reason by both servers, on the sizes
+        # alone (checked before the data: 1 MB of it here, not the 67 MB the sizes would need)
+        huge = VoxelGrid(size_x=5, size_y=53, size_z=253241, resolution=0.01)
+        huge.data = bytes(1_000_000)
         for srv, request in ((complete, CompleteGrid.Request(grid=huge)), (rank, RankViews.Request(grid=huge))):
             reply = client.call(srv, request, timeout_s=60.0)
-            assert not reply.success and "16777217 cells exceed" in reply.message, reply.message
+            assert not reply.success and "67108865 cells exceed" in reply.message, reply.message
 
         # a valid grid: planning through both servers works
         state = np.full((32, 32, 32), -1, dtype=np.int8)

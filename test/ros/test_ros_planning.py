@@ -161,10 +161,10 @@ def test_evaluate_views_matches_core_and_survives_bad_requests(ros):
     reply = call(node, context, RankViews, "/nbv/rank_views", mismatch)
     assert not reply.success and "data has" in reply.message
     huge = RankViews.Request(top_k=1)
-    huge.grid.size_x, huge.grid.size_y, huge.grid.size_z, huge.grid.resolution = 1000, 1000, 50, 0.01
-    huge.grid.data = bytes(50_000_000)  # a 50 MB request
+    huge.grid.size_x, huge.grid.size_y, huge.grid.size_z, huge.grid.resolution = 1000, 1000, 68, 0.01
+    huge.grid.data = bytes(50_000_000)  # a 50 MB request declaring 68 M cells (the limit: 2^26 = 67.1 M)
     reply = call(node, context, RankViews, "/nbv/rank_views", huge)
-    assert not reply.success and "exceed" in reply.message
+    assert not reply.success and "68000000 cells exceed" in reply.message, reply.message
 
     # still serving, and a restarted server gets the grid again (transient local), no re-publish
     graph.stop()
