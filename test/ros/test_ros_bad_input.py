@@ -44,7 +44,14 @@ from nbv_prob_cnn.perception.bags import TOPIC_CAMERA_INFO, TOPIC_IMAGE, TOPIC_P
 from nbv_prob_cnn.perception.messages import depth_to_image_msg, pose_to_transform_msg  # noqa: E402
 from nbv_prob_cnn.ros.bag_record import TOPICS  # noqa: E402
 from nbv_prob_cnn.ros.conversions import msg_to_grid  # noqa: E402
-from nbv_prob_cnn.ros.graph import NodeGraph, leaked_segments, segment_domain, shm_segments, wait_for  # noqa: E402
+from nbv_prob_cnn.ros.graph import (  # noqa: E402
+    NodeGraph,
+    leaked_segments,
+    mapped_shm,
+    segment_domain,
+    shm_segments,
+    wait_for,
+)
 
 pytestmark = pytest.mark.slow  # multi-process ROS graphs
 
@@ -244,7 +251,7 @@ def test_planning_battery(tmp_path: Path, ros_domain) -> None:
         # completion_server dies while the planner waits on it (stopped first, so the request
         # is surely in flight, then killed): the plan fails with a reason, the planner lives on
         os.killpg(server.pid, signal.SIGSTOP)
-        killed = segments_of(server.pid)  # its shared memory: left behind by SIGKILL, by design
+        killed = mapped_shm(server.pid)  # its shared memory: left behind by SIGKILL, by design
         future = plan.call_async(good)
         client.spin_until(lambda: False, 1.0)
         os.killpg(server.pid, signal.SIGKILL)
@@ -259,7 +266,7 @@ def test_planning_battery(tmp_path: Path, ros_domain) -> None:
         assert client.spin_until(lambda: client.call(plan, good, timeout_s=60.0).success, 90.0)
         assert planner.poll() is None
         # the shared memory our live nodes use (other runs on this machine make their own)
-        ours = set().union(*(segments_of(p.pid) for p in graph.processes.values() if p.poll() is None))
+        ours = set().union(*(mapped_shm(p.pid) for p in graph.processes.values() if p.poll() is None))
     codes = graph.stop()
     assert codes["completion_server"] == -signal.SIGKILL
     assert all(code in (0, -signal.SIGINT) for name, code in codes.items() if name != "completion_server"), codes
@@ -272,24 +279,3 @@ def test_planning_battery(tmp_path: Path, ros_domain) -> None:
         return {name for name in found if name in ours or segment_domain(name) == domain} - killed
 
     assert wait_for(lambda: not leaked(), 5.0), leaked()
-
-
-def segments_of(pid: int) -> set[str]:
-    """Names of the /dev/shm files that process ``pid`` maps or holds open."""
-    names = set()
-    with open(f"/proc/{pid}/maps") as maps:
-        for line in maps:
-            if "/dev/shm/" in line:
-                names.add(line.split("/dev/shm/", 1)[1].split()[0])
-    # a port segment's named mutex is opened only while the port is locked
-    names |= {f"sem.{name}_mutex" for name in names if name.startswith("fastrtps_port")}
-    for fd in os.listdir(f"/proc/{pid}/fd"):
-        try:
-            target = os.readlink(f"/proc/{pid}/fd/{fd}")
-        except OSError:
-            continue
-        if target.startswith("/dev/shm/"):
-            names.add(target[len("/dev/shm/") :])
-            if target.startswith("/dev/shm/fastrtps_port"):
-                names.add(f"sem.{target[len('/dev/shm/') :]}_mutex")
-    return names
