@@ -31,7 +31,7 @@ from dataclasses import dataclass
 import numpy as np
 from nbv_prob_cnn_msgs.msg import ViewScore
 from nbv_prob_cnn_msgs.srv import CompleteGrid, EvaluateViews, RankViews
-from rclpy.callback_groups import ReentrantCallbackGroup
+from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
 from rclpy.node import Node
 from sensor_msgs.msg import JointState
 
@@ -129,8 +129,11 @@ class GainServer(Node):
         self._tf = TfListener(self._streams.node)
         self._sensor = CameraInfoSensor(self, cfg, cfg.dataset, callback_group=group)
         self._complete_client = self.create_client(CompleteGrid, names.COMPLETE, callback_group=group)
-        self.create_service(EvaluateViews, names.EVALUATE_VIEWS, self._evaluate_views, callback_group=group)
-        self.create_service(RankViews, names.RANK_VIEWS, self._rank_views, callback_group=group)
+        # one request at a time: a request may wait for /nbv/complete, whose answer another thread of the
+        # executor (4) must take; requests in parallel could hold every thread (see nbv_planner)
+        requests = MutuallyExclusiveCallbackGroup()
+        self.create_service(EvaluateViews, names.EVALUATE_VIEWS, self._evaluate_views, callback_group=requests)
+        self.create_service(RankViews, names.RANK_VIEWS, self._rank_views, callback_group=requests)
         warm = self._warm_up_ray_caster()
         self.get_logger().info(
             f"gain_server ready: dataset {cfg.dataset}, method {cfg.method}, TF by {self._tf.backend}{warm}"

@@ -49,7 +49,7 @@ from nbv_prob_cnn_msgs.action import Explore
 from nbv_prob_cnn_msgs.msg import ViewScore, VoxelGrid
 from nbv_prob_cnn_msgs.srv import PlanNextBestView
 from rclpy.action import ActionServer, CancelResponse, GoalResponse
-from rclpy.callback_groups import ReentrantCallbackGroup
+from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
 from rclpy.node import Node
 from visualization_msgs.msg import MarkerArray
 
@@ -254,7 +254,12 @@ class NbvPlanner(Node):
         arm_moves = cfg.move_mode in ("arm", "trajectory")
         self._mover = mover if self._arm is None else ArmBookkeepingMover(mover, self._arm, arm_moves)
         self._readiness = ReadinessPublisher(self, ready=not cfg.use_arm, callback_group=group)
-        self.create_service(PlanNextBestView, names.PLAN, self._plan_service, callback_group=group)
+        # one plan request at a time: a plan waits for the servers' answers, which other threads of the
+        # executor (4) must take; plans in parallel (a client resending while a plan runs) held every
+        # thread and no answer came in until a plan timed out (the hunt: 60 s lost at load 7)
+        self.create_service(
+            PlanNextBestView, names.PLAN, self._plan_service, callback_group=MutuallyExclusiveCallbackGroup()
+        )
         self._action = ActionServer(
             self, Explore, names.EXPLORE, execute_callback=self._explore,
             goal_callback=self._check_goal, cancel_callback=self._cancel_goal, callback_group=group,

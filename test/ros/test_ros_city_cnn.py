@@ -68,3 +68,26 @@ def test_city_cnn_plans_through_the_servers(weights_dir, ros):
             p = view.pose.pose.position
             np.testing.assert_allclose([p.x, p.y, p.z], GEOMETRY.cell_centre(choice.cell), atol=1e-6, err_msg=method)
         assert reply.time_cnn_s > 0 or reply.time_views_s > 0, method
+
+    # six plans at once (a client resending while a plan runs): the planner serves them one after
+    # another, so the gain server's answers always find a free thread of its executor (4 threads:
+    # six plans in parallel held them all, and no rank_views answer was taken until a plan timed
+    # out, 60 s later; hunt D round 7)
+    import rclpy
+
+    from nbv_prob_cnn.ros.graph import call_with_resend
+
+    client = node.create_client(PlanNextBestView, "/nbv/plan")
+    executor = rclpy.executors.SingleThreadedExecutor(context=context)
+    executor.add_node(node)
+    try:
+        quick = PlanNextBestView.Request(top_k=1, method="prob_ig")
+        assert call_with_resend(client, quick, 120.0, executor=executor).success  # matched: no request lost
+        futures = [client.call_async(quick) for _ in range(6)]
+        deadline = time.monotonic() + 240.0
+        while not all(f.done() for f in futures) and time.monotonic() < deadline:
+            executor.spin_once(timeout_sec=0.1)
+    finally:
+        executor.remove_node(node)
+    replies = [f.result() for f in futures if f.done()]
+    assert len(replies) == 6 and all(r.success for r in replies), [r.message for r in replies]
