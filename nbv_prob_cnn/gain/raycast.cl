@@ -4,8 +4,8 @@
 // grids have nz = 1), padded with one known-occupied cell on every side (2D: on x and y only):
 //   code >= 0   unknown cell, occupancy probability p = code
 //   code == -1  known occupied (p = 1), also the padding
-//   code <= -2  known empty (p = 0), d = -1 - code >= 1 is the Chebyshev distance to the nearest
-//               non-empty cell
+//   code <= -2  known empty (p = 0), d = -1 - code >= 1 is a lower bound of the Chebyshev
+//               distance to the nearest non-empty cell (opencl.py: empty_distance)
 // Sample t of ray h from origin v is the padded cell v + offsets[h][t], a linear index offset
 // (precomputed from round(t * b_h)). Consecutive samples differ by at most one cell per axis
 // (|b| <= 1), so samples t and t + k are at most k apart in the Chebyshev metric. Hence:
