@@ -8,6 +8,7 @@ localhost-only discovery, its own ``ROS_DOMAIN_ID`` and the Fast DDS shared-memo
 from __future__ import annotations
 
 import contextlib
+import faulthandler
 import os
 import re
 import signal
@@ -19,6 +20,18 @@ from pathlib import Path
 from typing import IO
 
 PROFILE = Path(__file__).with_name("fastdds_shm_profile.xml")
+#: The signal on which our nodes write every thread's Python stack into their log (``kill -USR2 <pid>``,
+#: :func:`enable_stack_dumps`), even while stuck in native code, where no Python handler runs.
+STACK_DUMP_SIGNAL = signal.SIGUSR2
+#: Seconds :meth:`NodeGraph.stop` leaves a process to write its stacks before SIGKILL.
+STACK_DUMP_WAIT_S = 1.0
+
+
+def enable_stack_dumps() -> None:
+    """Write every thread's Python stack to stderr on :data:`STACK_DUMP_SIGNAL` (:mod:`faulthandler`:
+    a native handler, so it works while the main thread waits in C code and Python's own signal
+    handlers cannot run). Called by every node's ``main``."""
+    faulthandler.register(STACK_DUMP_SIGNAL, all_threads=True)
 
 
 def ros_environment(domain_id: int | None = None, base: dict | None = None) -> dict[str, str]:
@@ -62,8 +75,8 @@ class NodeGraph:
     """A set of node processes started together and stopped together (context manager).
 
     Stopping sends SIGINT (rclpy shuts down cleanly), then SIGTERM and SIGKILL to whatever is
-    still alive after ``grace_s``; every process is started in its own process group so
-    children are reached too.
+    still alive after ``grace_s`` (before SIGKILL, :data:`STACK_DUMP_SIGNAL`: its stacks in its log);
+    every process is started in its own process group so children are reached too.
     """
 
     def __init__(self, env: dict[str, str] | None = None, log_dir: str | Path | None = None) -> None:
@@ -105,12 +118,19 @@ class NodeGraph:
         return now
 
     def stop(self, grace_s: float = 5.0) -> dict[str, int]:
-        """Stop every process (noting first the shared memory they map); returns their exit codes."""
+        """Stop every process (noting first the shared memory they map); returns their exit codes.
+        A process still running after SIGINT and SIGTERM first gets :data:`STACK_DUMP_SIGNAL`, so
+        that its log shows where it hung, then SIGKILL."""
         self.note_shm()
         for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGKILL):
             running = [p for p in self.processes.values() if p.poll() is None]
             if not running:
                 break
+            if sig == signal.SIGKILL:
+                for proc in running:
+                    with contextlib.suppress(ProcessLookupError):
+                        os.kill(proc.pid, STACK_DUMP_SIGNAL)
+                time.sleep(STACK_DUMP_WAIT_S)
             for proc in running:
                 with contextlib.suppress(ProcessLookupError):
                     os.killpg(proc.pid, sig)

@@ -25,6 +25,7 @@ from nbv_prob_cnn.basics.process_heap import (
     limit_heap_retention,
     release_free_heap,
 )
+from nbv_prob_cnn.ros.graph import enable_stack_dumps
 
 NodeT = TypeVar("NodeT", bound=Node)
 
@@ -227,11 +228,13 @@ def run_node(
     5. log the ``summary``, shut rclpy down.
 
     rclpy's signal handler is not installed: :class:`SignalStop` takes SIGINT and SIGTERM.
+    SIGUSR2 writes every thread's stack into the log (:func:`~nbv_prob_cnn.ros.graph.enable_stack_dumps`).
 
     Returns:
         0, or 1 when building/running the node raised one of ``startup_errors`` (bad
         parameters, unreadable inputs), logged as fatal with ``startup_message``.
     """
+    enable_stack_dumps()  # kill -USR2: every thread's stack in the log, also when stuck in native code
     heap = limit_heap_retention()  # before rclpy and the executor start their threads
     rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
     signals = SignalStop()
