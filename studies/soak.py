@@ -92,6 +92,7 @@ def run(args: argparse.Namespace) -> int:
     from studies.soak_report import (
         ProcessSample,
         build_report,
+        log_tail,
         read_events,
         sample_process,
         write_report,
@@ -177,7 +178,7 @@ def run(args: argparse.Namespace) -> int:
         exit_codes: dict[str, int | None] = dict(graph.stop())
     for name, code in exit_codes.items():
         if code not in (0, -signal.SIGINT) and not any(c.startswith(f"{name} ") for c in crashes):
-            crashes.append(f"{name} exited with {code} when stopped with SIGINT")
+            crashes.append(f"{name} exited with {code} when stopped with SIGINT{log_tail(logs / f'{name}.log')}")
     time.sleep(0.5)
     # what the nodes mapped and is still there; of it, what no process holds is removed, as run_graph does
     shm_files = sorted(n for n in graph.shm_seen if n.startswith("fastrtps") and os.path.exists(f"/dev/shm/{n}"))

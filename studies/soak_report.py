@@ -535,3 +535,15 @@ __all__ = [
     "tally_requests",
     "write_report",
 ]
+
+#: Lines of a crashed node's log shown in the report (a node killed at the stop has its thread stacks there).
+LOG_TAIL_LINES = 60
+
+
+def log_tail(path: Path, lines: int = LOG_TAIL_LINES) -> str:
+    """The last ``lines`` lines of a node's log as a fenced block after a crash line ('' without a log)."""
+    try:
+        tail = path.read_text(errors="replace").splitlines()[-lines:]
+    except OSError:
+        return ""
+    return f"; the end of its log ({path.name}):\n\n```\n" + "\n".join(tail) + "\n```\n"

@@ -25,6 +25,7 @@ from studies.soak_report import (
     read_events,
     sample_process,
     tally_requests,
+    log_tail,
     write_report,
 )
 
@@ -157,3 +158,11 @@ def test_short_soak_of_the_graph(tmp_path: Path, ros_domain) -> None:
     with open(out / "processes.csv") as handle:
         assert {row["node"] for row in csv.DictReader(handle)} == {
             "sim_camera", "integrator", "completion_server", "gain_server", "nbv_planner"}  # fmt: skip
+
+
+def test_a_crash_line_carries_the_end_of_the_node_log(tmp_path: Path) -> None:
+    log = tmp_path / "integrator.log"
+    log.write_text("".join(f"line {i}\n" for i in range(100)))
+    tail = log_tail(log, lines=3)
+    assert tail == "; the end of its log (integrator.log):\n\n```\nline 97\nline 98\nline 99\n```\n"
+    assert log_tail(tmp_path / "missing.log") == ""
