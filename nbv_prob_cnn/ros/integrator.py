@@ -203,6 +203,7 @@ class Integrator(Node):
         self._compressed_pub = self.create_publisher(CompressedVoxelGrid, names.GRID_COMPRESSED, GRID_QOS)
         self._compressed_lock = threading.Lock()  # the worker (new grids) and a timer both send compressed grids
         self._compressed_sent: tuple[VoxelGrid | None, int] = (None, 0)  # the grid sent compressed, subscribers then
+        self._compressed_of: tuple[VoxelGrid | None, CompressedVoxelGrid | None] = (None, None)  # the latest packed
         self._cloud_pub = self.create_publisher(PointCloud2, TOPIC_OCCUPIED_CELLS, 1)
         self._next_cloud = 0.0
         self._cloud_lock = threading.Lock()  # the worker (new grids) and the cloud timer both publish clouds
@@ -545,9 +546,18 @@ class Integrator(Node):
             if msg is sent and subscribers <= sent_subscribers:
                 self._compressed_sent = (sent, subscribers)  # sent already (someone left: fewer now)
                 return
-            self._compressed_pub.publish(compress_grid_msg(msg))
+            self._compressed_pub.publish(self._compressed(msg))
             self._compressed_sent = (msg, subscribers)
             self.counts["grids_compressed"] += 1
+
+    def _compressed(self, msg: VoxelGrid) -> CompressedVoxelGrid:
+        """``msg`` compressed, once per grid: a subscriber that joins later and the volatile
+        republishing send the same message again. Called with ``_compressed_lock`` held."""
+        grid, packed = self._compressed_of
+        if grid is not msg or packed is None:
+            packed = compress_grid_msg(msg)
+            self._compressed_of = (msg, packed)
+        return packed
 
     def _publish_cloud(self) -> None:
         """The occupied cells of the latest grid on ``occupied_cells``, at most ``cloud_rate_hz``
@@ -588,7 +598,11 @@ class Integrator(Node):
             subscribers = self.get_subscriptions_info_by_topic(publisher.topic_name)
             if not any(s.qos_profile.durability == DurabilityPolicy.VOLATILE for s in subscribers):
                 continue
-            publisher.publish(msg if publisher is self._grid_pub else compress_grid_msg(msg))
+            if publisher is self._grid_pub:
+                publisher.publish(msg)
+            else:
+                with self._compressed_lock:
+                    publisher.publish(self._compressed(msg))
             self._last_grid_at = time.monotonic()
             self.counts["grids_republished"] += 1
 
