@@ -216,6 +216,8 @@ def origin_blocks(origins: np.ndarray, size: int) -> tuple[np.ndarray, np.ndarra
     ``size + 1 .. 2 size``, ...), and per origin its block ``(N,)`` (an index into the corners).
     One flag per block of a dense block grid instead of a sort of the origins."""
     dims = origins.shape[1]
+    if origins.shape[0] == 0:
+        return np.zeros((0, 3), dtype=np.int64), np.zeros(0, dtype=np.int64)
     block = [(origins[:, axis].astype(np.int64) + size) // size for axis in range(dims)]
     counts = tuple(int(b.max()) + 1 for b in block)
     key = np.ravel_multi_index(block, counts)

@@ -114,6 +114,8 @@ def test_origin_blocks_against_unique_corners(size: int, dims: int) -> None:
     assert np.array_equal(corners, expected)
     assert np.array_equal(block_of, inverse.ravel())
     assert np.all((padded[:, :dims] <= corners[block_of, :dims]) & (padded[:, :dims] > corners[block_of, :dims] - size))
+    no_corners, no_blocks = origin_blocks(origins[:0], size)
+    assert no_corners.shape == (0, 3) and no_blocks.shape == (0,)
 
 
 def _bound_reference(padded: np.ndarray, dims: int, probabilistic: bool, size: int) -> np.ndarray:
