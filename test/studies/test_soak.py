@@ -22,10 +22,10 @@ from studies.soak_report import (
     RequestMix,
     build_report,
     growth,
+    log_tail,
     read_events,
     sample_process,
     tally_requests,
-    log_tail,
     write_report,
 )
 
