@@ -32,6 +32,12 @@ class GridGeometry:
     def dims(self) -> int:
         return len(self.shape)
 
+    def window(self, corner: tuple[int, ...], shape: tuple[int, ...]) -> GridGeometry:
+        """The geometry of the part of this grid of ``shape`` cells starting at cell ``corner``."""
+        origin = np.asarray(self.origin, dtype=np.float64).copy()
+        origin[: len(corner)] += np.asarray(corner, dtype=np.float64) * self.resolution
+        return GridGeometry((float(origin[0]), float(origin[1]), float(origin[2])), self.resolution, tuple(shape))
+
     def cell_centre(self, cell: np.ndarray) -> np.ndarray:
         """World position (3 components, z = origin z in 2D) of cell centres ``(..., dims)``."""
         cell = np.asarray(cell, dtype=np.float64)

@@ -32,6 +32,7 @@ constant prior ``p0`` of Prob. IG.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from math import prod
 from typing import Any
@@ -252,10 +253,13 @@ def complete_window(
     dataset: str | None = None,
     device: str | torch.device | None = None,
     max_window_cells: int = MAX_WINDOW_CELLS,
+    completion: Callable[[np.ndarray, tuple[int, ...]], np.ndarray] | None = None,
 ) -> np.ndarray:
     """``P`` with the network run on ``window`` alone (its border acts as the grid's border) and
     ``p0`` on the unknown cells outside it (Prob. IG's constant prior): a local completion whose
-    cost follows the window, not the grid.
+    cost follows the window, not the grid. ``completion(window_state, corner)``: the window's map
+    from elsewhere (e.g. a completion service; ``corner``: the window's first cell), instead of the
+    network here.
 
     Returns:
         ``float32`` array of the shape of ``state``.
@@ -264,5 +268,11 @@ def complete_window(
     crop = region_slices(check_region(window, state.shape, "window"))
     out = _known_probability(state, p0)
     inner = np.ascontiguousarray(state[crop])
-    out[crop] = complete_region(inner, None, model, dataset, p0, device, max_window_cells)
+    if completion is None:
+        out[crop] = complete_region(inner, None, model, dataset, p0, device, max_window_cells)
+    else:
+        window_map = np.asarray(completion(inner, tuple(int(v) for v in window[0])), dtype=np.float32)
+        if window_map.shape != inner.shape:
+            raise ValueError(f"completion: returned a map of shape {window_map.shape} for a window of {inner.shape}")
+        out[crop] = window_map
     return out

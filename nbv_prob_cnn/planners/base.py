@@ -28,8 +28,16 @@ LONG_RAYS = 64
 MAX_VIEWS_PER_CALL = 64_000_000
 
 
-#: ``completion(state, context) -> P``: a probabilistic map of ``state`` (docs/method.md#completion-cnn).
-CompletionHook = Callable[[np.ndarray, "PlanningContext"], np.ndarray]
+class CompletionHook(Protocol):
+    """``completion(state, context, corner=None) -> P``: a probabilistic map of ``state``
+    (docs/method.md#completion-cnn); ``corner``: where ``state`` starts in the context's grid
+    (cells) when it is a window of it (the CNN window), None for the whole grid."""
+
+    def __call__(
+        self, state: np.ndarray, context: PlanningContext, /, corner: tuple[int, ...] | None = None
+    ) -> np.ndarray: ...
+
+
 #: ``ranker(method, state, prob, top_k) -> views``: the ``top_k`` best views of a method, best first.
 RankHook = Callable[[str, np.ndarray, "np.ndarray | None", int], "list[ViewChoice]"]
 #: Narrows candidate origins (e.g. to a reachable box): ``(N, dims) -> (M, dims)``.

@@ -61,9 +61,9 @@ GAIN_METHODS: dict[str, GainMethod] = {
 }
 
 
-def cnn_completion(state: np.ndarray, context: PlanningContext) -> np.ndarray:
+def cnn_completion(state: np.ndarray, context: PlanningContext, corner: tuple[int, ...] | None = None) -> np.ndarray:
     """The completion CNN of the context's data set, in this process (shipped weights
-    ``<dataset>_cnn_prob.pt``)."""
+    ``<dataset>_cnn_prob.pt``); ``corner`` is not needed (a :class:`~nbv_prob_cnn.planners.base.CompletionHook`)."""
     from nbv_prob_cnn.completion import complete
 
     return complete(state, dataset=context.defaults.name)
@@ -74,7 +74,9 @@ def probability_map(
 ) -> np.ndarray | None:
     """The probabilistic map ``P`` the method ray-casts on (None for ``ig``); CNN maps come from
     ``context.completion`` when set, else from the CNN in this process: with ``origins``, only over
-    what their rays read (:func:`~nbv_prob_cnn.planners.local_completion.local_completion`)."""
+    what their rays read (:func:`~nbv_prob_cnn.planners.local_completion.local_completion`). With
+    ``origins`` and ``context.cnn_window`` the window around them is completed alone, by
+    ``context.completion`` when set (a completion service), else here."""
     if method.probability is None:
         return None
     if method.probability == "constant":
@@ -83,7 +85,7 @@ def probability_map(
         if context.ground_truth is None:
             raise ValueError(f"{method.name}: needs the ground truth (context.ground_truth)")
         return probability_from_truth(state, context.ground_truth)
-    if context.completion is None and origins is not None:
+    if origins is not None and (context.completion is None or context.cnn_window is not None):
         from nbv_prob_cnn.planners.local_completion import local_completion
 
         return local_completion(state, context, origins)
@@ -128,13 +130,16 @@ class GainPlanner(RankingPlanner):
         ``view_mask``: orientations allowed per origin (local search only; a remote ranker
         ignores it)."""
         uses_cnn = self.method.probability == "cnn"
-        origins = None
-        if context.ranker is None:  # only origins within the rays' reach of unknown space can gain
-            origins = method_origins(self.method, state, context, origin_filter)
-            origins = near_unknown_origins(state, origins, ray_reach(context.active_sensor.r_max))
-            origins = origins.astype(np.int32)  # half the memory while the CNN runs (cells fit 32 bits)
+        origins = window_origins = None
+        if context.ranker is None:
+            origins = self.candidates(state, context, origin_filter)
+        elif uses_cnn and context.cnn_window is not None:  # the ranker searches them; the CNN window needs their box
+            window_origins = self.candidates(state, context, origin_filter)
         start = time.perf_counter()
-        prob = probability_map(self.method, state, context, origins) if (uses_cnn or origins is not None) else None
+        prob = (
+            probability_map(self.method, state, context, origins if origins is not None else window_origins)
+            if (uses_cnn or origins is not None) else None
+        )  # fmt: skip
         t_prob = time.perf_counter() - start
         if origins is None:
             assert context.ranker is not None
@@ -147,3 +152,11 @@ class GainPlanner(RankingPlanner):
         for choice in found:
             choice.times["cnn"] = t_prob if uses_cnn else 0.0
         return found
+
+    def candidates(
+        self, state: np.ndarray, context: PlanningContext, origin_filter: OriginFilter | None = None
+    ) -> np.ndarray:
+        """The origins searched: the method's (:func:`method_origins`) within the rays' reach of unknown
+        space (the others cannot gain), ``int32`` (half the memory while the CNN runs)."""
+        origins = method_origins(self.method, state, context, origin_filter)
+        return near_unknown_origins(state, origins, ray_reach(context.active_sensor.r_max)).astype(np.int32)

@@ -159,7 +159,7 @@ def rank_for_request(
     if given_probability is not None:
         if given_probability.shape != state.shape:
             raise ValueError(f"probability grid {given_probability.shape} does not match grid {state.shape}")
-        context.completion = lambda _state, _context: given_probability
+        context.completion = lambda _state, _context, corner=None: given_probability
     context.ranker = None  # rank here
     planner = make_planner(spec.name)
     if view_mask is None:

@@ -163,8 +163,11 @@ class GainServer(Node):
         if self.config.completion == "in_process":
             return cnn_completion
 
-        def via_service(state: np.ndarray, context: PlanningContext) -> np.ndarray:
-            grid = grid_to_msg(state, geometry, header.frame_id or self.config.frame_id, header.stamp)
+        def via_service(
+            state: np.ndarray, context: PlanningContext, corner: tuple[int, ...] | None = None
+        ) -> np.ndarray:
+            part = geometry if corner is None else geometry.window(corner, state.shape)
+            grid = grid_to_msg(state, part, header.frame_id or self.config.frame_id, header.stamp)
             timeout_s = self.config.completion_timeout_s
             prob, _ = complete_via_service(self, self._complete_client, grid, self.config.dataset, timeout_s)
             return prob

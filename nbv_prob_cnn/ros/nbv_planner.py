@@ -131,6 +131,11 @@ class PlannerConfig(SensorParams, ArmViewParams):
     )  # fmt: skip
     workspace_min: list = param([], "camera workspace box corner [x, y, z] (grid frame, m; [] = no box)")
     workspace_max: list = param([], "camera workspace box corner [x, y, z] (grid frame, m; [] = no box)")
+    cnn_window: int = param(
+        -1, "CNN window: the CNN completes only the candidate cells' box grown by this margin (cells; 48 = "
+        "3DT's receptive field), unknown cells outside take p0: a cost that follows the workspace in a room; "
+        "-1 = off (every cell the rays read)", min_value=-1, max_value=100000,
+    )  # fmt: skip
     min_camera_height_m: float = param(0.0, "lowest camera position z (grid frame, m; 0 = no limit)",
                                        min_value=-100.0, max_value=100.0)  # fmt: skip
     max_camera_height_m: float = param(0.0, "highest camera position z (grid frame, m; 0 = no limit)",
@@ -321,6 +326,7 @@ class NbvPlanner(Node):
                 frustum.hfov_deg, frustum.vfov_deg, frustum.max_range_m, frustum.min_range_m,
             )  # fmt: skip
             context.gain_variant = cfg.gain_variant
+            context.cnn_window = None if cfg.cnn_window < 0 else cfg.cnn_window
             cfg.apply_sensor_model(context, geometry.resolution)
             box = self._planning_box(request)
             top_k = max(1, int(request.top_k), cfg.markers_top_k)

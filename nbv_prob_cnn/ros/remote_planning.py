@@ -101,7 +101,12 @@ class RemotePlanning:
                 carved[:] = [(state, grid_to_msg(state, geometry, grid.header.frame_id, grid.header.stamp))]
             return carved[0][1]
 
-        def complete(state: np.ndarray, context: PlanningContext) -> np.ndarray:
+        def complete(state: np.ndarray, context: PlanningContext, corner: tuple[int, ...] | None = None) -> np.ndarray:
+            if corner is not None:  # the CNN window: that part of the grid alone
+                part = grid_to_msg(state, geometry.window(corner, state.shape), grid.header.frame_id, grid.header.stamp)
+                prob, reply = complete_via_service(node, self._complete_client, part, dataset, timeout_s, interrupt)
+                self.server_times.update(cnn_server=reply.time_total_s, cnn_inference=reply.inference_time_s)
+                return prob
             prob, reply = complete_via_service(
                 node, self._complete_client, grid_msg(state), dataset, timeout_s, interrupt
             )

@@ -1,10 +1,14 @@
 """Issue 35, "through the nodes": a 256 × 256 × 192 grid (12.6 M cells: a 12.6 MB ``VoxelGrid``, a
 50 MB ``ProbabilityGrid``) published as the integrator's ``/nbv/grid/compressed`` and planned on by
 ``nbv_planner`` through ``completion_server`` and ``gain_server``, ``cnn_prob`` in a workspace box:
-the same ranking as the in-process planner on the same grid."""
+the same ranking as the in-process planner on the same grid; then by a planner with the CNN window
+(``cnn_window``), whose completion request carries the window alone: the same ranking as the
+in-process planner with that window."""
 
 from __future__ import annotations
 
+import os
+import signal
 import time
 
 import numpy as np
@@ -75,14 +79,7 @@ def test_a_room_sized_grid_is_planned_on_through_the_servers(ros):
     client = node.create_client(PlanNextBestView, "/nbv/plan")
     executor = rclpy.executors.SingleThreadedExecutor(context=context)
     executor.add_node(node)
-    for _ in range(120):  # "no grid" while the 12.6 MB grid is on its way
-        # a plan takes tens of seconds: a copy sent every 10 s (test_ros_planning.call) would queue
-        # duplicate plans, so a copy goes only after 150 s without an answer (a lost request)
-        reply = call_with_resend(client, request, 600.0, executor=executor, resend_s=150.0)
-        if reply.success or "no grid" not in reply.message:
-            break
-        time.sleep(0.5)
-    executor.remove_node(node)
+    reply = _plan(client, request, executor)
     assert reply.success, reply.message
     assert reply.time_cnn_s > 0.0  # the probabilities came from completion_server
 
@@ -95,3 +92,35 @@ def test_a_room_sized_grid_is_planned_on_through_the_servers(ros):
     best = np.array([getattr(reply.best_pose.pose.position, a) for a in "xyz"])
     np.testing.assert_allclose(best, GEOMETRY.cell_centre(core[0].cell), atol=1e-6)
     assert np.all(best >= BOX_MIN) and np.all(best <= BOX_MAX)
+
+    # the CNN window: the planner sends the workspace's candidates' box grown by 48 cells alone
+    first = graph.processes["nbv_planner"]
+    os.killpg(first.pid, signal.SIGINT)
+    assert first.wait(timeout=60) == 0
+    graph.start_node("nbv_planner_window", "nbv_planner", {**planner, "cnn_window": WINDOW})
+    client = node.create_client(PlanNextBestView, "/nbv/plan")
+    assert client.wait_for_service(timeout_sec=300.0), "the windowed planner did not come up"
+    windowed = _plan(client, request, executor)
+    assert windowed.success, windowed.message
+    window_context = PlanningContext(dataset_defaults("3dt"), backend="opencl", cnn_window=WINDOW)
+    core_window = GainPlanner(GAIN_METHODS["cnn_prob"]).rank(state, window_context, 5, inside)
+    np.testing.assert_allclose([v.gain for v in windowed.ranked], [c.gain for c in core_window], rtol=1e-3)
+    best = np.array([getattr(windowed.best_pose.pose.position, a) for a in "xyz"])
+    np.testing.assert_allclose(best, GEOMETRY.cell_centre(core_window[0].cell), atol=1e-6)
+    executor.remove_node(node)
+
+
+#: The CNN window's margin (cells): 3DT's receptive field.
+WINDOW = 48
+
+
+def _plan(client, request, executor) -> PlanNextBestView.Response:
+    """The planner's answer once the grid has arrived ("no grid" before)."""
+    for _ in range(120):  # "no grid" while the 12.6 MB grid is on its way
+        # a plan takes tens of seconds: a copy sent every 10 s (test_ros_planning.call) would queue
+        # duplicate plans, so a copy goes only after 150 s without an answer (a lost request)
+        reply = call_with_resend(client, request, 600.0, executor=executor, resend_s=150.0)
+        if reply.success or "no grid" not in reply.message:
+            break
+        time.sleep(0.5)
+    return reply

@@ -87,3 +87,49 @@ def test_a_workspace_plans_on_the_cnn_of_its_reach(state_3dt, monkeypatch):
     windowed = PlanningContext.for_dataset("3dt", backend="opencl", sensor=sensor, cnn_window=16)
     found = make_planner("cnn_prob").rank(state_3dt, windowed, 5, workspace)
     assert found and all(c.cell[0] < 24 and c.cell[1] < 30 and c.cell[2] > 20 for c in found)
+
+
+def test_the_cnn_window_through_hooks_equals_the_window_here(state_3dt):
+    """With a completion service (the hooks of nbv_planner's remote path) the CNN window travels alone:
+    the hook gets the window's grid and corner, and the ranking gets the same map as the window
+    completed here, hence the same views."""
+    from nbv_prob_cnn.planners.requests import rank_for_request
+
+    sensor = Sensor(60.0, 46.0, 40)
+
+    def workspace(origins):
+        return origins[(origins[:, 0] < 24) & (origins[:, 1] < 30) & (origins[:, 2] > 20)]
+
+    here = PlanningContext.for_dataset("3dt", backend="opencl", sensor=sensor, cnn_window=16)
+    expected = make_planner("cnn_prob").rank(state_3dt, here, 5, workspace)
+    sent, maps = [], []
+
+    def service(window_state, _context, corner=None):
+        sent.append((window_state.shape, corner))
+        return complete(window_state, dataset="3dt")
+
+    def ranker(name, grid, prob, top_k):
+        maps.append(prob)
+        server = PlanningContext.for_dataset("3dt", backend="opencl", sensor=sensor)
+        return rank_for_request(name, "ig", grid, server, top_k, workspace, prob)
+
+    remote = PlanningContext.for_dataset(
+        "3dt", backend="opencl", sensor=sensor, cnn_window=16, completion=service, ranker=ranker
+    )
+    got = make_planner("cnn_prob").rank(state_3dt, remote, 5, workspace)  # the box: in a request, to the ranker
+    assert [(tuple(c.cell), c.view_index, c.gain) for c in got] == [
+        (tuple(c.cell), c.view_index, c.gain) for c in expected
+    ]
+    # one call with the window alone: the candidates' box (x < 24, y < 30, z > 20) grown by 16 cells
+    assert len(sent) == 1
+    shape, corner = sent[0]
+    origins = workspace(here.candidate_origins(state_3dt))
+    lo = np.maximum(origins.min(axis=0) - 16, 0)
+    hi = np.minimum(origins.max(axis=0) + 17, state_3dt.shape)
+    assert corner == tuple(int(v) for v in lo) and shape == tuple(int(v) for v in hi - lo)
+    assert shape[0] < state_3dt.shape[0] and shape[1] < state_3dt.shape[1]
+    # outside the window the unknown cells carry p0
+    outside = np.ones(state_3dt.shape, dtype=bool)
+    outside[tuple(slice(a, b) for a, b in zip(lo, hi, strict=True))] = False
+    unknown_outside = outside & (state_3dt == -1)
+    assert unknown_outside.any() and np.all(maps[0][unknown_outside] == np.float32(here.defaults.p0))
