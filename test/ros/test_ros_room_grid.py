@@ -27,7 +27,7 @@ from nbv_prob_cnn.planners import GainPlanner, PlanningContext  # noqa: E402
 from nbv_prob_cnn.planners.methods import GAIN_METHODS  # noqa: E402
 from nbv_prob_cnn.planners.requests import origin_filter  # noqa: E402
 from nbv_prob_cnn.ros.conversions import compress_grid_msg, grid_to_msg  # noqa: E402
-from nbv_prob_cnn.ros.graph import call_with_resend  # noqa: E402
+from nbv_prob_cnn.ros.graph import call_with_resend, wait_for  # noqa: E402
 from nbv_prob_cnn.ros.qos import GRID_QOS  # noqa: E402
 
 pytestmark = pytest.mark.slow  # a ROS graph and a room-sized CNN pass
@@ -98,6 +98,9 @@ def test_a_room_sized_grid_is_planned_on_through_the_servers(ros):
     os.killpg(first.pid, signal.SIGINT)
     assert first.wait(timeout=60) == 0
     graph.start_node("nbv_planner_window", "nbv_planner", {**planner, "cnn_window": WINDOW})
+    log = graph.log_dir / "nbv_planner_window.log"
+    # its own "ready", not the service: the stopped planner's /nbv/plan can linger in the graph's cache
+    assert wait_for(lambda: log.exists() and "nbv_planner ready" in log.read_text(), 300.0), "no windowed planner"
     client = node.create_client(PlanNextBestView, "/nbv/plan")
     assert client.wait_for_service(timeout_sec=300.0), "the windowed planner did not come up"
     windowed = _plan(client, request, executor)
