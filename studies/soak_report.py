@@ -521,21 +521,6 @@ def _plot(report: SoakReport, path: Path, title: str) -> None:
     plt.close(fig)
 
 
-__all__ = [
-    "KINDS",
-    "ProcessSample",
-    "RequestMix",
-    "RequestSpec",
-    "RequestTally",
-    "SoakReport",
-    "build_report",
-    "growth",
-    "read_events",
-    "sample_process",
-    "tally_requests",
-    "write_report",
-]
-
 #: Lines of a crashed node's log shown in the report (a node killed at the stop has its thread stacks there).
 LOG_TAIL_LINES = 60
 
@@ -547,3 +532,20 @@ def log_tail(path: Path, lines: int = LOG_TAIL_LINES) -> str:
     except OSError:
         return ""
     return f"; the end of its log ({path.name}):\n\n```\n" + "\n".join(tail) + "\n```\n"
+
+
+__all__ = [
+    "KINDS",
+    "ProcessSample",
+    "RequestMix",
+    "RequestSpec",
+    "RequestTally",
+    "SoakReport",
+    "build_report",
+    "growth",
+    "log_tail",
+    "read_events",
+    "sample_process",
+    "tally_requests",
+    "write_report",
+]

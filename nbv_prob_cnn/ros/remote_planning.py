@@ -102,15 +102,14 @@ class RemotePlanning:
             return carved[0][1]
 
         def complete(state: np.ndarray, context: PlanningContext, corner: tuple[int, ...] | None = None) -> np.ndarray:
-            if corner is not None:  # the CNN window: that part of the grid alone
-                part = grid_to_msg(state, geometry.window(corner, state.shape), grid.header.frame_id, grid.header.stamp)
-                prob, reply = complete_via_service(node, self._complete_client, part, dataset, timeout_s, interrupt)
-                self.server_times.update(cnn_server=reply.time_total_s, cnn_inference=reply.inference_time_s)
-                return prob
-            prob, reply = complete_via_service(
-                node, self._complete_client, grid_msg(state), dataset, timeout_s, interrupt
-            )
-            completed["msg"], completed["prob"] = reply.probability, prob
+            if corner is None:
+                message = grid_msg(state)
+            else:  # the CNN window: that part of the grid alone
+                message = grid_to_msg(state, geometry.window(corner, state.shape), grid.header.frame_id,
+                                      grid.header.stamp)  # fmt: skip
+            prob, reply = complete_via_service(node, self._complete_client, message, dataset, timeout_s, interrupt)
+            if corner is None:  # the whole grid's map: the ranking request can carry the reply's message
+                completed["msg"], completed["prob"] = reply.probability, prob
             self.server_times.update(cnn_server=reply.time_total_s, cnn_inference=reply.inference_time_s)
             return prob
 
