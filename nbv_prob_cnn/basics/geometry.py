@@ -10,6 +10,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from nbv_prob_cnn.basics.region import Region
+
 
 @dataclass(frozen=True)
 class GridGeometry:
@@ -37,6 +39,23 @@ class GridGeometry:
         origin = np.asarray(self.origin, dtype=np.float64).copy()
         origin[: len(corner)] += np.asarray(corner, dtype=np.float64) * self.resolution
         return GridGeometry((float(origin[0]), float(origin[1]), float(origin[2])), self.resolution, tuple(shape))
+
+    def box_region(self, box_min: np.ndarray, box_max: np.ndarray) -> Region | None:
+        """A cell box ``(lo, hi)`` (``hi`` exclusive) holding every cell whose centre lies in the axis-aligned
+        box (metres; :meth:`cells_in_box`'s cells), one cell wider on each side against rounding and
+        clipped to the grid; None when no cell of the grid can be in it.
+
+        Raises:
+            ValueError: non-finite bounds or ``box_min > box_max`` on some axis.
+        """
+        self.cells_in_box(np.zeros((0, self.dims), dtype=np.int64), box_min, box_max)  # validates the bounds
+        # centre i in [min, max] <=> to_index(min) <= i <= to_index(max)
+        lo = np.ceil(self.to_index(np.asarray(box_min, dtype=np.float64)[:3])).astype(np.int64) - 1
+        hi = np.floor(self.to_index(np.asarray(box_max, dtype=np.float64)[:3])).astype(np.int64) + 2
+        lo, hi = np.maximum(lo, 0), np.minimum(hi, np.asarray(self.shape))
+        if np.any(hi <= lo):
+            return None
+        return tuple(int(v) for v in lo), tuple(int(v) for v in hi)
 
     def cell_centre(self, cell: np.ndarray) -> np.ndarray:
         """World position (3 components, z = origin z in 2D) of cell centres ``(..., dims)``."""

@@ -121,10 +121,12 @@ def _step(path: str, state: np.ndarray, box: tuple[np.ndarray, np.ndarray] | Non
     from nbv_prob_cnn.completion import complete
     from nbv_prob_cnn.gain import best_origin_view
     from nbv_prob_cnn.planners import PlanningContext, make_planner
-    from nbv_prob_cnn.planners.base import ViewChoice
+    from nbv_prob_cnn.planners.base import BoundedFilter, ViewChoice
 
     def inside(origins: np.ndarray) -> np.ndarray:
         return origins if box is None else origins[np.all((origins >= box[0]) & (origins < box[1]), axis=1)]
+
+    in_box = None if box is None else BoundedFilter((tuple(box[0]), tuple(box[1])), inside)
 
     context = PlanningContext.for_dataset(
         "3dt", backend="opencl", origin_stride=1, cnn_window=WINDOW_MARGIN if path == "window" else None
@@ -141,7 +143,7 @@ def _step(path: str, state: np.ndarray, box: tuple[np.ndarray, np.ndarray] | Non
         found = [ViewChoice(origins[index], int(view), float(gain))] if gain > 0.0 else []
         candidates = origins.shape[0]
     else:
-        found = make_planner("cnn_prob").rank(state, context, 1, None if box is None else inside)
+        found = make_planner("cnn_prob").rank(state, context, 1, in_box)
         cnn_s = found[0].times["cnn"] if found else float("nan")
         candidates = -1  # counted after the peak RSS is read (the planner does not report them)
     seconds = time.perf_counter() - start

@@ -40,7 +40,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from nbv_prob_cnn.basics.grid import OCCUPIED, UNKNOWN, check_state
+from nbv_prob_cnn.basics.grid import UNKNOWN, check_state, probability_with_constant
 from nbv_prob_cnn.basics.region import Region, check_region, region_slices
 from nbv_prob_cnn.completion.inference import complete, load_model, resolve_device
 from nbv_prob_cnn.completion.model import CompletionNet
@@ -179,11 +179,6 @@ def plan_tiles(
     return tiles
 
 
-def _known_probability(state: np.ndarray, fill: float) -> np.ndarray:
-    """0 on empty, 1 on occupied and ``fill`` on unknown cells (float32)."""
-    return np.where(state == UNKNOWN, np.float32(fill), (state == OCCUPIED).astype(np.float32)).astype(np.float32)
-
-
 def _resolve(model: CompletionNet | str | None, dataset: str | None, device) -> CompletionNet:
     if isinstance(model, CompletionNet):
         net = model
@@ -235,7 +230,7 @@ def complete_region(
     whole = check_region(None, state.shape)
     if len(tiles) == 1 and tiles[0].core == tiles[0].window == whole:
         return complete(state, model=net, device=device)  # one pass over the grid: no copies
-    out = _known_probability(state, fill)
+    out = probability_with_constant(state, fill)
     for tile in tiles:
         core = tile.slices("core")
         if not np.any(state[core] == UNKNOWN):
@@ -266,7 +261,7 @@ def complete_window(
     """
     state = check_state(state)
     crop = region_slices(check_region(window, state.shape, "window"))
-    out = _known_probability(state, p0)
+    out = probability_with_constant(state, p0)
     inner = np.ascontiguousarray(state[crop])
     if completion is None:
         out[crop] = complete_region(inner, None, model, dataset, p0, device, max_window_cells)

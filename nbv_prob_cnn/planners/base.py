@@ -12,6 +12,7 @@ import numpy as np
 
 from nbv_prob_cnn.basics.camera import DatasetDefaults, Sensor, dataset_defaults, orientations, yaw_quaternion
 from nbv_prob_cnn.basics.geometry import GridGeometry
+from nbv_prob_cnn.basics.region import Region
 from nbv_prob_cnn.basics.view_pose import ViewPose, view_pose
 from nbv_prob_cnn.gain import best_origin_view, empty_origins, origin_view_gains, ray_directions, view_membership
 from nbv_prob_cnn.gain.original_sets import original_view_set
@@ -42,6 +43,34 @@ class CompletionHook(Protocol):
 RankHook = Callable[[str, np.ndarray, "np.ndarray | None", int], "list[ViewChoice]"]
 #: Narrows candidate origins (e.g. to a reachable box): ``(N, dims) -> (M, dims)``.
 OriginFilter = Callable[[np.ndarray], np.ndarray]
+
+
+@dataclass(frozen=True)
+class BoundedFilter:
+    """An origin filter whose kept origins all lie in the cell box ``region``: the planners list
+    candidates in that box alone (:func:`filtered_origins`), at the cost of the box instead of the
+    grid (a 1.5 m workspace in the 29.7 M-cell kitchen: 1.1 s of a 3.7 s step went to listing every
+    empty cell of the room). ``keep`` is the filter proper."""
+
+    region: Region
+    keep: OriginFilter
+
+    def __call__(self, origins: np.ndarray) -> np.ndarray:
+        return self.keep(origins)
+
+
+def filter_region(origin_filter: OriginFilter | None) -> Region | None:
+    """The cell box all origins that ``origin_filter`` keeps lie in (None: anywhere)."""
+    return origin_filter.region if isinstance(origin_filter, BoundedFilter) else None
+
+
+def filtered_origins(state: np.ndarray, context: PlanningContext, origin_filter: OriginFilter | None) -> np.ndarray:
+    """The context's candidate origins that ``origin_filter`` keeps, listed in its box alone when it
+    has one: the same origins, in the same order, as filtering every candidate of the grid."""
+    origins = context.candidate_origins(state, filter_region(origin_filter))
+    return origins if origin_filter is None else origin_filter(origins)
+
+
 #: Allowed orientations at origins: ``(N, 3)`` cells → ``(N, V)`` bool (e.g. a capability map).
 ViewMask = Callable[[np.ndarray], np.ndarray]
 
@@ -149,9 +178,9 @@ class PlanningContext:
             return yaw_quaternion(float(orientation))
         return np.asarray(orientation, dtype=np.float64)
 
-    def candidate_origins(self, state: np.ndarray) -> np.ndarray:
-        """Empty cells, on the origin stride (default: the data set's)."""
-        return empty_origins(state, self.origin_stride or self.defaults.origin_stride)
+    def candidate_origins(self, state: np.ndarray, region: Region | None = None) -> np.ndarray:
+        """Empty cells, on the origin stride (default: the data set's); ``region``: of that cell box only."""
+        return empty_origins(state, self.origin_stride or self.defaults.origin_stride, region)
 
 
 @dataclass

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from nbv_prob_cnn.gain import empty_origins
-from nbv_prob_cnn.planners.base import OriginFilter, PlanningContext, RankingPlanner, ViewChoice
+from nbv_prob_cnn.planners.base import OriginFilter, PlanningContext, RankingPlanner, ViewChoice, filter_region
 
 
 class RandomPlanner(RankingPlanner):
@@ -16,7 +16,7 @@ class RandomPlanner(RankingPlanner):
     def rank_here(
         self, state: np.ndarray, context: PlanningContext, top_k: int, origin_filter: OriginFilter | None
     ) -> list[ViewChoice]:
-        origins = empty_origins(state)
+        origins = empty_origins(state, region=filter_region(origin_filter))
         if origin_filter is not None:
             origins = origin_filter(origins)
         if origins.shape[0] == 0:

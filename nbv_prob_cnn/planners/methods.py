@@ -31,6 +31,7 @@ from nbv_prob_cnn.planners.base import (
     RankingPlanner,
     ViewChoice,
     ViewMask,
+    filtered_origins,
     search_views,
 )
 from nbv_prob_cnn.planners.candidates import near_unknown_origins, ray_reach
@@ -100,9 +101,7 @@ def method_origins(
 ) -> np.ndarray:
     """Candidate origins of the method: the context's, narrowed by ``origin_filter`` (e.g. a
     reachable box), then for the downsampled method a random subset of fixed size."""
-    origins = context.candidate_origins(state)
-    if origin_filter is not None:
-        origins = origin_filter(origins)
+    origins = filtered_origins(state, context, origin_filter)
     count = DOWNSAMPLED_ORIGINS[state.ndim]
     if method.downsampled and origins.shape[0] > count:
         keep = np.sort(context.rng.choice(origins.shape[0], size=count, replace=False))

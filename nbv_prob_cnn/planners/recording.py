@@ -8,7 +8,15 @@ import time
 import numpy as np
 
 from nbv_prob_cnn.arm.feasibility import takes_view_mask
-from nbv_prob_cnn.planners.base import OriginFilter, Planner, PlanningContext, ViewChoice, ViewMask
+from nbv_prob_cnn.planners.base import (
+    BoundedFilter,
+    OriginFilter,
+    Planner,
+    PlanningContext,
+    ViewChoice,
+    ViewMask,
+    filter_region,
+)
 
 
 class RecordingPlanner:
@@ -48,13 +56,15 @@ class RecordingPlanner:
         def both(origins: np.ndarray) -> np.ndarray:
             return keep(origins if capability is None else arm_filter(origins))
 
+        region = filter_region(keep)  # every origin ``both`` keeps passed ``keep``
+        searched: OriginFilter = both if region is None else BoundedFilter(region, both)
         self.arm_filter = None if capability is None else arm_filter
         self.view_mask = view_mask  # a remote ranking gets it as allowed_views
         start = time.perf_counter()
         if view_mask is None:
-            self.ranked = self.planner.rank(state, context, top_k, both)
+            self.ranked = self.planner.rank(state, context, top_k, searched)
         else:
-            self.ranked = self.planner.rank(state, context, top_k, both, view_mask=view_mask)  # type: ignore[call-arg]
+            self.ranked = self.planner.rank(state, context, top_k, searched, view_mask=view_mask)  # type: ignore[call-arg]
         self.seconds = time.perf_counter() - start
         return self.ranked
 

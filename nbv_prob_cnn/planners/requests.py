@@ -12,7 +12,7 @@ import numpy as np
 from nbv_prob_cnn.basics.camera import dataset_defaults
 from nbv_prob_cnn.basics.geometry import GridGeometry
 from nbv_prob_cnn.planners import GAIN_METHODS, GainMethod, PlanningContext, ViewChoice, make_planner, ros_method
-from nbv_prob_cnn.planners.base import OriginFilter, ViewMask
+from nbv_prob_cnn.planners.base import BoundedFilter, OriginFilter, ViewMask
 from nbv_prob_cnn.planners.methods import GainPlanner
 
 
@@ -80,7 +80,8 @@ def origin_filter(
     max_origins: int,
     rng: np.random.Generator,
 ) -> Callable[[np.ndarray], np.ndarray]:
-    """Keep origins inside the workspace box (if asked), then at most ``max_origins`` at random."""
+    """Keep origins inside the workspace box (if asked), then at most ``max_origins`` at random; with a
+    workspace a :class:`~nbv_prob_cnn.planners.base.BoundedFilter` (candidates are listed in its cells)."""
 
     def apply(origins: np.ndarray) -> np.ndarray:
         if use_workspace:
@@ -89,7 +90,8 @@ def origin_filter(
             origins = origins[np.sort(rng.choice(origins.shape[0], size=max_origins, replace=False))]
         return origins
 
-    return apply
+    region = geometry.box_region(box_min, box_max) if use_workspace else None
+    return apply if region is None else BoundedFilter(region, apply)
 
 
 def flat_cells(cells: np.ndarray, shape: tuple[int, ...]) -> np.ndarray:

@@ -114,3 +114,25 @@ def test_origins_near_unknown_keep_every_origin_within_reach(rng, reach):
     kept_distance = ndimage.distance_transform_cdt(state != -1, metric="chessboard")[tuple(kept.T)]
     assert kept_distance.max() < reach + 2 * 4 and kept.shape[0] < origins.shape[0]
     assert np.all(np.diff(np.ravel_multi_index(tuple(kept.T), state.shape)) > 0)  # order kept
+
+
+@pytest.mark.parametrize("stride", [1, 2, 3])
+def test_empty_origins_of_a_region_are_the_grids_cut_to_it(rng, stride):
+    """Listing a box's empty cells gives the whole grid's list cut to the box, in the same order, on the
+    grid's lattice (boxes off the lattice, partly outside the grid, thinner than the stride)."""
+    state = _state(rng, (23, 19, 14), 0.2)
+    every = empty_origins(state, stride)
+    for lo, hi in [
+        ((0, 0, 0), (23, 19, 14)),
+        ((1, 2, 3), (20, 7, 11)),
+        ((-4, 5, 5), (9, 40, 6)),
+        ((5, 5, 5), (6, 6, 6)),
+    ]:
+        inside = np.all((every >= np.maximum(lo, 0)) & (every < np.array(hi)), axis=1)
+        np.testing.assert_array_equal(empty_origins(state, stride, (lo, hi)), every[inside])
+    flat = _state(rng, (30, 17), 0.2)
+    every = empty_origins(flat, stride)
+    inside = np.all((every >= [3, 4]) & (every < [25, 11]), axis=1)
+    np.testing.assert_array_equal(empty_origins(flat, stride, ((3, 4), (25, 11))), every[inside])
+    with pytest.raises(ValueError, match="region"):
+        empty_origins(state, stride, ((30, 0, 0), (40, 5, 5)))  # no cell of the grid

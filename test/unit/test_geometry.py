@@ -1,6 +1,7 @@
 """GridGeometry (nbv_prob_cnn.basics.geometry): a window of a grid has its cells where the grid has them."""
 
 import numpy as np
+import pytest
 
 from nbv_prob_cnn.basics.geometry import GridGeometry
 
@@ -19,3 +20,34 @@ def test_a_window_of_a_2d_grid_keeps_its_height():
     window = grid.window((2, 3), (4, 4))
     assert window.origin == (2.0, 3.5, 0.3)
     np.testing.assert_allclose(window.cell_centre(np.array([[1, 1]])), grid.cell_centre(np.array([[3, 4]])))
+
+
+def test_box_region_holds_every_cell_whose_centre_is_in_the_box():
+    """Against the cell-by-cell test (cells_in_box) on random grids and boxes, some partly outside."""
+    rng = np.random.default_rng(3)
+    for _ in range(300):
+        shape = tuple(int(v) for v in rng.integers(1, 12, size=int(rng.integers(2, 4))))
+        grid = GridGeometry(tuple(float(v) for v in rng.uniform(-2, 2, 3)), float(rng.uniform(0.05, 0.5)), shape)
+        low = rng.uniform(-3, 3, 3)
+        high = low + rng.uniform(0, 2, 3)
+        cells = np.argwhere(np.ones(shape, dtype=bool))
+        centred = grid.cells_in_box(cells, low, high)
+        region = grid.box_region(low, high)
+        if region is None:
+            assert not centred.any()
+            continue
+        inside = np.all((cells >= region[0]) & (cells < np.array(region[1])), axis=1)
+        assert not np.any(centred & ~inside)
+        # at most one cell of slack per side beyond the centred cells' own box
+        if centred.any():
+            assert np.all(cells[centred].min(axis=0) - np.array(region[0]) <= 1)
+            assert np.all(np.array(region[1]) - cells[centred].max(axis=0) <= 2)
+
+
+def test_box_region_by_hand_and_its_bad_bounds():
+    grid = GridGeometry((0.0, 0.0, 0.0), 0.5, (10, 10, 10))
+    # centres 0.25, 0.75, ...: x in [1.0, 2.0] holds cells 2 and 3; one more cell each side
+    assert grid.box_region([1.0, 0.0, 0.0], [2.0, 5.0, 0.3]) == ((1, 0, 0), (5, 10, 2))
+    assert grid.box_region([10.0, 0.0, 0.0], [11.0, 1.0, 1.0]) is None  # beyond the grid
+    with pytest.raises(ValueError, match="workspace"):
+        grid.box_region([0.0, 0.0, float("nan")], [1.0, 1.0, 1.0])

@@ -133,3 +133,38 @@ def test_the_cnn_window_through_hooks_equals_the_window_here(state_3dt):
     outside[tuple(slice(a, b) for a, b in zip(lo, hi, strict=True))] = False
     unknown_outside = outside & (state_3dt == -1)
     assert unknown_outside.any() and np.all(maps[0][unknown_outside] == np.float32(here.defaults.p0))
+
+
+def test_a_workspace_box_lists_its_candidates_in_its_cells_alone(state_3dt, monkeypatch):
+    """A request's workspace (a box in metres) and origin budget, as nbv_planner builds them: the planner
+    lists empty cells in the box's cells only, and ranks as with the same filter over every empty cell
+    (the same origins, so the same random draw of the budget)."""
+    from nbv_prob_cnn.basics.geometry import GridGeometry
+    from nbv_prob_cnn.planners.base import BoundedFilter
+    from nbv_prob_cnn.planners.recording import RecordingPlanner
+    from nbv_prob_cnn.planners.requests import origin_filter
+
+    geometry = GridGeometry((-0.2, 0.1, 0.0), 0.0116, state_3dt.shape)
+    low, high = np.array([0.0, 0.3, 0.3]), np.array([0.6, 1.2, 0.9])
+
+    def request_filter():
+        return origin_filter(geometry, True, low, high, 400, np.random.default_rng(5))
+
+    bounded = request_filter()
+    assert isinstance(bounded, BoundedFilter)
+    lo, hi = bounded.region
+    assert hi[0] - lo[0] < state_3dt.shape[0] and hi[1] - lo[1] < state_3dt.shape[1]
+    context = PlanningContext.for_dataset("3dt", backend="opencl")
+    listed = []
+    listing = PlanningContext.candidate_origins
+    monkeypatch.setattr(
+        PlanningContext,
+        "candidate_origins",
+        lambda self, s, region=None: listed.append(region) or listing(self, s, region),
+    )
+    for name in ("prob_ig", "cnn_prob"):
+        expected = make_planner(name).rank(state_3dt, context, 5, request_filter().keep)  # every empty cell listed
+        got = RecordingPlanner(make_planner(name), request_filter()).rank(state_3dt, context, 5)
+        assert expected and all(geometry.cells_in_box(np.array([c.cell for c in got]), low, high))
+        _same_views(got, expected)
+    assert listed == [None, bounded.region] * 2
