@@ -116,6 +116,7 @@ from nbv_prob_cnn.ros import names
 from nbv_prob_cnn.ros.conversions import compress_grid_msg, grid_to_msg, time_msg
 from nbv_prob_cnn.ros.drop_report import DropReport
 from nbv_prob_cnn.ros.integrator_config import IntegratorConfig
+from nbv_prob_cnn.ros.latest_sent import LatestSent
 from nbv_prob_cnn.ros.occupied_cloud import occupied_cloud_msg
 from nbv_prob_cnn.ros.parameters import declare_config
 from nbv_prob_cnn.ros.qos import GRID_QOS, lost_message_counter, subscription_qos
@@ -202,13 +203,13 @@ class Integrator(Node):
         self._grid_pub = self.create_publisher(VoxelGrid, TOPIC_GRID, GRID_QOS)
         self._compressed_pub = self.create_publisher(CompressedVoxelGrid, names.GRID_COMPRESSED, GRID_QOS)
         self._compressed_lock = threading.Lock()  # the worker (new grids) and a timer both send compressed grids
-        self._compressed_sent: tuple[VoxelGrid | None, int] = (None, 0)  # the grid sent compressed, subscribers then
+        self._compressed_sent = LatestSent()  # the grid sent compressed, and the subscribers then
         self._compressed_of: tuple[VoxelGrid | None, CompressedVoxelGrid | None] = (None, None)  # the latest packed
         self._cloud_pub = self.create_publisher(PointCloud2, TOPIC_OCCUPIED_CELLS, 1)
         self._next_cloud = 0.0
         self._cloud_lock = threading.Lock()  # the worker (new grids) and the cloud timer both publish clouds
         self._cloud_grid: tuple[np.ndarray, int] | None = None  # the latest grid and its stamp
-        self._cloud_sent = (-1, 0)  # stamp of the last cloud sent, and the subscribers then
+        self._cloud_sent = LatestSent()  # the (grid, stamp) of the last cloud sent, and the subscribers then
         inputs = MutuallyExclusiveCallbackGroup()
         services = MutuallyExclusiveCallbackGroup()
         image, info, pose = (
@@ -539,15 +540,10 @@ class Integrator(Node):
         grids) and a timer call it."""
         with self._compressed_lock:
             msg, subscribers = self._last_grid, self._compressed_pub.get_subscription_count()
-            sent, sent_subscribers = self._compressed_sent
-            if msg is None or subscribers == 0 or not self.context.ok():
-                self._compressed_sent = (sent, 0)  # whoever subscribes next is new
-                return
-            if msg is sent and subscribers <= sent_subscribers:
-                self._compressed_sent = (sent, subscribers)  # sent already (someone left: fewer now)
+            if not self.context.ok() or not self._compressed_sent.due(msg, subscribers):
                 return
             self._compressed_pub.publish(self._compressed(msg))
-            self._compressed_sent = (msg, subscribers)
+            self._compressed_sent.sent(msg, subscribers)
             self.counts["grids_compressed"] += 1
 
     def _compressed(self, msg: VoxelGrid) -> CompressedVoxelGrid:
@@ -568,19 +564,15 @@ class Integrator(Node):
         if cloud_rate <= 0 or not self.context.ok():
             return
         with self._cloud_lock:
-            subscribers = self._cloud_pub.get_subscription_count()
-            sent_stamp, sent_subscribers = self._cloud_sent
-            if self._cloud_grid is None or subscribers == 0:
-                self._cloud_sent = (sent_stamp, 0)  # whoever subscribes next is new
-                return
-            grid, stamp_ns = self._cloud_grid
-            if stamp_ns == sent_stamp and subscribers <= sent_subscribers:
-                self._cloud_sent = (sent_stamp, subscribers)  # sent already (someone left: fewer now)
+            latest, subscribers = self._cloud_grid, self._cloud_pub.get_subscription_count()
+            if not self._cloud_sent.due(latest, subscribers):
                 return
             if time.monotonic() < self._next_cloud:
                 return  # throttled: this timer sends it later
+            assert latest is not None
+            grid, stamp_ns = latest
             self._next_cloud = time.monotonic() + 1.0 / cloud_rate
-            self._cloud_sent = (stamp_ns, subscribers)
+            self._cloud_sent.sent(latest, subscribers)
             self._cloud_pub.publish(
                 occupied_cloud_msg(grid, self.geometry.origin, self.geometry.resolution, self.config.fixed_frame,
                                    time_msg(stamp_ns))
