@@ -1,5 +1,5 @@
 """What a narrower completion CNN would buy on this CPU (issue #35: the scale targets' CNN share): the
-forward pass of SPEC's 3DT network (``n_conv`` 4, first block 16 channels) against the same network with
+forward pass of the paper's 3DT network (``n_conv`` 4, first block 16 channels) against the same network with
 fewer channels, on 3DT's grid and the scale bench's 256 × 256 × 192, per width, best of ``--repeats``.
 
 Untrained weights and a random ternary grid: dense convolutions cost the same whatever the values, so no
@@ -18,9 +18,9 @@ import numpy as np
 
 #: Grids timed: 3DT's and the scale bench's largest.
 GRIDS = ((128, 128, 96), (256, 256, 192))
-#: First-block widths timed (16: SPEC's 3D network).
+#: First-block widths timed (16: the paper's 3D network).
 WIDTHS = (16, 12, 8, 4)
-#: Conv blocks of the 3DT network (SPEC's ``N_conv``).
+#: Conv blocks of the 3DT network (the paper's ``N_conv``).
 N_CONV_3DT = 4
 
 
@@ -52,7 +52,7 @@ def save_plot(rows: list[dict], path: Path) -> None:
     fig, ax = plt.subplots(figsize=(6, 4))
     for width in sorted({r["width"] for r in rows}, reverse=True):
         mine = [r for r in rows if r["width"] == width]
-        label = f"{width} channels" + (" (SPEC)" if width == 16 else "")
+        label = f"{width} channels" + (" (the paper's)" if width == 16 else "")
         ax.plot([r["cells"] / 1e6 for r in mine], [r["seconds"] for r in mine], "o-", label=label)
     ax.set_xlabel("grid cells (millions)")
     ax.set_ylabel("CNN forward pass (s)")
@@ -84,14 +84,14 @@ def main(argv: list[str] | None = None) -> int:
     rows: list[dict] = []
     for shape in shapes:
         state = (rng.integers(0, 3, size=shape) - 1).astype(np.int8)
-        spec_s = None
+        paper_s = None
         for width in args.widths:
             seconds = time_width(state, width, args.repeats, args.threads)
-            spec_s = seconds if width == 16 else spec_s
+            paper_s = seconds if width == 16 else paper_s
             row = {"grid": "x".join(map(str, shape)), "cells": int(state.size), "width": width, "seconds": seconds,
-                   "vs_spec": float("nan") if spec_s is None else seconds / spec_s}  # fmt: skip
+                   "vs_paper": float("nan") if paper_s is None else seconds / paper_s}  # fmt: skip
             rows.append(row)
-            print(f"{row['grid']}: {width} channels {seconds:.3f} s ({row['vs_spec']:.2f} of SPEC's)", flush=True)
+            print(f"{row['grid']}: {width} channels {seconds:.3f} s ({row['vs_paper']:.2f} of the paper's)", flush=True)
     args.out.mkdir(parents=True, exist_ok=True)
     with open(args.out / "cnn_width.csv", "w", newline="") as handle:
         writer = csv.DictWriter(handle, fieldnames=list(rows[0]))

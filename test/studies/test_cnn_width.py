@@ -1,4 +1,4 @@
-"""The width timing study (studies.cnn_width) on a small grid: one row per width, ratios to SPEC's width."""
+"""The width timing study (studies.cnn_width) on a small grid: one row per width, ratios to the paper's width."""
 
 import csv
 
@@ -12,8 +12,8 @@ def test_cnn_width_writes_a_row_per_width_and_the_plot(tmp_path):
     with open(tmp_path / "cnn_width.csv") as handle:
         rows = list(csv.DictReader(handle))
     assert [(r["grid"], r["width"]) for r in rows] == [("40x36x32", "16"), ("40x36x32", "8")]
-    assert float(rows[0]["vs_spec"]) == 1.0
-    assert float(rows[1]["vs_spec"]) == pytest.approx(float(rows[1]["seconds"]) / float(rows[0]["seconds"]))
+    assert float(rows[0]["vs_paper"]) == 1.0
+    assert float(rows[1]["vs_paper"]) == pytest.approx(float(rows[1]["seconds"]) / float(rows[0]["seconds"]))
     assert (tmp_path / "cnn_width.png").stat().st_size > 0
 
 
