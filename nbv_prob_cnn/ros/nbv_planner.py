@@ -331,7 +331,10 @@ class NbvPlanner(Node):
             box = self._planning_box(request)
             top_k = max(1, int(request.top_k), cfg.markers_top_k)
             low, high = box if box is not None else (np.zeros(3), np.zeros(3))  # unused without a box
-            keep = origin_filter(geometry, box is not None, low, high, int(request.max_origins), self._rng)
+            # through the servers gain_server draws the origin budget itself: the planner's own candidates
+            # (the CNN window's box, the arm's allowed origins) must hold every origin it may draw
+            budget = int(request.max_origins) if cfg.in_process else 0
+            keep = origin_filter(geometry, box is not None, low, high, budget, self._rng)
             planner = RecordingPlanner(make_planner(ros_method(request.method, cfg.method).name), keep,
                                        self._height_limit(geometry))  # fmt: skip
             if not cfg.in_process:

@@ -24,7 +24,7 @@ from rclpy.node import Node
 from nbv_prob_cnn.basics.geometry import GridGeometry
 from nbv_prob_cnn.basics.interrupt import Interrupt
 from nbv_prob_cnn.planners import PlanningContext, ViewChoice
-from nbv_prob_cnn.planners.base import CompletionHook, RankHook
+from nbv_prob_cnn.planners.base import CompletionHook, RankHook, filter_region
 from nbv_prob_cnn.planners.ranked_views import ranked_from_arrays, view_mask_to_bytes
 from nbv_prob_cnn.planners.recording import RecordingPlanner
 from nbv_prob_cnn.planners.requests import choice_from_pose, flat_cells
@@ -126,7 +126,10 @@ class RemotePlanning:
                 call.workspace_min, call.workspace_max = point(box[0]), point(box[1])
             call.max_origins = max_origins
             if planner.arm_filter is not None and send_allowed:
-                allowed_cells = planner.arm_filter(context.candidate_origins(state))
+                # the workspace's cells alone: gain_server keeps only allowed origins in the workspace
+                allowed_cells = planner.arm_filter(
+                    context.candidate_origins(state, filter_region(planner.request_filter))
+                )
                 allowed = flat_cells(allowed_cells, state.shape)
                 call.allowed_origins = array.array("I", allowed.astype(np.uint32).tobytes())
                 if planner.view_mask is not None:  # the capability map's orientations, never a taken view

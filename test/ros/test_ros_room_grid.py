@@ -3,11 +3,12 @@
 ``nbv_planner`` through ``completion_server`` and ``gain_server``, ``cnn_prob`` in a workspace box:
 the same ranking as the in-process planner on the same grid; then by a planner with the CNN window
 (``cnn_window``), whose completion request carries the window alone: the same ranking as the
-in-process planner with that window."""
+in-process planner with that window, and the same window with an origin budget (drawn by gain_server)."""
 
 from __future__ import annotations
 
 import os
+import re
 import signal
 import time
 
@@ -110,6 +111,15 @@ def test_a_room_sized_grid_is_planned_on_through_the_servers(ros):
     np.testing.assert_allclose([v.gain for v in windowed.ranked], [c.gain for c in core_window], rtol=1e-3)
     best = np.array([getattr(windowed.best_pose.pose.position, a) for a in "xyz"])
     np.testing.assert_allclose(best, GEOMETRY.cell_centre(core_window[0].cell), atol=1e-6)
+
+    # with an origin budget gain_server draws the origins: the window still holds every candidate of the
+    # workspace (the box of a planner-side draw of 5 would be smaller, and its rays would read p0 there)
+    budget = PlanNextBestView.Request(top_k=1, use_workspace=True, max_origins=5)
+    budget.workspace_min, budget.workspace_max = request.workspace_min, request.workspace_max
+    drawn = _plan(client, budget, executor)
+    assert drawn.success, drawn.message
+    windows = re.findall(r"complete: 3dt (\d+x\d+x\d+) in", (graph.log_dir / "completion_server.log").read_text())
+    assert len(windows) == 3 and windows[2] == windows[1] != "256x256x192", windows
     executor.remove_node(node)
 
 
