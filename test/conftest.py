@@ -13,6 +13,16 @@ os.environ.setdefault("NBV_CACHE_DIR", os.path.join(tempfile.gettempdir(), "nbv_
 
 
 @pytest.fixture
+def bf16():
+    """Skips the test where torch has no bfloat16 convolutions on this CPU (no AVX512 or AMX): the
+    opt-in ``cnn_precision="bfloat16"`` is refused there."""
+    import torch
+
+    if not torch.ops.mkldnn._is_mkldnn_bf16_supported():
+        pytest.skip("this CPU has no bfloat16 convolutions (AVX512 or AMX)")
+
+
+@pytest.fixture
 def rng():
     import numpy as np
 

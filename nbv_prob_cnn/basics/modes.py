@@ -15,8 +15,12 @@ Backend = Literal["auto", "opencl", "numpy"]
 #: the arm (arm_sim/move_to_joints with the planned joint goal), or the arm through a
 #: joint_trajectory_controller (control_msgs/FollowJointTrajectory with the timed joint path).
 MoveMode = Literal["service", "topic", "arm", "trajectory"]
+#: Arithmetic of the completion CNN's forward pass: as trained, or bfloat16 under torch's autocast
+#: (opt-in: faster on CPUs with AVX512-BF16 or AMX, probabilities within 0.01; docs/performance.md#scale).
+CnnPrecision = Literal["float32", "bfloat16"]
 
 GAIN_MODES: tuple[GainMode, ...] = get_args(GainMode)
 PROBABILITY_SOURCES: tuple[ProbabilitySource, ...] = get_args(ProbabilitySource)
 BACKEND_NAMES: tuple[Backend, ...] = get_args(Backend)
 MOVE_MODES: tuple[MoveMode, ...] = get_args(MoveMode)
+CNN_PRECISIONS: tuple[CnnPrecision, ...] = get_args(CnnPrecision)

@@ -19,7 +19,9 @@ the grid (weights, kernels) and then times one step:
   space, the CNN by tiles over their reach (:mod:`nbv_prob_cnn.planners.local_completion`), the search
   on that reach;
 * ``window`` (workspace rows): ``local`` with the CNN on the workspace grown by
-  :data:`WINDOW_MARGIN` cells only (``p0`` outside).
+  :data:`WINDOW_MARGIN` cells only (``p0`` outside);
+* ``local_bf16`` (size rows) and ``window_bf16`` (the kitchen's workspace): the same with the CNN in
+  bfloat16 (opt-in, ``cnn_precision``), where the CPU has bfloat16 convolutions.
 
 Workspace rows: the 256×256×192 grid with a centred box of camera positions 0.5, 1.0 and 1.5 m wide
 standing on the table, ``local`` and ``window`` (today's path there is the size row's whole-grid CNN
@@ -51,7 +53,12 @@ GROUPS = ("grids", "kitchen")
 #: Corner of the grid the child plans on first (weights, kernels).
 WARM_UP_CELLS = 48
 #: Colour of each path in the plot.
-PATH_COLOURS = {"today": "tab:blue", "local": "tab:orange", "window": "tab:green"}
+PATH_COLOURS = {
+    "today": "tab:blue", "local": "tab:orange", "window": "tab:green", "local_bf16": "tab:red",
+    "window_bf16": "tab:purple",
+}  # fmt: skip
+#: Suffix of a path whose CNN runs in bfloat16 (``PlanningContext.cnn_precision``).
+BF16_SUFFIX = "_bf16"
 #: Bounded block (cells per axis) of the search before issue #35 (two origin strides).
 TODAY_BLOCK = 2
 #: Seconds a child may take.
@@ -128,9 +135,11 @@ def _step(path: str, state: np.ndarray, box: tuple[np.ndarray, np.ndarray] | Non
 
     in_box = None if box is None else BoundedFilter((tuple(box[0]), tuple(box[1])), inside)
 
+    base, precision = path.removesuffix(BF16_SUFFIX), "bfloat16" if path.endswith(BF16_SUFFIX) else "float32"
     context = PlanningContext.for_dataset(
-        "3dt", backend="opencl", origin_stride=1, cnn_window=WINDOW_MARGIN if path == "window" else None
-    )
+        "3dt", backend="opencl", origin_stride=1, cnn_window=WINDOW_MARGIN if base == "window" else None,
+        cnn_precision=precision,
+    )  # fmt: skip
     start = time.perf_counter()
     if path == "today":
         prob = complete(state, dataset="3dt")
@@ -234,13 +243,16 @@ def scale_benchmark(
     resolution = dataset_defaults("3dt").resolution_m
     rows: list[ScaleRow] = []
     report: list[str] = []
+    bf16 = bf16_supported()
+    if not bf16:
+        report.append("bfloat16 rows: skipped, this CPU has no bfloat16 convolutions (AVX512 or AMX)")
     if "grids" in groups:
         states = {}
         for shape in sizes:
             state = scale_state(shape, seed)
             states[shape] = state
             label = "×".join(str(s) for s in shape)
-            for path in ("today", "local"):
+            for path in ("today", "local", *(("local" + BF16_SUFFIX,) if bf16 else ())):
                 result = measure(path, state)
                 rows.append(ScaleRow(label, int(np.prod(shape)), path, 0.0, **_fields(result)))
                 print(_line(rows[-1]), flush=True)
@@ -255,7 +267,8 @@ def scale_benchmark(
         report += ratio_lines(rows, sizes)
     if "kitchen" in groups:
         if KITCHEN.is_dir():
-            for step in kitchen_steps(measure):
+            paths = ("local", "window", *(("window" + BF16_SUFFIX,) if bf16 else ()))
+            for step in kitchen_steps(measure, workspace_paths=paths):
                 rows.append(ScaleRow(step.grid, step.cells, step.path, step.workspace_m, **_fields(step.result)))
                 print(_line(rows[-1]), flush=True)
             report.append(kitchen_targets(rows))
@@ -300,19 +313,29 @@ def ratio_lines(rows: list[ScaleRow], sizes=SIZES) -> list[str]:
             f"{local.peak_rss_mb / today.peak_rss_mb:.2f}; same best view: {'yes' if same else 'NO'}"
         )
     first, last = labels[0], labels[-1]
-    for path in ("today", "local"):
+    paths = [p for p in ("today", "local", "local" + BF16_SUFFIX) if (last, p, 0.0) in by and (first, p, 0.0) in by]
+    for path in paths:
         big, small = by[(last, path, 0.0)], by[(first, path, 0.0)]
         out.append(
             f"{path}: {last} / {first} time {big.seconds / small.seconds:.1f}× "
             f"for {big.cells / small.cells:.0f}× the cells"
         )
-    big, small = by[(last, "local", 0.0)], by[(first, "local", 0.0)]
-    checks = [
-        (f"{last} ≤ 4 s", big.seconds <= 4.0), (f"{last} ≤ 2 GB", big.peak_rss_mb <= 2048.0),
-        (f"{last} ≤ 4× {first}", big.seconds <= 4.0 * small.seconds), (f"{first} ≤ 1.2 s", small.seconds <= 1.2),
-    ]  # fmt: skip
-    out.append("targets (local path): " + "; ".join(f"{name}: {'met' if ok else 'NOT met'}" for name, ok in checks))
+    for path in paths[1:]:
+        big, small = by[(last, path, 0.0)], by[(first, path, 0.0)]
+        checks = [
+            (f"{last} ≤ 4 s", big.seconds <= 4.0), (f"{last} ≤ 2 GB", big.peak_rss_mb <= 2048.0),
+            (f"{last} ≤ 4× {first}", big.seconds <= 4.0 * small.seconds), (f"{first} ≤ 1.2 s", small.seconds <= 1.2),
+        ]  # fmt: skip
+        verdicts = "; ".join(f"{name}: {'met' if ok else 'NOT met'}" for name, ok in checks)
+        out.append(f"targets ({path} path): {verdicts}")
     return out
+
+
+def bf16_supported() -> bool:
+    """Whether torch has bfloat16 convolutions on this CPU (the ``_bf16`` rows are measured then)."""
+    import torch
+
+    return bool(torch.ops.mkldnn._is_mkldnn_bf16_supported())
 
 
 def write_scale_csv(rows: list[ScaleRow], path: Path) -> Path:

@@ -18,6 +18,7 @@ STAGES = (("cnn", "CNN"), ("raycast", "ray casting"), ("views", "views"))
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     from nbv_prob_cnn.basics.datasets import DATASET_SPECS
+    from nbv_prob_cnn.basics.modes import CNN_PRECISIONS
     from nbv_prob_cnn.gain import BACKENDS
     from nbv_prob_cnn.planners import METHODS
 
@@ -49,6 +50,19 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--backend", choices=BACKENDS, default="auto", help="ray-casting backend")
     parser.add_argument("--seed", type=int, default=0, help="random seed (random, cnn_prob_d)")
+    parser.add_argument(
+        "--cnn-window",
+        type=int,
+        metavar="CELLS",
+        help="complete only the candidates' box grown by this margin (48 = 3DT's receptive field), p0 outside "
+        "(default: every cell the rays read)",
+    )
+    parser.add_argument(
+        "--cnn-precision",
+        choices=CNN_PRECISIONS,
+        default="float32",
+        help="the CNN's arithmetic: float32 (as trained) or bfloat16 (faster on CPUs with AVX512-BF16 or AMX)",
+    )
 
 
 def run(args: argparse.Namespace) -> int:
@@ -65,8 +79,9 @@ def run(args: argparse.Namespace) -> int:
     times: dict[str, float] = {}
     start = time.perf_counter()
     poses = plan_views(
-        saved.state, saved.geometry, dataset, args.method, args.top_k, args.workspace, args.backend, args.seed, times
-    )
+        saved.state, saved.geometry, dataset, args.method, args.top_k, args.workspace, args.backend, args.seed, times,
+        args.cnn_window, args.cnn_precision,
+    )  # fmt: skip
     plan_s = time.perf_counter() - start
     args.out.parent.mkdir(parents=True, exist_ok=True)
     csv_path = write_views_csv(poses, args.out.with_suffix(".csv"))

@@ -20,6 +20,7 @@ import torch
 
 from nbv_prob_cnn.basics.camera import DATASETS
 from nbv_prob_cnn.basics.grid import OCCUPIED, UNKNOWN, check_state
+from nbv_prob_cnn.basics.modes import CNN_PRECISIONS
 from nbv_prob_cnn.completion.model import CompletionNet, encode_state
 
 _CONFIG_KEYS = ("dims", "n_conv", "first_channels", "dataset")
@@ -64,6 +65,20 @@ def _names_from_path(path: Path) -> tuple[str | None, str | None]:
     """``(dataset, model)`` guessed from a file name ``<dataset>_<model>.pt``."""
     dataset, _, model = path.stem.partition("_")
     return (dataset, model or None) if dataset in DATASETS else (None, None)
+
+
+def check_precision(precision: str, device: torch.device) -> str:
+    """``precision`` when it is one of :data:`~nbv_prob_cnn.basics.modes.CNN_PRECISIONS` that ``device`` runs.
+
+    Raises:
+        ValueError: an unknown precision, or ``bfloat16`` where torch has no bfloat16 convolutions
+            (a CPU without AVX512 or AMX).
+    """
+    if precision not in CNN_PRECISIONS:
+        raise ValueError(f"precision: expected one of {CNN_PRECISIONS}, got {precision!r}")
+    if precision == "bfloat16" and device.type == "cpu" and not torch.ops.mkldnn._is_mkldnn_bf16_supported():
+        raise ValueError("precision: this CPU has no bfloat16 convolutions (AVX512 or AMX); use 'float32'")
+    return precision
 
 
 def resolve_device(device: str | torch.device | None = None) -> torch.device:
@@ -196,6 +211,7 @@ def complete(
     device: str | torch.device | None = None,
     batch: bool = False,
     chunk: int = 8,
+    precision: str = "float32",
 ) -> np.ndarray:
     """Probabilistic map ``P`` of a ternary grid (docs/method.md#completion-cnn): 0 on known empty, 1 on known
     occupied, the CNN's occupancy probability on unknown cells.
@@ -208,12 +224,14 @@ def complete(
         device: default CUDA when available, else CPU.
         batch: ``state`` is a batch of grids.
         chunk: grids per forward pass in batch mode.
+        precision: one of :data:`~nbv_prob_cnn.basics.modes.CNN_PRECISIONS` (``bfloat16``: the forward pass
+            under torch's autocast).
 
     Returns:
         ``float32`` array of the shape of ``state``.
 
     Raises:
-        ValueError: invalid ``state``; :class:`WeightsError` for missing/incompatible weights.
+        ValueError: invalid ``state`` or ``precision``; :class:`WeightsError` for missing/incompatible weights.
     """
     grids = _validate(state, batch)
     dims = grids.ndim - 1
@@ -231,11 +249,13 @@ def complete(
     if model.head != "completion":
         raise ValueError(f"model: a {getattr(model, 'model_name', model.head)} network is not a completion CNN")
 
+    check_precision(precision, dev)
     out = np.empty(grids.shape, dtype=np.float32)
     was_training = model.training
     model.eval()
     try:
-        with torch.inference_mode():
+        lowered = precision == "bfloat16"
+        with torch.inference_mode(), torch.autocast(dev.type, dtype=torch.bfloat16, enabled=lowered):
             for start in range(0, grids.shape[0], max(1, chunk)):
                 part = grids[start : start + chunk]
                 prob = model(encode_state(part, channels_last=dev.type == "cpu").to(dev))[:, 0]

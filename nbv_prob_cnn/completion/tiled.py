@@ -199,6 +199,7 @@ def complete_region(
     device: str | torch.device | None = None,
     max_window_cells: int = MAX_WINDOW_CELLS,
     halo: int | None = None,
+    precision: str = "float32",
 ) -> np.ndarray:
     """The probabilistic map ``P`` of ``state`` inside ``region``, by tiles (see the module doc):
     equal to :func:`~nbv_prob_cnn.completion.inference.complete` there up to float rounding.
@@ -212,6 +213,7 @@ def complete_region(
         max_window_cells: the most cells one pass of the network reads.
         halo: cells of context around each tile's core, a multiple of ``2**n_conv`` (default
             :func:`halo_cells`; a smaller one gives other numbers than the whole grid).
+        precision: the forward pass's arithmetic (:data:`~nbv_prob_cnn.basics.modes.CNN_PRECISIONS`).
 
     Returns:
         ``float32`` array of the shape of ``state``.
@@ -229,13 +231,15 @@ def complete_region(
     tiles = plan_tiles(state.shape, box, net.multiple, halo, max_window_cells)
     whole = check_region(None, state.shape)
     if len(tiles) == 1 and tiles[0].core == tiles[0].window == whole:
-        return complete(state, model=net, device=device)  # one pass over the grid: no copies
+        return complete(state, model=net, device=device, precision=precision)  # one pass over the grid: no copies
     out = probability_with_constant(state, fill)
     for tile in tiles:
         core = tile.slices("core")
         if not np.any(state[core] == UNKNOWN):
             continue  # P is 0 / 1 on known cells: no network needed
-        window = complete(np.ascontiguousarray(state[tile.slices("window")]), model=net, device=device)
+        window = complete(
+            np.ascontiguousarray(state[tile.slices("window")]), model=net, device=device, precision=precision
+        )
         out[core] = window[tile.core_in_window()]
     return out
 
@@ -249,12 +253,13 @@ def complete_window(
     device: str | torch.device | None = None,
     max_window_cells: int = MAX_WINDOW_CELLS,
     completion: Callable[[np.ndarray, tuple[int, ...]], np.ndarray] | None = None,
+    precision: str = "float32",
 ) -> np.ndarray:
     """``P`` with the network run on ``window`` alone (its border acts as the grid's border) and
     ``p0`` on the unknown cells outside it (Prob. IG's constant prior): a local completion whose
     cost follows the window, not the grid. ``completion(window_state, corner)``: the window's map
     from elsewhere (e.g. a completion service; ``corner``: the window's first cell), instead of the
-    network here.
+    network here (whose arithmetic is ``precision``).
 
     Returns:
         ``float32`` array of the shape of ``state``.
@@ -264,7 +269,7 @@ def complete_window(
     out = probability_with_constant(state, p0)
     inner = np.ascontiguousarray(state[crop])
     if completion is None:
-        out[crop] = complete_region(inner, None, model, dataset, p0, device, max_window_cells)
+        out[crop] = complete_region(inner, None, model, dataset, p0, device, max_window_cells, precision=precision)
     else:
         window_map = np.asarray(completion(inner, tuple(int(v) for v in window[0])), dtype=np.float32)
         if window_map.shape != inner.shape:

@@ -12,6 +12,7 @@ import numpy as np
 
 from nbv_prob_cnn.basics.camera import DatasetDefaults, Sensor, dataset_defaults, orientations, yaw_quaternion
 from nbv_prob_cnn.basics.geometry import GridGeometry
+from nbv_prob_cnn.basics.modes import CNN_PRECISIONS
 from nbv_prob_cnn.basics.region import Region
 from nbv_prob_cnn.basics.view_pose import ViewPose, view_pose
 from nbv_prob_cnn.gain import best_origin_view, empty_origins, origin_view_gains, ray_directions, view_membership
@@ -108,6 +109,8 @@ class PlanningContext:
         cnn_window: None (the default): the completion CNN runs, exactly, over the cells the candidates'
             rays can read; a margin in cells: only over the candidates' box grown by it, with ``p0``
             outside (:mod:`nbv_prob_cnn.planners.local_completion`, docs/performance.md#scale).
+        cnn_precision: the completion CNN's arithmetic in this process (``"float32"``, the default, or
+            ``"bfloat16"``: :data:`~nbv_prob_cnn.basics.modes.CNN_PRECISIONS`).
     """
 
     defaults: DatasetDefaults
@@ -126,8 +129,11 @@ class PlanningContext:
     gain_sensor: GainSensor | None = None
     sampling: str = "rounded"
     cnn_window: int | None = None
+    cnn_precision: str = "float32"
 
     def __post_init__(self) -> None:
+        if self.cnn_precision not in CNN_PRECISIONS:
+            raise ValueError(f"cnn_precision: expected one of {CNN_PRECISIONS}, got {self.cnn_precision!r}")
         check_variant(self.gain_variant)
         check_sampling(self.sampling)
         if check_sensor_model(self.sensor_model) == "returns" and self.gain_sensor is None:

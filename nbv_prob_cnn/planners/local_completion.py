@@ -21,21 +21,22 @@ from nbv_prob_cnn.planners.candidates import grown_box, ray_reach, reach_region
 
 def local_completion(state: np.ndarray, context: PlanningContext, origins: np.ndarray) -> np.ndarray:
     """The probabilistic map for a view search from ``origins`` (``(N, dims)`` cells): the context's
-    data set's CNN over the cells the rays can read (``context.cnn_window`` None), or over the window
-    around the origins, ``p0`` on the other unknown cells: the window's map from ``context.completion``
-    when set (a completion service, sent the window's grid alone), else from the CNN here."""
+    data set's CNN (in ``context.cnn_precision``) over the cells the rays can read (``context.cnn_window``
+    None), or over the window around the origins, ``p0`` on the other unknown cells: the window's map from
+    ``context.completion`` when set (a completion service, sent the window's grid alone), else from the CNN
+    here."""
     from nbv_prob_cnn.completion.tiled import complete_region, complete_window
 
-    p0, dataset = context.defaults.p0, context.defaults.name
+    p0, dataset, precision = context.defaults.p0, context.defaults.name, context.cnn_precision
     if origins.shape[0] == 0:
         return probability_with_constant(state, p0)
     if context.cnn_window is None:
         region = reach_region(origins, ray_reach(context.active_sensor.r_max), state.shape)
-        return complete_region(state, region, dataset=dataset, fill=p0)
+        return complete_region(state, region, dataset=dataset, fill=p0, precision=precision)
     window = grown_box(origins, (context.cnn_window,) * state.ndim, state.shape)
     assert window is not None
     hook = context.completion
     if hook is None:
-        return complete_window(state, window, p0, dataset=dataset)
+        return complete_window(state, window, p0, dataset=dataset, precision=precision)
     # a completion service: it gets the window's grid alone
     return complete_window(state, window, p0, completion=lambda inner, corner: hook(inner, context, corner=corner))

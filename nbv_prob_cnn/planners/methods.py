@@ -64,10 +64,11 @@ GAIN_METHODS: dict[str, GainMethod] = {
 
 def cnn_completion(state: np.ndarray, context: PlanningContext, corner: tuple[int, ...] | None = None) -> np.ndarray:
     """The completion CNN of the context's data set, in this process (shipped weights
-    ``<dataset>_cnn_prob.pt``); ``corner`` is not needed (a :class:`~nbv_prob_cnn.planners.base.CompletionHook`)."""
+    ``<dataset>_cnn_prob.pt``, in ``context.cnn_precision``); ``corner`` is not needed (a
+    :class:`~nbv_prob_cnn.planners.base.CompletionHook`)."""
     from nbv_prob_cnn.completion import complete
 
-    return complete(state, dataset=context.defaults.name)
+    return complete(state, dataset=context.defaults.name, precision=context.cnn_precision)
 
 
 def probability_map(

@@ -101,10 +101,13 @@ def plan_views(
     backend: str = "auto",
     seed: int = 0,
     times: dict[str, float] | None = None,
+    cnn_window: int | None = None,
+    cnn_precision: str = "float32",
 ) -> list[ViewPose]:
     """The ``top_k`` best views of ``method`` on ``state``, best first, as poses (empty when no
     view has a positive gain). ``times``, when given, receives the seconds of the search's stages
-    (``cnn``, ``raycast``, ``views``).
+    (``cnn``, ``raycast``, ``views``). ``cnn_window`` and ``cnn_precision``: the CNN's window margin
+    (cells; None: every cell the rays read) and arithmetic (:class:`~nbv_prob_cnn.planners.base.PlanningContext`).
 
     Raises:
         ValueError: bad method, data set, ``top_k`` or workspace; missing CNN weights
@@ -113,8 +116,10 @@ def plan_views(
     check_offline_method(method)
     if not isinstance(top_k, int) or top_k < 1:
         raise ValueError(f"top_k: expected a positive integer, got {top_k!r}")
-    context = PlanningContext.for_dataset(infer_dataset(state.shape, dataset), rng=np.random.default_rng(seed),
-                                          backend=backend)  # fmt: skip
+    context = PlanningContext.for_dataset(
+        infer_dataset(state.shape, dataset), rng=np.random.default_rng(seed), backend=backend,
+        cnn_window=cnn_window, cnn_precision=cnn_precision,
+    )  # fmt: skip
     ranked = make_planner(method).rank(state, context, top_k, workspace_filter(geometry, workspace_m))
     if times is not None and ranked:
         times.update(ranked[0].times)

@@ -19,6 +19,7 @@ from rclpy.node import Node
 
 from nbv_prob_cnn.basics.camera import DATASETS
 from nbv_prob_cnn.basics.datasets import dataset_for_grid
+from nbv_prob_cnn.basics.modes import CNN_PRECISIONS
 from nbv_prob_cnn.ros import names
 from nbv_prob_cnn.ros.conversions import msg_to_grid, probability_to_msg
 from nbv_prob_cnn.ros.parameters import declare_config, param
@@ -37,6 +38,10 @@ class CompletionConfig:
         0, "CPU inference threads; 0 = torch's default (one per core)",
         min_value=0, max_value=1024,
     )  # fmt: skip
+    precision: str = param(
+        "float32", "the network's arithmetic: float32 (as trained) or bfloat16 (faster on CPUs with AVX512-BF16 "
+        "or AMX, probabilities within 0.01)", choices=CNN_PRECISIONS,
+    )  # fmt: skip
 
 
 def torch_threads_text() -> str:
@@ -51,9 +56,10 @@ class CompletionServer(Node):
     def __init__(self) -> None:
         super().__init__("completion_server")
         self.config = cfg = declare_config(self, CompletionConfig, mirror=False)
-        from nbv_prob_cnn.completion.inference import WeightsError, load_model, resolve_device
+        from nbv_prob_cnn.completion.inference import WeightsError, check_precision, load_model, resolve_device
 
         self._device = resolve_device(None if cfg.device == "auto" else cfg.device)
+        check_precision(cfg.precision, self._device)  # refused at start: bfloat16 where torch has none
         if self._device.type == "cpu" and cfg.torch_threads > 0:
             # one thread per core by default: in the main job on 2 cores (camera, TF and joint-state
             # streams beside it) 1 thread gave a median CNN stage of 1.82 s against 1.21-1.44 s
@@ -71,9 +77,11 @@ class CompletionServer(Node):
                 from nbv_prob_cnn.completion import complete
 
                 start = time.perf_counter()
-                complete(np.full(DATASETS[cfg.dataset].shape, -1, dtype=np.int8), model=model, device=self._device)
+                complete(np.full(DATASETS[cfg.dataset].shape, -1, dtype=np.int8), model=model, device=self._device,
+                         precision=cfg.precision)  # fmt: skip
                 warm = f", warmed up in {time.perf_counter() - start:.2f} s"
             on = f"{self._device}" + (f" ({torch_threads_text()})" if self._device.type == "cpu" else "")
+            on += f", {cfg.precision}"
             self.get_logger().info(f"completion_server ready: {cfg.dataset} weights on {on}{warm}")
         except WeightsError as exc:
             self.get_logger().error(str(exc))
@@ -98,7 +106,7 @@ class CompletionServer(Node):
             start = time.perf_counter()
             # by tiles of at most MAX_WINDOW_CELLS (16 M) cells with the receptive field as halo: a room
             # (up to MAX_GRID_CELLS, 67 M) in bounded memory; one pass, as before, up to that size
-            prob = complete_region(state, None, model=model, device=self._device)
+            prob = complete_region(state, None, model=model, device=self._device, precision=self.config.precision)
             response.inference_time_s = time.perf_counter() - start
             response.probability = probability_to_msg(
                 prob, geometry, request.grid.header.frame_id, request.grid.header.stamp

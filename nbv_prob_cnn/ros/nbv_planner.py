@@ -60,7 +60,7 @@ from nbv_prob_cnn.arm.views import ArmPlanningSetup
 from nbv_prob_cnn.basics.camera import DATASETS
 from nbv_prob_cnn.basics.geometry import GridGeometry
 from nbv_prob_cnn.basics.interrupt import Interrupt, WaitInterruptedError
-from nbv_prob_cnn.basics.modes import MOVE_MODES, Backend, MoveMode
+from nbv_prob_cnn.basics.modes import CNN_PRECISIONS, MOVE_MODES, Backend, MoveMode
 from nbv_prob_cnn.exploration.session import (
     ExplorationSession,
     FailedMove,
@@ -135,6 +135,11 @@ class PlannerConfig(SensorParams, ArmViewParams):
         -1, "CNN window: the CNN completes only the candidate cells' box grown by this margin (cells; 48 = "
         "3DT's receptive field), unknown cells outside take p0: a cost that follows the workspace in a room; "
         "-1 = off (every cell the rays read)", min_value=-1, max_value=100000,
+    )  # fmt: skip
+    cnn_precision: str = param(
+        "float32", "the CNN's arithmetic when it runs in this node (in_process): float32 (as trained) or bfloat16 "
+        "(faster on CPUs with AVX512-BF16 or AMX); through the servers completion_server's precision applies",
+        choices=CNN_PRECISIONS,
     )  # fmt: skip
     min_camera_height_m: float = param(0.0, "lowest camera position z (grid frame, m; 0 = no limit)",
                                        min_value=-100.0, max_value=100.0)  # fmt: skip
@@ -327,6 +332,7 @@ class NbvPlanner(Node):
             )  # fmt: skip
             context.gain_variant = cfg.gain_variant
             context.cnn_window = None if cfg.cnn_window < 0 else cfg.cnn_window
+            context.cnn_precision = cfg.cnn_precision
             cfg.apply_sensor_model(context, geometry.resolution)
             box = self._planning_box(request)
             top_k = max(1, int(request.top_k), cfg.markers_top_k)

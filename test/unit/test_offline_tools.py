@@ -102,6 +102,28 @@ def test_plan_keeps_to_the_workspace(grid_file, tmp_path):
     assert {int(r["cell_x"]) for r in rows} <= {2, 3}
 
 
+def test_plan_takes_the_cnn_window_and_precision(grid_file, tmp_path, monkeypatch, bf16):
+    """``--cnn-window`` and ``--cnn-precision`` reach the planning context: the CNN gets the window's cells
+    alone (the candidates' box grown by 1 cell, not the 10³ grid) in bfloat16."""
+    import nbv_prob_cnn.completion.tiled as tiled
+
+    calls = []
+    region = tiled.complete_region
+    monkeypatch.setattr(
+        tiled,
+        "complete_region",
+        lambda state, *a, **k: calls.append((state.shape, k.get("precision"))) or region(state, *a, **k),
+    )
+    out = tmp_path / "windowed"
+    code = main(["plan", "--grid", str(grid_file), "--method", "cnn_prob", "--dataset", "3du", "--top-k", "2",
+                 "--backend", "numpy", "--cnn-window", "1", "--cnn-precision", "bfloat16",
+                 "--out", str(out)])  # fmt: skip
+    assert code == 0
+    # the empty room's cells 2..6 x 2..7 x 2..7 grown by one cell: 7 x 8 x 8
+    assert calls == [((7, 8, 8), "bfloat16")]
+    assert len(read_csv(out.with_suffix(".csv"))[1]) == 2
+
+
 def test_plan_refuses_what_it_cannot_do(grid_file, tmp_path, capsys):
     assert main(["plan", "--grid", str(grid_file), "--method", "prob_ig", "--workspace", "0", "1",
                  "--out", str(tmp_path / "p")]) == 2  # fmt: skip

@@ -26,7 +26,8 @@ def test_targets_are_read_on_the_kitchen_rows_only():
     rows = [row("256×256×192", "local", 1.5, 9.0, 9000), row("kitchen 5×5×5", "local", 0.0, 9.0, 3000),
             row("kitchen 5×5×5", "local", 1.5, 1.2, 2500), row("kitchen 5×5×5", "window", 1.5, 9.0, 9000)]  # fmt: skip
     assert kitchen_targets(rows) == (
-        "targets (kitchen): 1.5 m workspace ≤ 1.5 s: met; 1.5 m workspace ≤ 2 GB: NOT met; whole room ≤ 4 GB: met"
+        "targets (kitchen): 1.5 m workspace ≤ 1.5 s: local met, window NOT met; "
+        "1.5 m workspace ≤ 2 GB: local NOT met, window NOT met; whole room ≤ 4 GB: met"
     )
     assert kitchen_targets(rows[:1]).endswith("whole room ≤ 4 GB: not measured")
 

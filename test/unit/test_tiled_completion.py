@@ -131,3 +131,26 @@ def test_bad_regions_are_named(rng):
         complete_window(state, ((2, 2, 2), (2, 5, 5)), 0.15, model=net)
     with pytest.raises(ValueError, match="halo"):
         complete_region(state, model=net, halo=3)
+
+
+def test_bfloat16_tiles_equal_its_whole_grid_pass_and_keep_known_cells(rng, bf16):
+    """In bfloat16 too the tiles give the one-pass numbers, and known cells stay exactly 0 / 1 (how close
+    bfloat16 comes to float32 on the shipped weights: test_local_planning.py)."""
+    net = _net(3, 2)
+    state = _state(rng, (37, 29, 21))
+    lowered = complete(state, model=net, precision="bfloat16")
+    tiled = complete_region(state, model=net, max_window_cells=12_000, precision="bfloat16")
+    assert np.abs(tiled - lowered).max() <= 1e-5
+    known = state != -1
+    np.testing.assert_array_equal(lowered[known], (state[known] == 1).astype(np.float32))
+    assert lowered.dtype == np.float32 and np.all((lowered >= 0) & (lowered <= 1))
+    window = complete_window(state, ((4, 4, 0), (33, 25, 21)), 0.2, model=net, precision="bfloat16")
+    np.testing.assert_array_equal(window[known], lowered[known])
+
+
+def test_an_unknown_precision_is_named(rng):
+    state = _state(rng, (8, 8, 8))
+    with pytest.raises(ValueError, match="precision"):
+        complete(state, model=_net(3, 2), precision="float16")
+    with pytest.raises(ValueError, match="precision"):
+        complete_region(state, model=_net(3, 2), precision="half")
