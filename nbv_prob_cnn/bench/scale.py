@@ -379,10 +379,10 @@ def plot_scale(rows: list[ScaleRow], path: Path, note: str = "") -> Path:
             axes[1, 1].plot(widths, [r.peak_rss_mb / 1024 for r in work], "o-", color=PATH_COLOURS[path_name],
                             label=path_name)  # fmt: skip
     axes[0, 0].set(title="grid size (every empty cell a candidate)", ylabel="one cnn_prob step (s)")
-    axes[1, 0].set(xlabel="grid cells (millions)", ylabel="peak RSS (GB)")
+    axes[1, 0].set(xlabel="grid cells (millions)", ylabel="peak RSS (GiB)")
     largest = max((r.grid for r in rows if r.workspace_m), default="")
     axes[0, 1].set(title=f"workspace box on the {largest} grid", ylabel="one cnn_prob step (s)")
-    axes[1, 1].set(xlabel="workspace width (m)", ylabel="peak RSS (GB)")
+    axes[1, 1].set(xlabel="workspace width (m)", ylabel="peak RSS (GiB)")
     for ax in axes.ravel():
         ax.set_ylim(bottom=0)
         ax.grid(alpha=0.3)

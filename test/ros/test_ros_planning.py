@@ -273,3 +273,24 @@ def test_colcon_builds_the_package_and_runs_a_node(ros, tmp_path):
     ours, interfaces = probe.stdout.split()
     assert ours.startswith(str(install)), ours  # the package comes from the workspace ...
     assert interfaces.startswith(str(venv)), interfaces  # ... over the underlay's interfaces
+
+
+def test_completion_server_runs_the_network_in_bfloat16_when_asked(ros, bf16):
+    """``precision:=bfloat16``: the served map is the in-process bfloat16 map, not the float32 one."""
+    from nbv_prob_cnn_msgs.srv import CompleteGrid
+
+    from nbv_prob_cnn.completion import complete
+    from nbv_prob_cnn.ros.conversions import msg_to_probability
+
+    node, graph, context = ros
+    graph.start_node("completion_server", "completion_server", {"dataset": "3du", "precision": "bfloat16"})
+    state = random_grid(7)
+    reply = call(node, context, CompleteGrid, "/nbv/complete",
+                 CompleteGrid.Request(grid=grid_to_msg(state, GEOMETRY), dataset="3du"), 120.0)  # fmt: skip
+    assert reply.success, reply.message
+    served, _ = msg_to_probability(reply.probability)
+    lowered = complete(state, dataset="3du", precision="bfloat16")
+    exact = complete(state, dataset="3du")
+    np.testing.assert_allclose(served, lowered, atol=1e-6)
+    assert np.abs(served - exact).max() > 1e-4  # the other arithmetic
+    assert "bfloat16" in (graph.log_dir / "completion_server.log").read_text()
