@@ -8,8 +8,9 @@ reaches). With ``λ > 0`` candidates are checked in gain order until no remainin
 the best utility found (``utility ≤ gain``), so the result is the exact argmax over the ranked
 list. A view is feasible when its pose has an IK solution within the limits, that configuration
 is free of self- and grid collision, and the straight joint path to it is free at samples at most
-``path_step`` rad apart. The cells the arm fills at the current configuration count as free
-(it is there, so nothing else is; the map may hold them as unknown or, unfiltered, occupied).
+``path_step`` rad apart, and again at :data:`VERIFY_STEP_RAD`. The cells the arm fills at the
+current configuration count as free (it is there, so nothing else is; the map may hold them as
+unknown or, unfiltered, occupied).
 With a ``path_planner`` (:mod:`nbv_prob_cnn.arm.path_planning`), a goal whose straight path is
 blocked gets a planned path instead, and ``L`` is that path's joint-space length.
 
@@ -48,6 +49,10 @@ from nbv_prob_cnn.planners import GainPlanner, PlanningContext, ViewChoice
 from nbv_prob_cnn.planners.requests import view_pose
 
 #: Candidates whose IK is solved together: the first block, and the largest (:class:`_IkAhead`).
+#: A straight path free at ``path_step`` is checked again this finely (rad, per joint): a link can
+#: cross a thin obstacle between two coarse samples (seen: a path around a pillar clipped its corner
+#: at 0.1 rad steps), as planned paths are checked again finely (``path_planning.VERIFY_DIVISOR``).
+VERIFY_STEP_RAD = 0.005
 IK_BLOCK_FIRST = 4
 IK_BLOCK_MAX = 64
 
@@ -233,6 +238,14 @@ class ArmFeasibility:
             distinct = [r.q for r in others if r.q is not None and np.abs(r.q - first).max() > 1e-3]
             yield from distinct[: self.ik_alternatives]
 
+    def straight_path_free(self, q_start: np.ndarray, q_goal: np.ndarray, obstacles: GridObstacles) -> bool:
+        """The straight joint path is free at ``path_step`` (cheap; most blocked paths fail here) and
+        again at :data:`VERIFY_STEP_RAD`."""
+        check = self.checker.path_is_free
+        return check(q_start, q_goal, obstacles, self.path_step) and (
+            self.path_step <= VERIFY_STEP_RAD or check(q_start, q_goal, obstacles, VERIFY_STEP_RAD)
+        )
+
     def _free_goal(
         self,
         first: np.ndarray,
@@ -259,7 +272,7 @@ class ArmFeasibility:
             begin = time.perf_counter()
             if not self.checker.is_free(goal, obstacles):
                 failure = "collision"
-            elif not self.checker.path_is_free(current_q, goal, obstacles, self.path_step):
+            elif not self.straight_path_free(current_q, goal, obstacles):
                 failure = "path"
                 blocked = goal if blocked is None else blocked
             else:

@@ -187,7 +187,8 @@ class JointPathPlanner:
         return ""
 
     def connect(self, q_start: np.ndarray, q_goal: np.ndarray, obstacles: GridObstacles) -> JointPath:
-        """The straight path when it is free at the resolution, else :meth:`plan`.
+        """The straight path when it is free at the resolution and ``VERIFY_DIVISOR`` times finer, else
+        :meth:`plan`.
 
         Raises:
             PathPlanningError: no path (see :meth:`plan`).
@@ -195,7 +196,10 @@ class JointPathPlanner:
         start = time.perf_counter()
         q_start, q_goal = self.robot.check_q(q_start, "q_start"), self.robot.check_q(q_goal, "q_goal")
         straight = np.stack([q_start, q_goal])
-        if path_is_free(self.checker, straight, obstacles, self.settings.resolution_rad):
+        resolution = self.settings.resolution_rad
+        if path_is_free(self.checker, straight, obstacles, resolution) and path_is_free(
+            self.checker, straight, obstacles, resolution / VERIFY_DIVISOR
+        ):  # checked again finely, as a planned path is
             return JointPath(straight, path_length(straight, self.chain), False, time.perf_counter() - start)
         return self.plan(q_start, q_goal, obstacles)
 

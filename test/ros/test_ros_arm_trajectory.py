@@ -404,7 +404,7 @@ def test_a_view_behind_a_pillar_is_reached_by_a_planned_path_over_follow_joint_t
     FollowJointTrajectory is the OMPL path around it. Checked by the independent dense sampler
     of test_arm_path_planning (0.005 rad, ten times finer than the planner's validation) on the
     polyline of the trajectory's points, against the grid the planner got."""
-    from arm_checks import dense_free
+    from arm_checks import dense_free, first_blocked
     from test_ros_arm_planning import GEOMETRY
 
     from nbv_prob_cnn.arm.collision import CollisionChecker
@@ -437,7 +437,9 @@ def test_a_view_behind_a_pillar_is_reached_by_a_planned_path_over_follow_joint_t
     checker = CollisionChecker(robot, spacing=0.75 * GEOMETRY.resolution)
     q_goal = polyline[-1]
     assert not dense_free(robot, checker, GEOMETRY, state, np.array([q_start, q_goal]))  # straight: hits the pillar
-    assert dense_free(robot, checker, GEOMETRY, state, polyline)  # the path sent: free
+    blocked = first_blocked(robot, checker, GEOMETRY, state, polyline)  # the path sent: free
+    arm_line = [line for line in (graph.log_dir / "nbv_planner.log").read_text().splitlines() if "arm check" in line]
+    assert not blocked, f"{blocked}; {len(points)} trajectory points; {arm_line[-1:]}"
     fb = feedback[0].feedback
     assert fb.executed and fb.execution_error == ""
     assert_pose_close(robot.camera_pose(q_goal), *pose_to_arrays(fb.pose.pose))

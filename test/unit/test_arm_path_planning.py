@@ -206,3 +206,41 @@ def test_the_simulated_arm_follows_the_timed_path_on_the_polyline(scene, planned
         s = np.clip(np.einsum("kj,kj->k", q - a, b - a) / np.einsum("kj,kj->k", b - a, b - a), 0.0, 1.0)
         assert np.min(np.linalg.norm(a + s[:, None] * (b - a) - q, axis=1)) < 1e-9
     np.testing.assert_allclose(motion.position(arrival), planned.waypoints[-1], atol=1e-12)
+
+
+def test_a_thin_obstacle_between_the_coarse_samples_blocks_the_straight_path(scene):
+    """One occupied cell that the arm's sample points cross only between the 0.1 rad samples of the
+    straight path check (found by sampling the sweep at the dense sampler's step): the coarse check
+    alone calls the path free; feasibility and ``connect`` check it again finely and refuse it, as
+    the independent dense sampler does."""
+    robot, checker, geometry, _, q_start, _, _ = scene
+    q_goal = q_start.copy()
+    q_goal[0] += 0.25  # three 0.1 rad steps
+    origin = np.asarray(geometry.origin)
+
+    def cells(q):
+        found = np.floor((checker.body_points(q) - origin) / geometry.resolution).astype(int)
+        return {tuple(c) for c in found if np.all((c >= 0) & (c < np.array(geometry.shape)))}
+
+    coarse = set().union(*(cells(q_start + t * (q_goal - q_start)) for t in np.linspace(0, 1, 4)))
+    fine = set().union(*(cells(q_start + t * (q_goal - q_start)) for t in np.linspace(0, 1, 51)))
+    between = sorted(fine - coarse)
+    assert between, "the sweep crosses no cell between the coarse samples"
+    state = np.full(geometry.shape, EMPTY, dtype=np.int8)
+    state[between[len(between) // 2]] = OCCUPIED
+    obstacles = GridObstacles.from_state(state, geometry)
+    assert checker.is_free(q_start, obstacles) and checker.is_free(q_goal, obstacles)
+    assert checker.path_is_free(q_start, q_goal, obstacles, 0.1)  # the coarse samples miss it
+    assert not dense_free(robot, checker, geometry, state, np.array([q_start, q_goal]))
+    arm = ArmFeasibility(robot, checker, path_step=0.1)
+    goal, failure, _ = arm._free_goal(q_goal, robot.camera_pose(q_goal), q_start, obstacles, FeasibilityReport(None))
+    assert goal is None and failure == "path"
+    # connect (coarse resolution 0.1 rad): not the straight path; a planned one that is free, or the
+    # planner's own refusal of a plan that collides between its samples
+    planner = JointPathPlanner(checker, PathPlannerSettings(timeout_s=TIMEOUT, resolution_rad=0.1, seed=3))
+    try:
+        path = planner.connect(q_start, q_goal, obstacles)
+    except PathPlanningError as exc:
+        assert "between its motion-validation samples" in str(exc)
+    else:
+        assert path.planned and dense_free(robot, checker, geometry, state, path.waypoints)
