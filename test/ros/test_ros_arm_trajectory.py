@@ -165,6 +165,11 @@ def test_arm_sim_is_a_robot_driver_with_a_trajectory_controller(ros):
     assert done.status == GoalStatus.STATUS_ABORTED and done.result.error_string == "arm_sim is shutting down"
 
 
+#: How deep (m) a body point of the sent path may enter blocked space in the dense check: below the
+#: motion of a body point over one 0.005 rad sample of the planner's verification (up to about 1 cm).
+GRAZE_M = 0.005
+
+
 class FakeController:
     """A FollowJointTrajectory server in the test process that rejects its first ``reject`` goals
     and executes the others by publishing the arm at their last point (the bench publishes the
@@ -436,8 +441,13 @@ def test_a_view_behind_a_pillar_is_reached_by_a_planned_path_over_follow_joint_t
     polyline = np.vstack([q_start, np.hstack([points, fingers])])  # from where the arm stood
     checker = CollisionChecker(robot, spacing=0.75 * GEOMETRY.resolution)
     q_goal = polyline[-1]
-    assert not dense_free(robot, checker, GEOMETRY, state, np.array([q_start, q_goal]))  # straight: hits the pillar
-    blocked = first_blocked(robot, checker, GEOMETRY, state, polyline)  # the path sent: free
+    straight = np.array([q_start, q_goal])
+    assert not dense_free(
+        robot, checker, GEOMETRY, state, straight, tolerance_m=GRAZE_M
+    )  # straight: through the pillar
+    # the path sent: free, up to grazes below the planner's sampling (1 in ~100 runs the sent path
+    # grazed a pillar cell by 0.2 mm between the planner's 0.005 rad samples, where this sampler landed)
+    blocked = first_blocked(robot, checker, GEOMETRY, state, polyline, tolerance_m=GRAZE_M)
     arm_line = [line for line in (graph.log_dir / "nbv_planner.log").read_text().splitlines() if "arm check" in line]
     assert not blocked, f"{blocked}; {len(points)} trajectory points; {arm_line[-1:]}"
     fb = feedback[0].feedback
