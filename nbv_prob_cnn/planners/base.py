@@ -60,6 +60,12 @@ class BoundedFilter:
         return self.keep(origins)
 
 
+def bounded(region: Region | None, keep: OriginFilter) -> OriginFilter:
+    """``keep`` as a :class:`BoundedFilter` of ``region`` (every origin it keeps lies there), or itself
+    when there is no region."""
+    return keep if region is None else BoundedFilter(region, keep)
+
+
 def filter_region(origin_filter: OriginFilter | None) -> Region | None:
     """The cell box all origins that ``origin_filter`` keeps lie in (None: anywhere)."""
     return origin_filter.region if isinstance(origin_filter, BoundedFilter) else None

@@ -18,7 +18,7 @@ from nbv_prob_cnn.basics.datasets import DATASET_SPECS
 from nbv_prob_cnn.basics.geometry import GridGeometry
 from nbv_prob_cnn.basics.view_pose import ViewPose
 from nbv_prob_cnn.gain import origin_view_gains
-from nbv_prob_cnn.planners.base import MAX_VIEWS_PER_CALL, BoundedFilter, OriginFilter, PlanningContext
+from nbv_prob_cnn.planners.base import MAX_VIEWS_PER_CALL, OriginFilter, PlanningContext, bounded
 from nbv_prob_cnn.planners.methods import GAIN_METHODS, method_origins, probability_map
 from nbv_prob_cnn.planners.registry import METHODS, make_planner
 
@@ -87,8 +87,7 @@ def workspace_filter(geometry: GridGeometry, workspace_m: Sequence[float] | None
     def inside(origins: np.ndarray) -> np.ndarray:
         return origins[geometry.cells_in_box(origins, lo, hi)]
 
-    region = geometry.box_region(lo, hi)
-    return inside if region is None else BoundedFilter(region, inside)
+    return bounded(geometry.box_region(lo, hi), inside)
 
 
 def plan_views(

@@ -9,12 +9,12 @@ import numpy as np
 
 from nbv_prob_cnn.arm.feasibility import takes_view_mask
 from nbv_prob_cnn.planners.base import (
-    BoundedFilter,
     OriginFilter,
     Planner,
     PlanningContext,
     ViewChoice,
     ViewMask,
+    bounded,
     filter_region,
 )
 
@@ -56,8 +56,7 @@ class RecordingPlanner:
         def both(origins: np.ndarray) -> np.ndarray:
             return keep(origins if capability is None else arm_filter(origins))
 
-        region = filter_region(keep)  # every origin ``both`` keeps passed ``keep``
-        searched: OriginFilter = both if region is None else BoundedFilter(region, both)
+        searched = bounded(filter_region(keep), both)  # every origin ``both`` keeps passed ``keep``
         self.arm_filter = None if capability is None else arm_filter
         self.view_mask = view_mask  # a remote ranking gets it as allowed_views
         start = time.perf_counter()

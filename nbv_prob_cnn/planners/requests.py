@@ -12,7 +12,7 @@ import numpy as np
 from nbv_prob_cnn.basics.camera import dataset_defaults
 from nbv_prob_cnn.basics.geometry import GridGeometry
 from nbv_prob_cnn.planners import GAIN_METHODS, GainMethod, PlanningContext, ViewChoice, make_planner, ros_method
-from nbv_prob_cnn.planners.base import BoundedFilter, OriginFilter, ViewMask
+from nbv_prob_cnn.planners.base import OriginFilter, ViewMask, bounded
 from nbv_prob_cnn.planners.methods import GainPlanner
 
 
@@ -90,8 +90,7 @@ def origin_filter(
             origins = origins[np.sort(rng.choice(origins.shape[0], size=max_origins, replace=False))]
         return origins
 
-    region = geometry.box_region(box_min, box_max) if use_workspace else None
-    return apply if region is None else BoundedFilter(region, apply)
+    return bounded(geometry.box_region(box_min, box_max) if use_workspace else None, apply)
 
 
 def flat_cells(cells: np.ndarray, shape: tuple[int, ...]) -> np.ndarray:

@@ -43,7 +43,7 @@ from nbv_prob_cnn.gain.sampling import SAMPLINGS
 from nbv_prob_cnn.perception.messages import stamp_ns
 from nbv_prob_cnn.perception.tf_buffer import TransformError, matrix_from_translation_quaternion
 from nbv_prob_cnn.planners import PlanningContext, check_ros_method
-from nbv_prob_cnn.planners.base import BoundedFilter, filter_region
+from nbv_prob_cnn.planners.base import bounded, filter_region
 from nbv_prob_cnn.planners.methods import cnn_completion, probability_map
 from nbv_prob_cnn.planners.pose_scoring import EVALUATE_RAYS_ACROSS, INVALID_POSE, score_poses
 from nbv_prob_cnn.planners.ranked_views import ranked_to_arrays, view_mask_from_bytes
@@ -284,8 +284,7 @@ class GainServer(Node):
                 evaluated.append(kept.shape[0])
                 return kept
 
-            region = filter_region(keep)  # the workspace's cells: candidates are listed there alone
-            searched = counting if region is None else BoundedFilter(region, counting)
+            searched = bounded(filter_region(keep), counting)  # candidates listed in the workspace's cells alone
             ranked = rank_for_request(
                 request.method, self.config.method, state, context, request.top_k, searched, given, view_mask
             )
