@@ -16,9 +16,9 @@ os.environ.setdefault("NBV_CACHE_DIR", os.path.join(tempfile.gettempdir(), "nbv_
 def bf16():
     """Skips the test where torch has no bfloat16 convolutions on this CPU (no AVX512 or AMX): the
     opt-in ``cnn_precision="bfloat16"`` is refused there."""
-    import torch
+    from nbv_prob_cnn.completion.inference import cpu_has_bfloat16
 
-    if not torch.ops.mkldnn._is_mkldnn_bf16_supported():
+    if not cpu_has_bfloat16():
         pytest.skip("this CPU has no bfloat16 convolutions (AVX512 or AMX)")
 
 

@@ -236,6 +236,7 @@ def scale_benchmark(
     kitchen alone: ``scale_kitchen.csv``); returns the closing report (ratios, targets, files)."""
     from nbv_prob_cnn.basics.camera import dataset_defaults
     from nbv_prob_cnn.bench.scale_kitchen import KITCHEN, kitchen_steps, kitchen_targets
+    from nbv_prob_cnn.completion.inference import cpu_has_bfloat16
 
     unknown = set(groups) - set(GROUPS)
     if unknown or not groups:
@@ -243,7 +244,7 @@ def scale_benchmark(
     resolution = dataset_defaults("3dt").resolution_m
     rows: list[ScaleRow] = []
     report: list[str] = []
-    bf16 = bf16_supported()
+    bf16 = cpu_has_bfloat16()  # the _bf16 rows are measured only then
     if not bf16:
         report.append("bfloat16 rows: skipped, this CPU has no bfloat16 convolutions (AVX512 or AMX)")
     if "grids" in groups:
@@ -329,13 +330,6 @@ def ratio_lines(rows: list[ScaleRow], sizes=SIZES) -> list[str]:
         verdicts = "; ".join(f"{name}: {'met' if ok else 'NOT met'}" for name, ok in checks)
         out.append(f"targets ({path} path): {verdicts}")
     return out
-
-
-def bf16_supported() -> bool:
-    """Whether torch has bfloat16 convolutions on this CPU (the ``_bf16`` rows are measured then)."""
-    import torch
-
-    return bool(torch.ops.mkldnn._is_mkldnn_bf16_supported())
 
 
 def write_scale_csv(rows: list[ScaleRow], path: Path) -> Path:

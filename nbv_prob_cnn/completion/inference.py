@@ -67,6 +67,11 @@ def _names_from_path(path: Path) -> tuple[str | None, str | None]:
     return (dataset, model or None) if dataset in DATASETS else (None, None)
 
 
+def cpu_has_bfloat16() -> bool:
+    """Whether torch has bfloat16 convolutions on this CPU (oneDNN on AVX512 or AMX)."""
+    return bool(torch.ops.mkldnn._is_mkldnn_bf16_supported())
+
+
 def check_precision(precision: str, device: torch.device) -> str:
     """``precision`` when it is one of :data:`~nbv_prob_cnn.basics.modes.CNN_PRECISIONS` that ``device`` runs.
 
@@ -76,7 +81,7 @@ def check_precision(precision: str, device: torch.device) -> str:
     """
     if precision not in CNN_PRECISIONS:
         raise ValueError(f"precision: expected one of {CNN_PRECISIONS}, got {precision!r}")
-    if precision == "bfloat16" and device.type == "cpu" and not torch.ops.mkldnn._is_mkldnn_bf16_supported():
+    if precision == "bfloat16" and device.type == "cpu" and not cpu_has_bfloat16():
         raise ValueError("precision: this CPU has no bfloat16 convolutions (AVX512 or AMX); use 'float32'")
     return precision
 
