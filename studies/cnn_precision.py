@@ -16,15 +16,14 @@ Run: ``nbv study cnn_precision --out studies/results/cnn_precision``
 from __future__ import annotations
 
 import argparse
-import csv
 import time
-from dataclasses import asdict, dataclass, fields
+from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
 
 from nbv_prob_cnn.completion.city_scores import spearman
-from studies.cnn_window import held_out_state, workspace
+from studies.cnn_window import held_out_state, workspace, write_results
 
 
 @dataclass
@@ -102,16 +101,9 @@ def main(argv: list[str] | None = None) -> int:
     for seed in args.seeds:
         scores.append(score_precision(held_out_state(seed), seed))
         print(f"seed {seed}: {asdict(scores[-1])}", flush=True)
-    args.out.mkdir(parents=True, exist_ok=True)
-    with open(args.out / "scores.csv", "w", newline="") as handle:
-        writer = csv.DictWriter(handle, fieldnames=[f.name for f in fields(PrecisionScore)])
-        writer.writeheader()
-        writer.writerows(asdict(s) for s in scores)
     table = summary(scores)
-    (args.out / "summary.md").write_text(
-        f"# The 3DT CNN in bfloat16 against float32, 3DT seeds {args.seeds}\n\n"
-        f"Command: `nbv study cnn_precision --out {args.out}`\n\n{table}\n"
-    )
+    write_results(args.out, scores, f"The 3DT CNN in bfloat16 against float32, 3DT seeds {args.seeds}", "cnn_precision",
+                  table)  # fmt: skip
     print(table)
     return 0
 

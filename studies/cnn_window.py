@@ -124,6 +124,17 @@ def summary(scores: list[WindowScore]) -> str:
     return "\n".join(lines)
 
 
+def write_results(out: Path, scores: list, title: str, study: str, table: str) -> None:
+    """``scores.csv`` (one row per score, a dataclass) and ``summary.md`` (``title``, the command of
+    ``nbv study <study>``, the ``table``) in ``out``."""
+    out.mkdir(parents=True, exist_ok=True)
+    with open(out / "scores.csv", "w", newline="") as handle:
+        writer = csv.DictWriter(handle, fieldnames=[f.name for f in fields(scores[0])])
+        writer.writeheader()
+        writer.writerows(asdict(s) for s in scores)
+    (out / "summary.md").write_text(f"# {title}\n\nCommand: `nbv study {study} --out {out}`\n\n{table}\n")
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--seeds", type=int, nargs="+", default=[120, 121, 122, 123, 124], help="3DT worlds")
@@ -136,15 +147,8 @@ def main(argv: list[str] | None = None) -> int:
     for seed in args.seeds:
         scores += score_windows(held_out_state(seed), seed, args.margins)
         print(f"seed {seed}: done", flush=True)
-    args.out.mkdir(parents=True, exist_ok=True)
-    with open(args.out / "scores.csv", "w", newline="") as handle:
-        writer = csv.DictWriter(handle, fieldnames=[f.name for f in fields(WindowScore)])
-        writer.writeheader()
-        writer.writerows(asdict(s) for s in scores)
     table = summary(scores)
-    (args.out / "summary.md").write_text(
-        f"# CNN window around a {WORKSPACE_CELLS}-cell workspace, 3DT seeds {args.seeds}\n\n"
-        f"Command: `nbv study cnn_window --out {args.out}`\n\n{table}\n"
-    )
+    title = f"CNN window around a {WORKSPACE_CELLS}-cell workspace, 3DT seeds {args.seeds}"
+    write_results(args.out, scores, title, "cnn_window", table)
     print(table)
     return 0
