@@ -50,8 +50,8 @@ from nbv_prob_cnn.planners.requests import view_pose
 
 #: Candidates whose IK is solved together: the first block, and the largest (:class:`_IkAhead`).
 #: A straight path free at ``path_step`` is checked again this finely (rad, per joint): a link can
-#: cross a thin obstacle between two coarse samples (seen: a path around a pillar clipped its corner
-#: at 0.1 rad steps), as planned paths are checked again finely (``path_planning.VERIFY_DIVISOR``).
+#: cross a thin obstacle between two coarse samples (a unit test builds one between 0.1 rad samples),
+#: as planned paths are checked again finely (``path_planning.VERIFY_DIVISOR``).
 VERIFY_STEP_RAD = 0.005
 IK_BLOCK_FIRST = 4
 IK_BLOCK_MAX = 64
