@@ -173,7 +173,7 @@ def authors_ray_terms(
     """Hits and hits + miss ``(N, R)`` of the ``authors_ray_gain`` baseline (the authors' scheme,
     on the original variant's range and weights; ``free_hits``: the CNN/oracle maps' ``(1 - p)``),
     and the bytes of its OpenCL buffers."""
-    from nbv_prob_cnn.gain.opencl import encode_grid
+    from nbv_prob_cnn.gain.marched_grid import encode_grid
     from nbv_prob_cnn.gain.variant import ORIGINAL_FOCAL, sample_count
 
     runtime, kernel = _baseline_kernels()[0], _baseline_kernels()[3]
@@ -225,7 +225,7 @@ def baseline_view_search(
 ) -> tuple[float, int, int]:
     """Best view with a baseline kernel (``"two_step"`` or ``"naive"``): per-ray gains in
     blocks, each block @ membership. Returns (best gain, flat best index, device bytes)."""
-    from nbv_prob_cnn.gain.opencl import encode_grid
+    from nbv_prob_cnn.gain.marched_grid import encode_grid
 
     runtime, two_step, naive, _ = _baseline_kernels()
     cl, mf = runtime.cl, runtime.cl.mem_flags

@@ -212,7 +212,7 @@ def best_origin_view(
 
 def _grid_code(state: np.ndarray, prob: np.ndarray | None, settings: GainSettings) -> np.ndarray:
     """The kernels' cell codes of ``state`` (with ``prob`` for the probabilistic mode)."""
-    from nbv_prob_cnn.gain.opencl import encode_grid
+    from nbv_prob_cnn.gain.marched_grid import encode_grid
 
     return encode_grid(state, prob if settings.mode == "prob" else None)
 

@@ -22,25 +22,17 @@ import functools
 from pathlib import Path
 
 import numpy as np
-from scipy.ndimage import distance_transform_cdt
 
 from nbv_prob_cnn.basics.cl_device import cl_runtime
 from nbv_prob_cnn.gain.march import MarchOptions, RayMarch
+from nbv_prob_cnn.gain.marched_grid import ORIGINAL_BORDER_CODE, linear_indices, march_grid, march_normals
+from nbv_prob_cnn.gain.search_bounds import BoundOrder, bound_grid, origin_blocks
 from nbv_prob_cnn.gain.variant import ORIGINAL_FOCAL, ORIGINAL_NEAR_HIT, check_variant
+from nbv_prob_cnn.gain.view_tables import group_first_samples, group_sets, pad_to, reaching_views, view_table
 
 KERNEL_SOURCE = Path(__file__).with_name("raycast.cl")
 #: Kernel modes; ``prob_free`` (an unknown sample counts ``(1 - p) Pr``) only in the original variant.
 MODES = {"prob": 0, "ig": 1, "prob_free": 2}
-#: Padding code of the grid border where the original ``ig`` must tell it from occupied cells
-#: (outside the grid is empty to the original code; above ``ORIGINAL_BORDER`` of the kernel).
-ORIGINAL_BORDER_CODE = -1.5
-
-#: Cell codes read by the kernel.
-CODE_EMPTY = -1.0
-CODE_OCCUPIED = -2.0
-
-#: Largest empty-space jump encoded in the grid (cells).
-MAX_SKIP = 1 << 20
 
 #: Origins per work-group in ``view_gain`` (``lanes`` per work-item).
 VIEW_GAIN_LOCAL_SIZE = 16
@@ -63,224 +55,6 @@ MIN_ORIGINS_PER_BLOCK = 2.0
 BOUND_MARGIN = 1e-4
 
 
-def march_normals(normals: np.ndarray, padded_shape: tuple[int, int, int]) -> np.ndarray:
-    """The normals of :func:`~nbv_prob_cnn.gain.sampling.occupancy_normals` laid out as three planes
-    of the marched grid (:func:`march_grid`): ``(3, *padded_shape)`` float32, the padding cells
-    with the border's normal (:func:`~nbv_prob_cnn.gain.sampling.border_normal`), 2D with a zero z."""
-    dims = normals.shape[0]
-    sizes = padded_shape[:dims]
-    # per axis, -1 / +1 on the padding's low / high side, 0 inside: separable, so by broadcasting
-    side = [np.where(np.arange(n) == 0, 1.0, 0.0) - np.where(np.arange(n) == n - 1, 1.0, 0.0) for n in sizes]
-    faces = [side[a].reshape([-1 if b == a else 1 for b in range(dims)]) for a in range(dims)]
-    norm = np.sqrt(sum(f * f for f in faces))
-    norm = np.where(norm > 0, norm, 1.0)
-    out = np.zeros((3, *padded_shape), dtype=np.float32)
-    inner = tuple(slice(1, -1) for _ in range(dims))
-    for axis in range(dims):
-        plane = np.broadcast_to(faces[axis] / norm, sizes).astype(np.float32)
-        plane[inner] = normals[axis]
-        out[axis] = plane.reshape(padded_shape)
-    return out
-
-
-def encode_grid(state: np.ndarray, prob: np.ndarray | None) -> np.ndarray:
-    """One float per cell: the probability of unknown cells (0 without ``prob``), -1 empty, -2 occupied."""
-    code = np.full(state.shape, np.float32(CODE_EMPTY), dtype=np.float32)
-    np.copyto(code, np.float32(CODE_OCCUPIED), where=state == 1)
-    np.copyto(code, np.float32(0.0) if prob is None else prob, where=state == -1, casting="unsafe")
-    return code
-
-
-def empty_distance(empty: np.ndarray) -> np.ndarray:
-    """Per cell of the bool grid ``empty`` (2D or 3D), a lower bound of the Chebyshev distance to the
-    nearest non-empty cell (cells beyond the grid count as non-empty), at most 2 cells below it, >= 1
-    on empty cells; 0 elsewhere. int32.
-
-    Measured on a grid of 2 cells per axis (a coarse cell is empty when all its cells are): a cell in
-    a coarse cell at coarse distance ``D >= 1`` is at least ``2 D - 1`` cells from every non-empty cell
-    and at most ``2 D + 1``; one in a coarse cell holding a non-empty cell, within 1 of it. 8 times
-    fewer cells than the exact transform, which cost more than the rest of a search's host work."""
-    dims = empty.ndim
-    even = [n + n % 2 for n in empty.shape]
-    nonempty = np.ones(even, dtype=bool)
-    nonempty[tuple(slice(0, n) for n in empty.shape)] = ~empty
-    coarse = nonempty.reshape([v for n in even for v in (n // 2, 2)]).any(axis=tuple(range(1, 2 * dims, 2)))
-    inside = tuple(slice(1, -1) for _ in range(dims))  # a non-empty coarse border: beyond the grid
-    coarse_distance = distance_transform_cdt(np.pad(~coarse, 1), metric="chessboard")[inside].astype(np.int32)
-    bound = np.maximum(2 * coarse_distance - 1, 1)
-    wide = bound.reshape([v for n in coarse.shape for v in (n, 1)])
-    fine = np.broadcast_to(wide, [v for n in coarse.shape for v in (n, 2)]).reshape(even)
-    return np.where(empty, fine[tuple(slice(0, n) for n in empty.shape)], np.int32(0)).astype(np.int32)
-
-
-def march_grid(code: np.ndarray, border: float = -1.0) -> np.ndarray:
-    """The grid the kernels march: ``code`` (from :func:`encode_grid`) as a 3D C-ordered array
-    with one occupied cell of padding on each side of every axis the rays move along (2D grids
-    get a trailing axis of size 1, not padded). Occupied cells (and the padding) become -1;
-    known-empty cells become ``-1 - d`` with ``d`` a lower bound of the Chebyshev distance to the
-    nearest non-empty cell (:func:`empty_distance`, capped at :data:`MAX_SKIP`): the first samples
-    of every ray from there are empty (see :func:`group_first_samples`). ``border``: the padding's
-    code (-1, occupied; :data:`ORIGINAL_BORDER_CODE` for the original ``ig``)."""
-    code3 = code if code.ndim == 3 else code[:, :, None]
-    shape = tuple(n + 2 for n in code3.shape[:2]) + (code3.shape[2] + 2 if code.ndim == 3 else 1,)
-    if int(np.prod(shape)) >= 2**31:
-        raise ValueError(f"grid of shape {code.shape} too large for 32-bit cell indices")
-    inner = (slice(1, -1), slice(1, -1), slice(1, -1) if code.ndim == 3 else slice(None))
-    march = np.full(shape, np.float32(CODE_OCCUPIED), dtype=np.float32)
-    march[inner] = code3
-    empty = march == np.float32(CODE_EMPTY)
-    occupied = march == np.float32(CODE_OCCUPIED)
-    distance = empty_distance(empty if code.ndim == 3 else empty[:, :, 0]).reshape(shape)
-    np.subtract(np.float32(-1.0), np.minimum(distance, MAX_SKIP), out=march, where=empty, casting="unsafe")
-    march[occupied] = np.float32(-1.0)
-    if border != -1.0:
-        march[0], march[-1], march[:, 0], march[:, -1] = (np.float32(border),) * 4
-        if code.ndim == 3:
-            march[:, :, 0], march[:, :, -1] = np.float32(border), np.float32(border)
-    return march
-
-
-def linear_indices(cells: np.ndarray, padded_shape: tuple[int, ...], shift: int) -> np.ndarray:
-    """Linear indices into the padded grid of ``(N, dims)`` cell coordinates (or offsets,
-    ``shift = 0``; cells of the unpadded grid use ``shift = 1``)."""
-    cells = np.asarray(cells)
-    strides = (padded_shape[1] * padded_shape[2], padded_shape[2], 1)
-    dims = cells.shape[-1]
-    index = np.zeros(cells.shape[:-1], dtype=np.int64)
-    for axis in range(dims):  # per column: an integer matrix product has no BLAS and cost 10x more
-        index += (cells[..., axis].astype(np.int64) + (shift if axis < 2 or dims == 3 else 0)) * strides[axis]
-    return index.astype(np.int32)
-
-
-def view_table(membership: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The ``(R, V)`` 0/1 ray-in-view matrix as compressed rows per view: ``start`` ``(V + 1,)``
-    and ``rays`` (ascending ray indices of view ``w`` in ``rays[start[w]:start[w + 1]]``)."""
-    member = np.asarray(membership) != 0
-    counts = member.sum(axis=0)
-    start = np.concatenate([[0], np.cumsum(counts)]).astype(np.int32)
-    rays = np.nonzero(member.T)[1].astype(np.int32)
-    return start, rays
-
-
-def group_first_samples(padded: np.ndarray, origin_index: np.ndarray, group: int) -> np.ndarray:
-    """Per block of ``group`` consecutive origins, the first sample ``t`` worth reading on any of
-    their rays: the smallest Chebyshev distance ``d`` from the block's origins to a non-empty
-    cell (samples ``0 .. d - 1`` of every ray are within ``d - 1`` cells, hence empty). One
-    start per work-group keeps the work-items' loops in step (vectorizable)."""
-    values = padded.reshape(-1)[origin_index]
-    distance = np.where(values <= -2.0, -1.0 - values, 0.0).astype(np.int32)
-    padding = -distance.size % group
-    distance = np.concatenate([distance, np.zeros(padding, dtype=np.int32)]) if padding else distance
-    return np.ascontiguousarray(distance.reshape(-1, group).min(axis=1), dtype=np.int32)
-
-
-def bit_words(flags: np.ndarray) -> np.ndarray:
-    """``(N, K)`` booleans as the kernel's bit sets: ``(N, ceil(K / 32))`` uint32, item ``k``
-    in bit ``k % 32`` of word ``k // 32``."""
-    flags = np.asarray(flags, dtype=bool)
-    padded = np.zeros((flags.shape[0], -(-flags.shape[1] // 32) * 32), dtype=bool)
-    padded[:, : flags.shape[1]] = flags
-    return np.ascontiguousarray(np.packbits(padded, axis=1, bitorder="little")).view("<u4").astype(np.uint32)
-
-
-def group_sets(view_sets: np.ndarray, membership: np.ndarray, group: int = 1) -> np.ndarray:
-    """The kernel's per-work-group rows for ``(N, V)`` per-origin view sets: per block of
-    ``group`` consecutive origins the union of their views, then the union of those views'
-    rays (``membership``), each as :func:`bit_words` words."""
-    padding = -view_sets.shape[0] % group
-    rows = np.concatenate([view_sets, np.zeros((padding, view_sets.shape[1]), dtype=bool)]).astype(bool)
-    unique, row = unique_rows(np.asarray(rows.reshape(-1, group, rows.shape[1]).any(axis=1)))
-    view_rays = bit_words(np.asarray(membership).T != 0)  # (V, ray words); OR, not a BLAS product:
-    rays = np.bitwise_or.reduce(np.where(unique[:, :, None], view_rays, np.uint32(0)), axis=1)  # its threads spin
-    return np.ascontiguousarray(np.concatenate([bit_words(unique), rays.astype(np.uint32)], axis=1)[row])
-
-
-def unique_rows(flags: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The distinct rows of an ``(N, K)`` boolean array and per row its index among them (a
-    1-D sort of 64-bit keys when ``K <= 64``, much faster than ``np.unique(axis=0)``)."""
-    words = bit_words(flags)
-    if words.shape[1] <= 2:
-        key = words[:, 0].astype(np.uint64)
-        if words.shape[1] == 2:
-            key |= words[:, 1].astype(np.uint64) << np.uint64(32)
-        _, first, row = np.unique(key, return_index=True, return_inverse=True)
-    else:
-        _, first, row = np.unique(words, axis=0, return_index=True, return_inverse=True)
-    return np.asarray(flags, dtype=bool)[first], row.ravel()
-
-
-def origin_blocks(origins: np.ndarray, size: int) -> tuple[np.ndarray, np.ndarray]:
-    """The blocks of ``size`` cells per marched axis that hold ``origins`` (``(N, dims)`` cells of the
-    unpadded grid): their corners ``c`` in padded coordinates (``(B, 3)`` int64, in C order; the
-    block is ``c - {0 .. size-1}`` per marched axis: padded coordinates ``1 .. size``,
-    ``size + 1 .. 2 size``, ...), and per origin its block ``(N,)`` (an index into the corners).
-    One flag per block of a dense block grid instead of a sort of the origins."""
-    dims = origins.shape[1]
-    if origins.shape[0] == 0:
-        return np.zeros((0, 3), dtype=np.int64), np.zeros(0, dtype=np.int64)
-    block = [(origins[:, axis].astype(np.int64) + size) // size for axis in range(dims)]
-    counts = tuple(int(b.max()) + 1 for b in block)
-    key = np.ravel_multi_index(block, counts)
-    present = np.zeros(int(np.prod(counts)), dtype=bool)
-    present[key] = True
-    index = np.cumsum(present, dtype=np.int64) - 1
-    corners = np.zeros((int(index[-1]) + 1, 3), dtype=np.int64)
-    corners[:, :dims] = np.stack(np.unravel_index(np.flatnonzero(present), counts), axis=1) * size
-    return corners, index[key]
-
-
-def _window(values: np.ndarray, dims: int, size: int, reduce: np.ufunc, fill) -> np.ndarray:
-    """``reduce`` over the window ``c - {0 .. size-1}`` per marched axis (``fill`` outside), by
-    doubling windows: ``ceil(log2 size)`` whole-grid operations per axis."""
-    out = values
-    for axis in range(dims):
-        width = 1
-        while width < size:
-            step = min(width, size - width)
-            moved = np.moveaxis(out, axis, 0)
-            wider = np.empty_like(moved)
-            reduce(moved[step:], moved[:-step], out=wider[step:])
-            reduce(moved[:step], fill, out=wider[:step])
-            out, width = np.moveaxis(wider, 0, axis), width + step
-    return out
-
-
-def bound_grid(padded: np.ndarray, dims: int, probabilistic: bool, size: int) -> np.ndarray:
-    """The grid whose marched gain from a block corner ``c`` bounds, ray by ray, the gain of
-    every cell of the block ``c - {0 .. size-1}^dims`` (see :meth:`OpenCLRayCaster.best_view`).
-
-    ``padded`` grown by ``size`` occupied cells on each side of every marched axis (the corner's
-    ray stops only once all the block's rays have stopped, up to ``size - 1`` cells after the
-    padding); cell ``c`` summarises the window ``c - {0 .. size-1}^dims`` (cells outside count as
-    occupied): ``-1`` if the whole window is occupied (every ray of the block has stopped);
-    else, if the window holds an unknown cell, the smallest occupancy probability in it (empty
-    0, occupied 1; 0 when not ``probabilistic``): the block's samples there count at most the
-    full weight and let through at most ``1 - min p``; else (empty and occupied cells only) the
-    empty code of the smallest distance in the window (samples closer than it are empty for the
-    whole block).
-
-    Two window reductions: the largest of a key (occupied -inf, empty its code <= -2, unknown +1)
-    tells the three cases apart and gives the empty code; the smallest ``p`` the second case.
-    """
-    pad = ((size, size), (size, size), (size, size) if dims == 3 else (0, 0))
-    grid = np.pad(padded, pad, constant_values=np.float32(-1.0))
-    unknown, occupied = grid >= 0.0, grid == -1.0
-    key = grid.copy()  # empty codes stay
-    np.copyto(key, np.float32(1.0), where=unknown)
-    np.copyto(key, np.float32(-np.inf), where=occupied)
-    out = _window(key, dims, size, np.maximum, np.float32(-np.inf))
-    del key
-    if probabilistic:
-        p = grid  # our own copy: becomes p (unknown cells keep theirs)
-        np.copyto(p, np.float32(0.0), where=grid <= -2.0)
-        np.copyto(p, np.float32(1.0), where=occupied)
-        np.copyto(out, _window(p, dims, size, np.minimum, np.float32(1.0)), where=out > 0.0)
-    else:  # an unknown cell counts p = 0: the window's least p is 0 wherever it holds one
-        np.copyto(out, np.float32(0.0), where=out > 0.0)
-    out[out == -np.inf] = np.float32(-1.0)
-    return np.ascontiguousarray(out, dtype=np.float32)
-
-
 def default_lanes(device) -> int:
     """Origins per work-item for ``device``: :data:`CPU_LANES` on a CPU (pocl runs a work-item's
     loop as scalar code, branching per sample; a vector of lanes marches branch-free, 2x faster
@@ -288,12 +62,6 @@ def default_lanes(device) -> int:
     import pyopencl as cl
 
     return CPU_LANES if device.type & cl.device_type.CPU else 1
-
-
-def pad_to(values: np.ndarray, multiple: int) -> np.ndarray:
-    """``values`` (1-D) with its last item repeated up to a length multiple of ``multiple``."""
-    padding = -values.size % multiple
-    return np.ascontiguousarray(np.concatenate([values, np.repeat(values[-1:], padding)]) if padding else values)
 
 
 class OpenCLRayCaster:
@@ -587,31 +355,6 @@ class OpenCLRayCaster:
         return best[1], best[2], best[0], done
 
 
-class BoundOrder:
-    """The origins in order of decreasing block bound: blocks by bound (ties: the first block first),
-    each block's origins in grid order, as a stable sort of every origin by its block's rank gives
-    them. Sorted only as far as :meth:`take` reads (a search reads a small prefix; sorting millions
-    of origins cost more than their exact gains)."""
-
-    def __init__(self, block_bound: np.ndarray, block_of: np.ndarray) -> None:
-        by_bound = np.argsort(-block_bound, kind="stable")
-        rank = np.empty(block_bound.size, dtype=np.int64)
-        rank[by_bound] = np.arange(block_bound.size)
-        self._origin_rank = rank[block_of]
-        self._rank_bound = block_bound[by_bound]
-        self._ends = np.cumsum(np.bincount(self._origin_rank, minlength=block_bound.size))  # origins up to each rank
-        self._order = np.zeros(0, dtype=np.int64)
-
-    def take(self, start: int, stop: int) -> tuple[np.ndarray, np.ndarray]:
-        """Origins at positions ``start .. stop - 1`` of the order and their blocks' bounds."""
-        if stop > self._order.size:  # the blocks holding the first max(stop, 2x) positions, at least
-            ranks = int(np.searchsorted(self._ends, max(stop, 2 * self._order.size))) + 1
-            members = np.flatnonzero(self._origin_rank < ranks)
-            self._order = members[np.argsort(self._origin_rank[members], kind="stable")]
-        following = self._order[start:stop]
-        return following, self._rank_bound[self._origin_rank[following]]
-
-
 def _march_args(march: RayMarch) -> list:
     """The kernels' arguments after the sample offsets: rays, samples per ray, ``nu``, the weight
     normaliser's inverse and itself, ``eps``, mode and minimum range."""
@@ -630,16 +373,6 @@ def _border(march: RayMarch) -> float:
     if options is not None and options.sensor is not None and not options.sensor.walls:
         return ORIGINAL_BORDER_CODE
     return -1.0
-
-
-def reaching_views(view_bound: np.ndarray, block_of: np.ndarray, best: float) -> tuple[np.ndarray, np.ndarray]:
-    """The views worth evaluating from origins of blocks ``block_of``: those whose block bound
-    reaches ``best`` (no other view can reach or beat the best gain found). Returns per origin a
-    view-set index and the distinct view sets ``(P, V)`` bool."""
-    blocks, block_row = np.unique(block_of, return_inverse=True)
-    reach = view_bound[blocks] >= np.float32(best)
-    sets, set_row = unique_rows(reach)
-    return set_row[block_row.ravel()], sets
 
 
 @functools.lru_cache(maxsize=1)

@@ -9,7 +9,8 @@ from nbv_prob_cnn.basics.camera import orientations
 from nbv_prob_cnn.gain import GainSettings, best_origin_view, origin_view_gains, ray_directions, view_membership
 from nbv_prob_cnn.gain.directions import distance_weights, sample_offsets
 from nbv_prob_cnn.gain.march import RayMarch
-from nbv_prob_cnn.gain.opencl import encode_grid, get_ray_caster
+from nbv_prob_cnn.gain.marched_grid import encode_grid
+from nbv_prob_cnn.gain.opencl import get_ray_caster
 
 E, O, U = 0, 1, -1  # noqa: E741
 
@@ -248,7 +249,7 @@ def test_best_view_evaluates_only_views_that_can_win(monkeypatch, mode):
 def test_unique_rows_matches_numpy_unique(width):
     """The 64-bit-key fast path (width <= 64) and the word path give numpy's distinct rows and
     an inverse that rebuilds the input."""
-    from nbv_prob_cnn.gain.opencl import unique_rows
+    from nbv_prob_cnn.gain.view_tables import unique_rows
 
     rng = np.random.default_rng(width)
     flags = rng.random((400, width)) < 0.5

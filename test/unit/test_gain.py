@@ -257,7 +257,7 @@ def test_every_lane_width_matches_numpy_reference(rng, lane_casters, shape, n_ra
     same float32 values for every width (each lane does the scalar loop's operations). Origin
     counts that fill no whole vector or work-group (padding) and a tolerance ``eps`` included."""
     from nbv_prob_cnn.gain.directions import sample_offsets
-    from nbv_prob_cnn.gain.opencl import encode_grid
+    from nbv_prob_cnn.gain.marched_grid import encode_grid
 
     state, prob = _random_world(rng, shape)
     dims = len(shape)

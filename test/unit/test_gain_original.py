@@ -135,7 +135,7 @@ def test_kernel_matches_reference(dims, shape, n_rays, r_max, mode, free):
 @pytest.mark.parametrize("mode,free", KINDS)
 def test_lanes_give_the_same_original_gains(lanes, mode, free):
     from nbv_prob_cnn.gain.march import ray_march
-    from nbv_prob_cnn.gain.opencl import encode_grid
+    from nbv_prob_cnn.gain.marched_grid import encode_grid
 
     state, prob = _random_case(np.random.default_rng(7), 3, (15, 14, 16))
     directions = ray_directions(3, 4)

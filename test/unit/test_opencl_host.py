@@ -1,4 +1,4 @@
-"""The host-side grids and indices of the OpenCL search (nbv_prob_cnn.gain.opencl), against slow
+"""The host-side grids and indices of the OpenCL search (nbv_prob_cnn.gain.marched_grid, search_bounds), against slow
 references written here: an exact distance transform, per-cell window loops, np.unique and a full
 stable sort."""
 
@@ -10,18 +10,16 @@ import numpy as np
 import pytest
 from scipy.ndimage import distance_transform_cdt
 
-from nbv_prob_cnn.gain.opencl import (
+from nbv_prob_cnn.gain.marched_grid import (
     CODE_EMPTY,
     CODE_OCCUPIED,
     ORIGINAL_BORDER_CODE,
-    BoundOrder,
-    bound_grid,
     empty_distance,
     encode_grid,
     linear_indices,
     march_grid,
-    origin_blocks,
 )
+from nbv_prob_cnn.gain.search_bounds import BoundOrder, bound_grid, origin_blocks
 
 
 def _state(shape: tuple[int, ...], seed: int, unknown: float = 0.3, occupied: float = 0.1) -> np.ndarray:
