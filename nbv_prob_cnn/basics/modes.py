@@ -13,8 +13,9 @@ ProbabilitySource = Literal["constant", "cnn", "oracle"]
 Backend = Literal["auto", "opencl", "numpy"]
 #: How ``nbv_planner`` moves the camera: the sim_camera/move_to service, a goal-pose topic, or
 #: the arm (arm_sim/move_to_joints with the planned joint goal), or the arm through a
-#: joint_trajectory_controller (control_msgs/FollowJointTrajectory with the timed joint path).
-MoveMode = Literal["service", "topic", "arm", "trajectory"]
+#: joint_trajectory_controller (control_msgs/FollowJointTrajectory with the timed joint path), or
+#: MoveIt 2's move_group (moveit_msgs/MoveGroup: the view as a pose or joint goal).
+MoveMode = Literal["service", "topic", "arm", "trajectory", "moveit"]
 #: Arithmetic of the completion CNN's forward pass: as trained, or bfloat16 under torch's autocast
 #: (opt-in: faster on CPUs with AVX512-BF16 or AMX, probabilities within 0.01; docs/performance.md#scale).
 CnnPrecision = Literal["float32", "bfloat16"]

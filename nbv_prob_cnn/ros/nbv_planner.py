@@ -11,9 +11,11 @@
   OMPL when the straight one collides, ``arm_path_timeout_s``), timed within the velocity,
   acceleration and jerk limits (:func:`~nbv_prob_cnn.arm.trajectory.time_parameterise_path`), to a
   ``joint_trajectory_controller``'s ``control_msgs/FollowJointTrajectory`` action
-  (``trajectory_action``, default ``/arm_controller/follow_joint_trajectory``)),
+  (``trajectory_action``, default ``/arm_controller/follow_joint_trajectory``), or with
+  ``move_mode:=moveit`` hand the view to MoveIt 2's ``move_group`` as a ``moveit_msgs/MoveGroup``
+  pose or joint goal (:mod:`~nbv_prob_cnn.ros.moveit_mover`)),
   wait for a grid that includes a frame from the new pose, repeat until a stop condition.
-  A move that is rejected or fails (arm / trajectory modes) rules that view out and the next
+  A move that is rejected or fails (arm / trajectory / moveit modes) rules that view out and the next
   feasible ranked view is tried (at most ``max_failed_executions`` in a row); each failure is
   reported in the feedback (``executed`` false, ``execution_error``) and never aborts the goal.
   A view that changed fewer than ``guard_min_cells`` grid cells rules its pose out for the rest
@@ -84,6 +86,7 @@ from nbv_prob_cnn.ros.gain_params import backend_param, gain_variant_param, n_ra
 from nbv_prob_cnn.ros.grid_holder import LatestGrid, grid_transport_param
 from nbv_prob_cnn.ros.joint_state_intake import JointStateIntake
 from nbv_prob_cnn.ros.markers import planning_markers
+from nbv_prob_cnn.ros.moveit_mover import MoveGroupMover, MoveItParams
 from nbv_prob_cnn.ros.movers import (
     CameraPosition,
     CameraServiceMover,
@@ -99,12 +102,16 @@ from nbv_prob_cnn.ros.runtime import run_node, shutdown_interrupt
 from nbv_prob_cnn.ros.stream_node import StreamNode
 from nbv_prob_cnn.ros.tf_listener import POSE_SOURCES, TfListener
 
+#: The move modes that move the arm to the planned configuration (they need use_arm).
+ARM_MOVE_MODES = ("arm", "trajectory", "moveit")
+
 
 @dataclass
-class PlannerConfig(SensorParams, ArmViewParams):
+class PlannerConfig(SensorParams, ArmViewParams, MoveItParams):
     """Parameters of ``nbv_planner`` (``method`` and ``service_timeout_s`` may change at run time):
     the robot description and ``use_arm`` (:class:`ArmViewParams`), the planning frustum
-    (:class:`SensorParams`: CameraInfo + range), then these."""
+    (:class:`SensorParams`: CameraInfo + range), ``move_mode:=moveit``'s (:class:`MoveItParams`),
+    then these."""
 
     pose_source: str = param(
         "tf", "camera pose (move_mode topic: arrival): tf (camera_frame in the grid frame, newest) or topic "
@@ -125,8 +132,8 @@ class PlannerConfig(SensorParams, ArmViewParams):
     )
     move_mode: MoveMode = param(
         "service",
-        "'service' (sim_camera/move_to), 'topic' (goal pose), 'arm' (arm_sim/move_to_joints) or 'trajectory' "
-        "(FollowJointTrajectory); arm and trajectory need use_arm",
+        "'service' (sim_camera/move_to), 'topic' (goal pose), 'arm' (arm_sim/move_to_joints), 'trajectory' "
+        "(FollowJointTrajectory) or 'moveit' (MoveIt 2's MoveGroup action); arm, trajectory and moveit need use_arm",
         choices=MOVE_MODES,
     )  # fmt: skip
     workspace_min: list = param([], "camera workspace box corner [x, y, z] (grid frame, m; [] = no box)")
@@ -169,8 +176,8 @@ class PlannerConfig(SensorParams, ArmViewParams):
         "cells, 0: off)", min_value=-1, max_value=1_000_000_000,
     )  # fmt: skip
     max_failed_executions: int = param(
-        5, "arm / trajectory modes: views in a row whose move failed before the exploration stops", min_value=1,
-        max_value=1000,
+        5, "arm / trajectory / moveit modes: views in a row whose move failed before the exploration stops",
+        min_value=1, max_value=1000,
     )  # fmt: skip
     move_timeout_s: float = param(30.0, "wait for the camera to arrive", min_value=0.1, max_value=600.0)
     grid_timeout_s: float = param(30.0, "wait for the grid with the new frame", min_value=0.1, max_value=600.0)
@@ -212,7 +219,7 @@ class NbvPlanner(Node):
         self._rng = np.random.default_rng()
         self._slot = ExplorationSlot()  # one exploration at a time
         self._shutdown = shutdown_interrupt(self)  # triggered by run_node when the node stops
-        if cfg.move_mode in ("arm", "trajectory") and not cfg.use_arm:
+        if cfg.move_mode in ARM_MOVE_MODES and not cfg.use_arm:
             raise ValueError(
                 f"move_mode {cfg.move_mode!r} needs use_arm:=true (the joint goal comes from planning with the arm)"
             )
@@ -243,7 +250,7 @@ class NbvPlanner(Node):
         if self._tf is None:
             self.create_subscription(TransformStamped, names.CAMERA_POSE, self._camera.receive, 10,
                                      callback_group=group)  # fmt: skip
-        elif cfg.move_mode not in ("arm", "trajectory"):  # the camera's arrival wait re-checks TF as
+        elif cfg.move_mode not in ARM_MOVE_MODES:  # the camera's arrival wait re-checks TF as
             self.create_timer(0.02, self._camera.receive, callback_group=group)  # /camera/pose would wake it
         self._sensor = CameraInfoSensor(self, cfg, cfg.dataset, callback_group=group)
         self._nbv_pub = self.create_publisher(PoseStamped, names.NEXT_BEST_VIEW, 10)
@@ -261,7 +268,10 @@ class NbvPlanner(Node):
         if cfg.move_mode == "trajectory":
             assert self._joints is not None and self._arm is not None  # use_arm (checked above)
             mover = TrajectoryMover(self, cfg, self._joints, self._arm, group)
-        arm_moves = cfg.move_mode in ("arm", "trajectory")
+        if cfg.move_mode == "moveit":
+            assert self._joints is not None and self._arm is not None  # use_arm (checked above)
+            mover = MoveGroupMover(self, cfg, self._joints, self._arm, group)
+        arm_moves = cfg.move_mode in ("arm", "trajectory")  # MoveIt's path is its own: only joint_states sweep it
         self._mover = mover if self._arm is None else ArmBookkeepingMover(mover, self._arm, arm_moves)
         self._readiness = ReadinessPublisher(self, ready=not cfg.use_arm, callback_group=group)
         # one plan request at a time: a plan waits for the servers' answers, which other threads of the
@@ -495,7 +505,7 @@ class NbvPlanner(Node):
             view_index=taken.index, pose=planned.best_pose, gain=planned.best_gain,
             unknown_fraction=taken.unknown_fraction, executed=True, ruled_out_views=taken.ruled_out_views,
         )  # fmt: skip
-        if self.config.move_mode in ("arm", "trajectory"):
+        if self.config.move_mode in ARM_MOVE_MODES:
             feedback.joint_goal, feedback.joint_travel = planned.joint_goal, planned.joint_path_length
         goal_handle.publish_feedback(feedback)
         self.get_logger().info(
@@ -505,7 +515,7 @@ class NbvPlanner(Node):
         )
 
     def _move_failed(self, goal_handle, failed: FailedMove[PlanNextBestView.Response]) -> None:
-        """A move that failed (arm / trajectory modes): the feedback says why; the next view is tried."""
+        """A move that failed (arm / trajectory / moveit modes): the feedback says why; the next view is tried."""
         planned = failed.planned.target
         feedback = Explore.Feedback(
             view_index=failed.index, pose=planned.best_pose, gain=planned.best_gain,
