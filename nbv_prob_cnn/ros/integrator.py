@@ -83,7 +83,6 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import TransformStamped
 from nbv_prob_cnn_msgs.msg import CompressedVoxelGrid, VoxelGrid
@@ -117,7 +116,7 @@ from nbv_prob_cnn.ros.conversions import compress_grid_msg, grid_to_msg, time_ms
 from nbv_prob_cnn.ros.drop_report import DropReport
 from nbv_prob_cnn.ros.integrator_config import IntegratorConfig
 from nbv_prob_cnn.ros.latest_sent import LatestSent
-from nbv_prob_cnn.ros.occupied_cloud import occupied_cloud_msg
+from nbv_prob_cnn.ros.occupied_cloud import OccupiedCloudOutput
 from nbv_prob_cnn.ros.parameters import declare_config
 from nbv_prob_cnn.ros.qos import GRID_QOS, lost_message_counter, subscription_qos
 from nbv_prob_cnn.ros.readiness import InputReadiness
@@ -206,10 +205,7 @@ class Integrator(Node):
         self._compressed_sent = LatestSent()  # the grid sent compressed, and the subscribers then
         self._compressed_of: tuple[VoxelGrid | None, CompressedVoxelGrid | None] = (None, None)  # the latest packed
         self._cloud_pub = self.create_publisher(PointCloud2, TOPIC_OCCUPIED_CELLS, 1)
-        self._next_cloud = 0.0
-        self._cloud_lock = threading.Lock()  # the worker (new grids) and the cloud timer both publish clouds
-        self._cloud_grid: tuple[np.ndarray, int] | None = None  # the latest grid and its stamp
-        self._cloud_sent = LatestSent()  # the (grid, stamp) of the last cloud sent, and the subscribers then
+        self._cloud = OccupiedCloudOutput(self._cloud_pub, cfg.cloud_rate_hz, self.geometry, cfg.fixed_frame)
         inputs = MutuallyExclusiveCallbackGroup()
         services = MutuallyExclusiveCallbackGroup()
         image, info, pose = (
@@ -529,9 +525,7 @@ class Integrator(Node):
         self._last_grid, self._last_grid_at = msg, time.monotonic()
         self.counts["grids"] += 1
         self._publish_compressed()
-        with self._cloud_lock:
-            self._cloud_grid = (grid, stamp_ns)
-        self._publish_cloud()
+        self._cloud.update(grid, stamp_ns)
 
     def _publish_compressed(self) -> None:
         """The latest grid on ``nbv/grid/compressed`` while that topic has subscribers: each new
@@ -556,27 +550,9 @@ class Integrator(Node):
         return packed
 
     def _publish_cloud(self) -> None:
-        """The occupied cells of the latest grid on ``occupied_cells``, at most ``cloud_rate_hz``
-        times a second and only while someone subscribes: when the grid is new since the last
-        cloud, or a subscriber joined since (a volatile one, such as RViz opened later, gets the
-        current cloud without waiting for the next frame)."""
-        cloud_rate = self.config.cloud_rate_hz
-        if cloud_rate <= 0 or not self.context.ok():
-            return
-        with self._cloud_lock:
-            latest, subscribers = self._cloud_grid, self._cloud_pub.get_subscription_count()
-            if not self._cloud_sent.due(latest, subscribers):
-                return
-            if time.monotonic() < self._next_cloud:
-                return  # throttled: this timer sends it later
-            assert latest is not None
-            grid, stamp_ns = latest
-            self._next_cloud = time.monotonic() + 1.0 / cloud_rate
-            self._cloud_sent.sent(latest, subscribers)
-            self._cloud_pub.publish(
-                occupied_cloud_msg(grid, self.geometry.origin, self.geometry.resolution, self.config.fixed_frame,
-                                   time_msg(stamp_ns))
-            )  # fmt: skip
+        """The latest grid's cloud on ``occupied_cells`` when due (:class:`OccupiedCloudOutput`)."""
+        if self.context.ok():
+            self._cloud.send()
 
     def _on_republish_timer(self) -> None:
         """The latest grid again, when unchanged for ``republish_period_s`` and a volatile

@@ -111,3 +111,16 @@ def test_every_study_is_in_the_studies_readme() -> None:
     assert len(names) >= 10
     missing = [n for n in names if f"`{n}`" not in readme]
     assert not missing, f"studies/README.md has no row for {missing}"
+
+
+#: The handbook's limit on a module of the product (lines): a module that grows past it is split.
+MAX_MODULE_LINES = 600
+
+
+def test_no_module_of_the_product_is_above_600_lines() -> None:
+    long = {
+        str(path.relative_to(REPO)): n
+        for path in sorted(PACKAGE.rglob("*.py"))
+        if (n := len(path.read_text().splitlines())) > MAX_MODULE_LINES
+    }
+    assert not long, f"modules above {MAX_MODULE_LINES} lines (split them by what they do): {long}"
