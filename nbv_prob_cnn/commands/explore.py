@@ -46,6 +46,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--sampling", choices=SAMPLINGS, default="rounded",
                         help="the gain's ray samples: the paper's rounded ones, or the exact voxel "
                              "traversal (docs/sensing.md)")  # fmt: skip
+    parser.add_argument("--surface-blend", type=float, default=None,
+                        help="the surface methods' blend beta in [0, 1]: 0 the paper's gain, 1 the surface alone "
+                             "(default: DEFAULT_SURFACE_BLEND, docs/method.md#surface-gain)")  # fmt: skip
     parser.add_argument("--no-guard", action="store_true",
                         help="the paper's plain loop: a view that changed nothing may be taken again")  # fmt: skip
     parser.add_argument("--guard-min-cells", type=int, default=None,
@@ -97,6 +100,7 @@ def run(args: argparse.Namespace) -> int:
         sensor_model=args.sensor_model,
         gain_sensor=gain_sensor,
         sampling=args.sampling,
+        **({} if args.surface_blend is None else {"surface_blend": args.surface_blend}),
     )
     from nbv_prob_cnn.exploration.view_guard import ViewGuard
 

@@ -119,7 +119,8 @@ def predict(
         prob = probability_map(method, state, contexts[0])
         for variant, context in zip(variants, contexts, strict=True):
             scores = score_poses(state, prob, geometry, positions, quats, context, method.mode,
-                                 score_unknown_cells=True, rays_across=variant.rays_across)  # fmt: skip
+                                 score_unknown_cells=True, rays_across=variant.rays_across,
+                                 surface=method.surface)  # fmt: skip
             if np.any(scores.validity != VALID):
                 bad = int(np.flatnonzero(scores.validity != VALID)[0])
                 raise ValueError(f"pose {bad}: cannot be scored: {scores.reasons[bad]}")

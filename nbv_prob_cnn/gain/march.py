@@ -74,6 +74,7 @@ class RayMarch:
         min_range: minimum range in cells.
         variant: gain variant (:mod:`nbv_prob_cnn.gain.variant`), a build option of the program.
         options: the optional modes' tables, or None (the paper's gain on rounded samples).
+        surface: the surface blend (:attr:`~nbv_prob_cnn.gain.settings.GainSettings.surface`).
     """
 
     offsets: np.ndarray
@@ -83,6 +84,7 @@ class RayMarch:
     min_range: float = 0.0
     variant: str = "paper"
     options: MarchOptions | None = None
+    surface: float = 0.0
 
     @property
     def program(self) -> tuple[str, bool, bool]:
@@ -122,4 +124,5 @@ def ray_march(
         offsets = sample_offsets(directions, n_samples - 1)
         total = float(sample_weights(settings.variant, n_samples, dims).sum())
         min_range = settings.min_range
-    return RayMarch(offsets, total, settings.kernel_mode, settings.eps, min_range, settings.variant, options)
+    return RayMarch(offsets, total, settings.kernel_mode, settings.eps, min_range, settings.variant, options,
+                    float(settings.surface))  # fmt: skip

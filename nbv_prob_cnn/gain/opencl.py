@@ -26,7 +26,7 @@ import numpy as np
 from nbv_prob_cnn.basics.cl_device import cl_runtime
 from nbv_prob_cnn.gain.march import MarchOptions, RayMarch
 from nbv_prob_cnn.gain.marched_grid import ORIGINAL_BORDER_CODE, linear_indices, march_grid, march_normals
-from nbv_prob_cnn.gain.search_bounds import BoundOrder, bound_grid, origin_blocks
+from nbv_prob_cnn.gain.search_bounds import BoundOrder, bound_grid, origin_blocks, surface_bound_grid
 from nbv_prob_cnn.gain.variant import ORIGINAL_FOCAL, ORIGINAL_NEAR_HIT, check_variant
 from nbv_prob_cnn.gain.view_tables import group_first_samples, group_sets, pad_to, reaching_views, view_table
 
@@ -76,7 +76,7 @@ class OpenCLRayCaster:
         if self.lanes not in LANE_WIDTHS:
             raise ValueError(f"lanes: expected one of {LANE_WIDTHS}, got {lanes!r}")
         self._runtime = runtime
-        self._kernels: dict[tuple[str, bool, bool], tuple] = {}
+        self._kernels: dict[tuple[str, bool, bool, bool], tuple] = {}
         self._ray_kernel, self._view_kernel = self.kernels("paper")
         self._cache: dict[tuple, object] = {}
         self._last_options: tuple | None = None
@@ -90,11 +90,12 @@ class OpenCLRayCaster:
         """:meth:`program_lanes` of the program a launch with ``options`` runs."""
         return self.program_lanes(options is not None and options.flags[1])
 
-    def kernels(self, variant: str, exact: bool = False, sensor: bool = False) -> tuple:
+    def kernels(self, variant: str, exact: bool = False, sensor: bool = False, surface_bound: bool = False) -> tuple:
         """``(ray_gain, view_gain)`` of the program of gain ``variant`` (built on first use), with
         the exact-traversal and ``"returns"`` options (:class:`MarchOptions`), marching
-        :meth:`program_lanes` origins per work-item."""
-        key = (variant, bool(exact), bool(sensor))
+        :meth:`program_lanes` origins per work-item; ``surface_bound``: the program of a surface
+        blend's block bounds (``SURFACE_BOUND``)."""
+        key = (variant, bool(exact), bool(sensor), bool(surface_bound))
         if key not in self._kernels:
             options = [f"-DLANES={self.program_lanes(sensor)}"]
             if check_variant(variant) == "original":
@@ -102,6 +103,7 @@ class OpenCLRayCaster:
                             f"-DORIGINAL_NEAR_HIT={ORIGINAL_NEAR_HIT!r}f"]  # fmt: skip
             options += ["-DGAIN_EXACT=1"] if exact else []
             options += ["-DGAIN_SENSOR=1"] if sensor else []
+            options += ["-DSURFACE_BOUND=1"] if surface_bound else []
             program = self._runtime.build(KERNEL_SOURCE, tuple(options))
             self._kernels[key] = (self._cl.Kernel(program, "ray_gain"), self._cl.Kernel(program, "view_gain"))
         return self._kernels[key]
@@ -196,12 +198,13 @@ class OpenCLRayCaster:
         return self._views(code_buf, padded, origin_index, offset_buf, march, membership, local_size, view_sets)
 
     def _views(self, code_buf, padded, origin_index, offset_buf, march: RayMarch, membership,
-               local_size=VIEW_GAIN_LOCAL_SIZE, view_sets=None) -> np.ndarray:  # fmt: skip
+               local_size=VIEW_GAIN_LOCAL_SIZE, view_sets=None, surface_bound=None) -> np.ndarray:  # fmt: skip
         """``view_gain`` on a device grid ``code_buf`` (host copy ``padded``) at linear origins.
 
         ``view_sets``: None (every view exact) or per origin the views wanted exactly, ``(N, V)``
         booleans: a work-group sums the union of its origins' views and marches only their rays;
-        other views get 0 (a lower bound of their gains)."""
+        other views get 0 (a lower bound of their gains). ``surface_bound``: the device grid of
+        :func:`~nbv_prob_cnn.gain.search_bounds.surface_bound_grid` (block bounds of a surface blend)."""
         cl, mf = self._cl, self._cl.mem_flags
         n, r, v = origin_index.shape[0], march.offsets.shape[0], membership.shape[1]
         out = np.empty((n, v), dtype=np.float32)
@@ -226,8 +229,8 @@ class OpenCLRayCaster:
         if view_sets is None:
             cl.enqueue_copy(self.queue, set_buf, every)
         out_buf = cl.Buffer(self.context, mf.WRITE_ONLY, block * v * 4)
-        kernel = self.kernels(*march.program)[1]
-        extra = self._option_args(march.options, padded.shape)
+        kernel = self.kernels(*march.program, surface_bound=surface_bound is not None)[1]
+        extra = self._option_args(march.options, padded.shape) + ([] if surface_bound is None else [surface_bound])
         for begin in range(0, n, block):
             count = min(block, n - begin)
             cl.enqueue_copy(self.queue, origin_buf, pad_to(origin_index[begin : begin + count], local_size))
@@ -272,8 +275,12 @@ class OpenCLRayCaster:
         # prob_free bounds itself: the least p of a window is below every cell's p (1 - p is above)
         bound_march = dataclasses.replace(march, mode="prob_free" if march.mode == "prob_free" else "prob", eps=0.0,
                                           min_range=0.0)  # fmt: skip
+        surface_buf = None  # a surface blend's factor (1 - beta) + beta p: at most that of the window's largest p
+        if march.surface:
+            most = surface_bound_grid(padded, dims, size)
+            surface_buf = self._cl.Buffer(self.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=most)
         view_bound = self._views(bound_buf, bound, corner_index, self._offsets(march.offsets, bound.shape),
-                                 bound_march, membership)  # fmt: skip
+                                 bound_march, membership, surface_bound=surface_buf)  # fmt: skip
         return block_of, view_bound
 
     def best_view(
@@ -357,11 +364,11 @@ class OpenCLRayCaster:
 
 def _march_args(march: RayMarch) -> list:
     """The kernels' arguments after the sample offsets: rays, samples per ray, ``nu``, the weight
-    normaliser's inverse and itself, ``eps``, mode and minimum range."""
+    normaliser's inverse and itself, ``eps``, mode, minimum range and surface blend."""
     r, n_samples, dims = march.offsets.shape
     return [np.int32(r), np.int32(n_samples), np.int32(dims - 1), np.float32(1.0 / march.total_weight),
             np.float32(march.total_weight), np.float32(march.eps), np.int32(MODES[march.mode]),
-            np.float32(march.min_range)]  # fmt: skip
+            np.float32(march.min_range), np.float32(march.surface)]  # fmt: skip
 
 
 def _border(march: RayMarch) -> float:

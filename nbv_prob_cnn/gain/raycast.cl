@@ -46,6 +46,16 @@
 // grazing angle. In one pass: H = Q B - C with B = sum_t u_t w_t, S(t) = sum_{j < t} q_j,
 // C = sum_t u_t w_t S(t) and Q = S at the end. Samples past weighted_samples only carry returns.
 // A padding code in (-2, -1) (the grid border without walls) stops a ray without a return.
+//
+// The surface blend `surface` (beta in [0, 1], the paper's variant, mode prob; docs/method.md#surface-gain):
+// an unknown sample counts ((1 - beta) + beta p) times its term of the paper's gain, w_t Pr(r_t):
+// beta = 1 gives sum_t u_t w_t Pr(r_t) p_t, the expected (weighted) number of unknown cells where
+// the ray's return lands. With GAIN_SENSOR the surface term is sum_t u_t w_t q_t (the return
+// measured at t) and the blend mixes it with the sensor model's gain. beta = 0 multiplies by exactly
+// 1 (resp. adds exactly 0): the paper's gains, bit for bit.
+// SURFACE_BOUND = 1 (a build option, the coarse-to-fine bounds of a blend): an unknown sample's
+// factor reads the largest p of its window from the grid `surface_bound` (opencl.py: search_bounds)
+// instead of the window's smallest p, which the code holds for the visibility.
 #pragma OPENCL FP_CONTRACT OFF
 
 #define MODE_PROBABILISTIC 0
@@ -73,6 +83,9 @@
 #endif
 #ifndef GAIN_SENSOR
 #define GAIN_SENSOR 0
+#endif
+#ifndef SURFACE_BOUND
+#define SURFACE_BOUND 0
 #endif
 #if GAIN_ORIGINAL && (GAIN_EXACT || GAIN_SENSOR)
 #error "GAIN_EXACT and GAIN_SENSOR are options of the paper's variant"
@@ -106,6 +119,15 @@
 #define SENSOR_KERNEL_PARAMS
 #define SENSOR_MARCH_PARAMS
 #define SENSOR_ARGS(h)
+#endif
+#if SURFACE_BOUND
+#define SURFACE_KERNEL_PARAMS , __global const float *surface_bound
+#define SURFACE_ARGS , surface_bound
+#define SURFACE_P(c, cell) GATHER(surface_bound, cell)
+#else
+#define SURFACE_KERNEL_PARAMS
+#define SURFACE_ARGS
+#define SURFACE_P(c, cell) (c)
 #endif
 
 // Lane vectors (floatv, intv) with aligned reads and writes (p: a multiple of LANES items from
@@ -157,7 +179,8 @@ inline float original_weight(const int t, const int nu)
 inline void march_rays(__global const float *code, __global const int *origins, __global const int *off,
                        const int first_sample, const int n_samples, const int nu, const float inv_total,
                        const float total_weight, const float eps, const int mode, const float min_range,
-                       floatv *gains, floatv *totals EXACT_MARCH_PARAMS SENSOR_MARCH_PARAMS)
+                       const float surface, floatv *gains, floatv *totals EXACT_MARCH_PARAMS SENSOR_MARCH_PARAMS
+                       SURFACE_KERNEL_PARAMS)
 {
     const intv origin = LANES_AT(__global const intv, origins);
     floatv visible = 1.0f;  // Pr(r_t) = prod_{i<t} (1 - p_i)
@@ -176,6 +199,7 @@ inline void march_rays(__global const float *code, __global const int *origins, 
     floatv weighted = 0.0f;  // B
     floatv early = 0.0f;     // C
     floatv returned = 0.0f;  // S(t)
+    floatv landed = 0.0f;    // sum_t u_t w_t q_t (the surface term)
     __global const float *normal_y = normals + n_cells;
     __global const float *normal_z = normal_y + n_cells;
 #endif
@@ -212,6 +236,7 @@ inline void march_rays(__global const float *code, __global const int *origins, 
                 const floatv dot = nx * direction[0] + ny * direction[1] + nz * direction[2];
                 const intv facing = ((nx * nx + ny * ny + nz * nz) == 0.0f) | (fabs(dot) >= cos_grazing);
                 returned = facing ? returned + visible * p : returned;
+                landed = (unknown & facing) ? landed + (visible * p) * weight : landed;
             }
             visible = visible * (1.0f - p);
             alive = alive & ((c <= -2.0f) | (unknown & (visible > eps)));
@@ -222,7 +247,7 @@ inline void march_rays(__global const float *code, __global const int *origins, 
             hit = (unknown & (intv)(AT_MIN_RANGE(t) ? -1 : 0)) ? (floatv)(weight) : hit;
             alive = alive & (c <= -2.0f);  // stops at the first non-empty sample
         } else {
-            hit = unknown ? hit + visible * weight : hit;
+            hit = unknown ? hit + visible * weight * ((1.0f - surface) + surface * SURFACE_P(c, cell)) : hit;
             visible = unknown ? visible * (1.0f - c) : visible;
             alive = alive & ((c <= -2.0f) | (unknown & (visible > eps)));  // occupied: Pr = 0 from here on
         }
@@ -237,7 +262,7 @@ inline void march_rays(__global const float *code, __global const int *origins, 
 #else
 #if GAIN_SENSOR
     if (mode != MODE_INFORMATION_GAIN) {
-        hit = fmax(returned * weighted - early, (floatv)(0.0f));
+        hit = (1.0f - surface) * fmax(returned * weighted - early, (floatv)(0.0f)) + surface * landed;
     }
 #endif
     *gains = hit * inv_total;
@@ -249,8 +274,8 @@ inline void march_rays(__global const float *code, __global const int *origins, 
 __kernel void ray_gain(__global const float *code, __global const int *origins, const int n_origins,
                        __global const int *offsets, const int n_rays, const int n_samples,
                        const int nu, const float inv_total, const float total_weight, const float eps,
-                       const int mode, const float min_range,
-                       __global float *out EXACT_KERNEL_PARAMS SENSOR_KERNEL_PARAMS)
+                       const int mode, const float min_range, const float surface,
+                       __global float *out EXACT_KERNEL_PARAMS SENSOR_KERNEL_PARAMS SURFACE_KERNEL_PARAMS)
 {
     const int gid = get_global_id(0);
     if (gid >= n_origins / LANES * n_rays) {
@@ -260,7 +285,8 @@ __kernel void ray_gain(__global const float *code, __global const int *origins, 
     const int h = gid - n * n_rays;
     floatv gains, totals;
     march_rays(code, origins + (size_t)n * LANES, offsets + (size_t)h * n_samples, 0, n_samples, nu, inv_total,
-               total_weight, eps, mode, min_range, &gains, &totals EXACT_ARGS(h) SENSOR_ARGS(h));
+               total_weight, eps, mode, min_range, surface, &gains, &totals EXACT_ARGS(h) SENSOR_ARGS(h)
+               SURFACE_ARGS);
 #if GAIN_ORIGINAL
     gains = (totals > 0.0f) ? gains / totals : (floatv)(0.0f);
 #endif
@@ -285,11 +311,11 @@ __kernel void ray_gain(__global const float *code, __global const int *origins, 
 __kernel void view_gain(__global const float *code, __global const int *origins, const int n_origins,
                         __global const int *offsets, const int n_rays, const int n_samples,
                         const int nu, const float inv_total, const float total_weight, const float eps,
-                        const int mode, const float min_range,
+                        const int mode, const float min_range, const float surface,
                         __global const int *view_start, __global const int *view_rays, const int n_views,
                         __global const int *group_first_sample, __global const uint *group_sets, const int set_stride,
                         const int view_words, __local float *ray_gains, __global float *out
-                        EXACT_KERNEL_PARAMS SENSOR_KERNEL_PARAMS)
+                        EXACT_KERNEL_PARAMS SENSOR_KERNEL_PARAMS SURFACE_KERNEL_PARAMS)
 {
     const int lid = get_local_id(0);
     const int size = get_local_size(0) * LANES;  // origins per work-group
@@ -308,8 +334,8 @@ __kernel void view_gain(__global const float *code, __global const int *origins,
         floatv totals = 0.0f;
         if (((ray_set[h >> 5] >> (h & 31)) & 1u) != 0u) {
             march_rays(code, origins + first + lid * LANES, offsets + (size_t)h * n_samples, first_sample, n_samples,
-                       nu, inv_total, total_weight, eps, mode, min_range, &gains, &totals EXACT_ARGS(h)
-                       SENSOR_ARGS(h));
+                       nu, inv_total, total_weight, eps, mode, min_range, surface, &gains, &totals EXACT_ARGS(h)
+                       SENSOR_ARGS(h) SURFACE_ARGS);
         }
         LANES_AT(__local floatv, ray_gains + (size_t)h * size + lid * LANES) = gains;
 #if GAIN_ORIGINAL

@@ -44,12 +44,19 @@ def _sample(state: np.ndarray, values: np.ndarray, outside: float, origins: np.n
 
 
 def ray_terms(
-    state: np.ndarray, prob: np.ndarray, directions: np.ndarray, r_max: int, origins: np.ndarray
+    state: np.ndarray,
+    prob: np.ndarray,
+    directions: np.ndarray,
+    r_max: int,
+    origins: np.ndarray,
+    surface: float = 0.0,
 ) -> tuple[np.ndarray, np.ndarray]:
     """``H(v, h)`` and ``M(v, h)`` of equations (4)–(5), each ``(N, R)`` float64.
 
     ``p`` is read from ``prob`` in unknown cells only; known cells use 0 (empty) and 1
     (occupied). Cells outside the grid count as known occupied (``p = 1``, ``o = 1``).
+    ``surface``: the surface blend ``beta`` (docs/method.md#surface-gain): an unknown sample adds
+    ``w_t Pr(r_t) ((1 - beta) + beta p_t)`` to ``H`` (``M`` is the paper's).
     """
     weights = distance_weights(r_max, state.ndim)
     offsets = sample_offsets(directions, r_max)
@@ -62,17 +69,25 @@ def ray_terms(
             p_unknown, value = _sample(state, prob, 1.0, origins[block], offsets[:, t])
             unknown = value == -1
             p = np.where(unknown, p_unknown, value == 1)
-            hit[block] += unknown * visible * weights[t]
+            hit[block] += unknown * visible * weights[t] * ((1.0 - surface) + surface * p)
             miss[block] += np.where(unknown, 1.0 - visible, 1.0) * weights[t]
             visible = visible * (1.0 - p)
     return hit, miss
 
 
 def ray_gains_reference(
-    state: np.ndarray, prob: np.ndarray, directions: np.ndarray, r_max: int, origins: np.ndarray
+    state: np.ndarray,
+    prob: np.ndarray,
+    directions: np.ndarray,
+    r_max: int,
+    origins: np.ndarray,
+    surface: float = 0.0,
 ) -> np.ndarray:
-    """``G_r = H / (H + M)`` (equation (6)), ``(N, R)`` float32."""
-    hit, miss = ray_terms(state, prob, directions, r_max, origins)
+    """``G_r = H / (H + M)`` (equation (6)), ``(N, R)`` float32. ``surface``: ``H`` as :func:`ray_terms`,
+    over the paper's ``H + M``, which is the sum of the weights."""
+    hit, miss = ray_terms(state, prob, directions, r_max, origins, surface)
+    if surface:
+        return (hit / distance_weights(r_max, state.ndim).sum()).astype(np.float32)
     return (hit / (hit + miss)).astype(np.float32)
 
 
@@ -164,6 +179,7 @@ def sampled_ray_gains(
     min_range: float = 0.0,
     sensor: GainSensor | None = None,
     directions: np.ndarray | None = None,
+    surface: float = 0.0,
 ) -> np.ndarray:
     """``G_r`` of the paper's gain on any :class:`~nbv_prob_cnn.gain.sampling.RaySamples` table
     (rounded or exact traversal), and of the ``"returns"`` sensor model (``sensor`` given), from
@@ -176,7 +192,9 @@ def sampled_ray_gains(
     (else 0): the probability that the first return is at or behind sample ``k`` and is measured;
     ``g_j = 0`` at grazing incidence (the normal of :func:`occupancy_normals`, outside the grid the
     border's), cells outside the grid occupied with ``sensor.walls``, else empty (no return).
-    ``G_r = H / samples.total``.
+    ``G_r = H / samples.total``. ``surface`` (``beta``, docs/method.md#surface-gain): without a sensor
+    an unknown sample counts ``(1 - beta) + beta p_k`` times its term; with one ``H`` becomes
+    ``(1 - beta) H + beta Σ_k u_k w_k q_k`` (the return measured at an unknown sample).
     """
     n_rays, width = samples.distance.shape
     valid = np.arange(width)[None, :] < samples.counts[:, None]  # (R, K)
@@ -209,7 +227,7 @@ def sampled_ray_gains(
             continue
         visible = np.concatenate([np.ones(p.shape[:2] + (1,)), np.cumprod(1.0 - p, axis=2)[..., :-1]], axis=2)
         if sensor is None:
-            measured = visible
+            measured = visible * ((1.0 - surface) + surface * p)
         else:
             normal = np.where(
                 inside[..., None],
@@ -219,7 +237,7 @@ def sampled_ray_gains(
             dot = np.abs(np.sum(normal * b[None, :, None, :], axis=3, dtype=np.float32))
             facing = (np.sum(normal * normal, axis=3) == 0) | (dot >= np.float32(sensor.cos_grazing))
             q = visible * p * facing * returns_range[None]
-            measured = np.cumsum(q[..., ::-1], axis=2)[..., ::-1]  # Σ_{j >= k} q_j
+            measured = (1.0 - surface) * np.cumsum(q[..., ::-1], axis=2)[..., ::-1] + surface * q  # Σ_{j >= k} q_j
         gains[start : start + chunk] = np.sum(unknown * samples.weights[None] * measured, axis=2)
     return (gains / samples.total).astype(np.float32)
 
@@ -237,7 +255,7 @@ def reference_ray_gains(
     optional modes (``options``, :func:`~nbv_prob_cnn.gain.march.march_options`)."""
     if options is not None:
         return sampled_ray_gains(state, prob, options.samples, origins, settings.mode, options.min_range,
-                                 options.sensor, directions)  # fmt: skip
+                                 options.sensor, directions, settings.surface)  # fmt: skip
     if settings.variant == "original":
         hits, totals = _original_terms(state, prob, directions, r_max, origins, settings)
         return np.where(totals > 0, hits / np.where(totals > 0, totals, 1.0), 0.0).astype(np.float32)
@@ -245,7 +263,7 @@ def reference_ray_gains(
         return ig_gains_reference(state, directions, r_max, origins, settings.min_range)
     if prob is None:
         raise ValueError("prob: a probability map is required for mode='prob'")
-    return ray_gains_reference(state, prob, directions, r_max, origins)
+    return ray_gains_reference(state, prob, directions, r_max, origins, settings.surface)
 
 
 def reference_view_gains(

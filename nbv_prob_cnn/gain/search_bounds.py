@@ -102,3 +102,15 @@ class BoundOrder:
             self._order = members[np.argsort(self._origin_rank[members], kind="stable")]
         following = self._order[start:stop]
         return following, self._rank_bound[self._origin_rank[following]]
+
+
+def surface_bound_grid(padded: np.ndarray, dims: int, size: int) -> np.ndarray:
+    """Beside :func:`bound_grid` for a surface blend (docs/method.md#surface-gain): per cell of the
+    same grown grid, the largest occupancy probability of an unknown cell in the window
+    ``c - {0 .. size-1}^dims`` (0 where the window holds none). A block's unknown sample at ``t``
+    counts at most ``(1 - beta) + beta`` times that, while its visibility is bounded by the
+    window's smallest ``p`` (:func:`bound_grid`)."""
+    pad = ((size, size), (size, size), (size, size) if dims == 3 else (0, 0))
+    grid = np.pad(padded, pad, constant_values=np.float32(-1.0))
+    p = np.where(grid >= 0.0, grid, np.float32(0.0)).astype(np.float32)
+    return np.ascontiguousarray(_window(p, dims, size, np.maximum, np.float32(0.0)), dtype=np.float32)

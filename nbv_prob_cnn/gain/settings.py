@@ -13,6 +13,9 @@ from nbv_prob_cnn.gain.variant import check_variant
 
 #: Gain modes: probabilistic ray casting, or the non-probabilistic information gain.
 GAIN_MODES = ("prob", "ig")
+#: The surface methods' blend ``beta`` (``cnn_surface``, ``prob_surface``, ``omniscient_surface``;
+#: docs/method.md#surface-gain): chosen by ``nbv study surface_blend`` (docs/evaluation.md#the-surface-gain).
+DEFAULT_SURFACE_BLEND = 1.0
 
 
 @dataclass(frozen=True)
@@ -34,8 +37,12 @@ class GainSettings:
             docs/sensing.md): an unknown cell counts by the probability that the sensor measures it;
             with ``mode="ig"`` only its minimum range replaces ``min_range``. None: the paper's.
         sampling: ``"rounded"`` (docs/method.md) or ``"exact"`` voxel traversal of the rays.
+        surface: the surface blend ``beta`` in [0, 1] (docs/method.md#surface-gain), ``mode="prob"``
+            and the paper's variant only: an unknown sample counts ``(1 - beta) + beta p`` times
+            what it counts in the paper's gain. ``0`` is the paper's gain (bit for bit), ``1`` the
+            expected number of unknown cells at which the ray's return lands (the new surface).
 
-    ``sensor`` and ``sampling="exact"`` go with the paper's variant only.
+    ``sensor``, ``sampling="exact"`` and ``surface`` go with the paper's variant only.
 
     Raises:
         ValueError: a setting out of its range, naming it.
@@ -48,6 +55,7 @@ class GainSettings:
     free_hits: bool = False
     sensor: GainSensor | None = None
     sampling: str = "rounded"
+    surface: float = 0.0
 
     def __post_init__(self) -> None:
         if self.mode not in GAIN_MODES:
@@ -64,6 +72,12 @@ class GainSettings:
         check_sampling(self.sampling)
         if self.sensor is not None and not isinstance(self.sensor, GainSensor):
             raise ValueError(f"sensor: expected a GainSensor or None, got {type(self.sensor).__name__}")
+        if not (isinstance(self.surface, (int, float, np.floating)) and 0.0 <= float(self.surface) <= 1.0):
+            raise ValueError(f"surface: expected a blend in [0, 1] (0: the paper's gain), got {self.surface!r}")
+        if self.surface and (self.mode != "prob" or self.variant != "paper"):
+            raise ValueError(
+                f"surface: only with mode='prob' and the paper's variant, got {self.mode!r}, {self.variant!r}"
+            )
         if self.marches_table and self.variant != "paper":
             raise ValueError(f"sensor/sampling: only with the paper's gain variant, got {self.variant!r}")
 

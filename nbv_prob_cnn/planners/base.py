@@ -18,7 +18,7 @@ from nbv_prob_cnn.basics.view_pose import ViewPose, view_pose
 from nbv_prob_cnn.gain import best_origin_view, empty_origins, origin_view_gains, ray_directions, view_membership
 from nbv_prob_cnn.gain.original_sets import original_view_set
 from nbv_prob_cnn.gain.sampling import GainSensor, check_sampling, check_sensor_model
-from nbv_prob_cnn.gain.settings import GainSettings
+from nbv_prob_cnn.gain.settings import DEFAULT_SURFACE_BLEND, GainSettings
 from nbv_prob_cnn.gain.variant import check_variant, ig_min_range, uses_free_hits
 from nbv_prob_cnn.planners.candidates import crop_to_reach
 
@@ -117,6 +117,8 @@ class PlanningContext:
             outside (:mod:`nbv_prob_cnn.planners.local_completion`, docs/performance.md#scale).
         cnn_precision: the completion CNN's arithmetic in this process (``"float32"``, the default, or
             ``"bfloat16"``: :data:`~nbv_prob_cnn.basics.modes.CNN_PRECISIONS`).
+        surface_blend: the surface methods' blend ``beta`` in [0, 1] (docs/method.md#surface-gain;
+            :data:`DEFAULT_SURFACE_BLEND`); the paper's methods ignore it.
     """
 
     defaults: DatasetDefaults
@@ -136,12 +138,15 @@ class PlanningContext:
     sampling: str = "rounded"
     cnn_window: int | None = None
     cnn_precision: str = "float32"
+    surface_blend: float = DEFAULT_SURFACE_BLEND
 
     def __post_init__(self) -> None:
         if self.cnn_precision not in CNN_PRECISIONS:
             raise ValueError(f"cnn_precision: expected one of {CNN_PRECISIONS}, got {self.cnn_precision!r}")
         check_variant(self.gain_variant)
         check_sampling(self.sampling)
+        if not (isinstance(self.surface_blend, (int, float)) and 0.0 <= self.surface_blend <= 1.0):
+            raise ValueError(f"surface_blend: expected a blend in [0, 1], got {self.surface_blend!r}")
         if check_sensor_model(self.sensor_model) == "returns" and self.gain_sensor is None:
             raise ValueError("sensor_model 'returns' needs gain_sensor: the sensor's ranges (GainSensor)")
         if (self.sensor_model != "paper" or self.sampling != "rounded") and self.gain_variant != "paper":
@@ -174,14 +179,22 @@ class PlanningContext:
         """The sensor the gain knows: ``gain_sensor`` with ``sensor_model="returns"``, else None."""
         return self.gain_sensor if self.sensor_model == "returns" else None
 
-    def gain_settings(self, mode: str = "prob", probability: str | None = None) -> GainSettings:
+    def gain_settings(self, mode: str = "prob", probability: str | None = None, surface: bool = False) -> GainSettings:
         """The gain settings of a view search in ``mode`` on a map from ``probability`` (``"constant"``,
         ``"cnn"``, ``"oracle"``), which the ``original`` gain variant treats differently
-        (:func:`~nbv_prob_cnn.gain.variant.uses_free_hits`, :func:`~nbv_prob_cnn.gain.variant.ig_min_range`)."""
+        (:func:`~nbv_prob_cnn.gain.variant.uses_free_hits`, :func:`~nbv_prob_cnn.gain.variant.ig_min_range`).
+        ``surface``: a surface method's search (the blend :attr:`surface_blend`; the paper's variant only).
+
+        Raises:
+            ValueError: a surface search with the ``original`` gain variant.
+        """
         variant, min_range = self.gain_variant, self.active_sensor.min_range
+        if surface and variant != "paper":
+            raise ValueError(f"gain_variant: the surface methods use the paper's variant, got {variant!r}")
         free_hits = mode == "prob" and uses_free_hits(variant, probability)
         min_range = ig_min_range(variant, min_range) if mode == "ig" else min_range
-        return GainSettings(mode, self.eps, min_range, variant, free_hits, self.returns_sensor, self.sampling)
+        blend = float(self.surface_blend) if surface else 0.0
+        return GainSettings(mode, self.eps, min_range, variant, free_hits, self.returns_sensor, self.sampling, blend)
 
     def view_quaternion(self, view_index: int) -> np.ndarray:
         """Quaternion (x, y, z, w) of a candidate orientation (2D: the yaw about +z)."""
@@ -258,6 +271,7 @@ def search_views(
     prune_views: bool = True,
     view_mask: ViewMask | None = None,
     probability: str | None = None,
+    surface: bool = False,
 ) -> list[ViewChoice]:
     """The ``top_k`` (origin, orientation) pairs with the largest ``G_W``, best first
     (docs/method.md#candidate-views-and-view-gain).
@@ -271,11 +285,12 @@ def search_views(
     gives the orientations allowed at each origin; the others count as zero gain (never returned).
     ``probability``: the source of ``prob`` (``"constant"``, ``"cnn"``, ``"oracle"``), which the
     ``original`` gain variant treats differently (:func:`~nbv_prob_cnn.gain.variant.uses_free_hits`).
+    ``surface``: the surface gain (a surface method; :meth:`PlanningContext.gain_settings`).
     The rays read only the box the origins' reach spans (:func:`~nbv_prob_cnn.planners.candidates.crop_to_reach`):
     the search runs on that part of the grid, with the same result.
     """
     sensor = context.active_sensor
-    settings = context.gain_settings(mode, probability)
+    settings = context.gain_settings(mode, probability, surface)
     state, prob, origins, shift = crop_to_reach(state, prob, origins, sensor.r_max)
     if view_mask is not None and np.any(shift):
         view_mask = functools.partial(_shifted_mask, view_mask, shift)

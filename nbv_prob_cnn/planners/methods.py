@@ -12,6 +12,12 @@ method         gain    occupancy probability of unknown cells  candidate origins
 ``omniscient`` prob    ground truth                            all
 =============  ======  =====================================  ===========================
 
+The surface methods (docs/method.md#surface-gain) count where a ray's return is expected to land
+among the unknown cells (blended with the paper's gain by ``context.surface_blend``):
+``cnn_surface`` on the CNN's map, ``prob_surface`` on the constant ``P0`` (with a constant map the
+surface term is ``P0`` times the paper's, so it ranks as ``prob_ig`` does: the control that shows
+what the CNN's map adds) and ``omniscient_surface`` on the ground truth (simulation only).
+
 [*] drawn after any origin filter (workspace box, origin budget), so that a filtered request
 still evaluates up to the full budget inside the box.
 """
@@ -48,6 +54,7 @@ class GainMethod:
     mode: GainMode  # "prob" or "ig"
     probability: ProbabilitySource | None  # "constant", "cnn", "oracle" or None (ig)
     downsampled: bool = False
+    surface: bool = False  # the surface gain (docs/method.md#surface-gain), blended by context.surface_blend
 
 
 GAIN_METHODS: dict[str, GainMethod] = {
@@ -58,6 +65,9 @@ GAIN_METHODS: dict[str, GainMethod] = {
         GainMethod("cnn_prob", "prob", "cnn"),
         GainMethod("cnn_prob_d", "prob", "cnn", downsampled=True),
         GainMethod("omniscient", "prob", "oracle"),
+        GainMethod("cnn_surface", "prob", "cnn", surface=True),
+        GainMethod("prob_surface", "prob", "constant", surface=True),
+        GainMethod("omniscient_surface", "prob", "oracle", surface=True),
     )
 }
 
@@ -147,7 +157,7 @@ class GainPlanner(RankingPlanner):
         else:
             found = search_views(
                 state, prob, origins, context, self.method.mode, top_k, view_mask=view_mask,
-                probability=self.method.probability,
+                probability=self.method.probability, surface=self.method.surface,
             )  # fmt: skip
         for choice in found:
             choice.times["cnn"] = t_prob if uses_cnn else 0.0

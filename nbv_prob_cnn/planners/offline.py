@@ -158,7 +158,7 @@ def best_gain_per_origin(
     for start in range(0, origins.shape[0], block):
         gains = origin_view_gains(
             state, prob, context.directions, sensor.r_max, context.membership, origins[start : start + block],
-            context.backend, settings=context.gain_settings(gain_method.mode),
+            context.backend, settings=context.gain_settings(gain_method.mode, surface=gain_method.surface),
         )  # fmt: skip
         best[start : start + block] = gains.max(axis=1)
     return origins, best

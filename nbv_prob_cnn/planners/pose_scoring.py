@@ -83,6 +83,7 @@ def score_poses(
     mode: str = "prob",
     score_unknown_cells: bool = False,
     rays_across: int = 0,
+    surface: bool = False,
 ) -> PoseScores:
     """Gain of each camera pose (position in metres, optical-frame quaternion x, y, z, w).
 
@@ -95,7 +96,7 @@ def score_poses(
     ``rays_across`` 0: the context's rays (those of the view search, so a candidate view's pose
     scores its search gain); ``n > 0``: ``n`` rays across the pose's own image
     (:func:`~nbv_prob_cnn.gain.frustum_rays.frustum_rays`), the gain ``Σ Ω_r G_r`` in steradians
-    (radians in 2D).
+    (radians in 2D). ``surface``: the surface gain of a surface method (``context.surface_blend``).
     """
     if not isinstance(rays_across, (int, np.integer)) or isinstance(rays_across, bool) or rays_across < 0:
         raise ValueError(f"rays_across: expected 0 (the context's rays) or a positive count, got {rays_across!r}")
@@ -111,7 +112,7 @@ def score_poses(
         return PoseScores(gains, validity, reasons)
     sensor = context.active_sensor
     settings = GainSettings(mode, context.eps, sensor.min_range, sensor=context.returns_sensor,
-                            sampling=context.sampling)  # fmt: skip
+                            sampling=context.sampling, surface=context.surface_blend if surface else 0.0)  # fmt: skip
     q = unit_quaternions(quats, tiny=1e-6)[0][ok]
     orientations = np.array([yaw_of(v) for v in q]) if state.ndim == 2 else q
     if rays_across:

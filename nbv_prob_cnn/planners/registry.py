@@ -50,6 +50,13 @@ def _city(name: str) -> Callable[[], Planner]:
     return build
 
 
+#: The nine methods of the paper's comparison (``nbv evaluate``'s default: the reproduction's tables).
+PAPER_METHODS = ("random", "ig", "prob_ig", "cnn_prob", "cnn_prob_d", "omniscient", "flat_city_cnn", "b_city_cnn",
+                 "d_city_cnn")  # fmt: skip
+
+#: The method every entry point uses when none is named: ``nbv plan``, ``nbv view``, the planner and gain nodes.
+DEFAULT_METHOD = "cnn_prob"
+
 METHODS: dict[str, MethodSpec] = {
     spec.name: spec
     for spec in (
@@ -62,6 +69,10 @@ METHODS: dict[str, MethodSpec] = {
         MethodSpec("flat_city_cnn", _city("flat_city_cnn"), weights="flat_city_cnn", summary="CNN: gain per view"),
         MethodSpec("b_city_cnn", _city("b_city_cnn"), weights="b_city_cnn", summary="CNN: best view per cell"),
         MethodSpec("d_city_cnn", _city("d_city_cnn"), weights="d_city_cnn", summary="CNN: gain per ray"),
+        MethodSpec("cnn_surface", _gain("cnn_surface"), weights="cnn_prob", summary="completion CNN + surface gain"),
+        MethodSpec("prob_surface", _gain("prob_surface"), summary="surface gain with constant P0"),
+        MethodSpec("omniscient_surface", _gain("omniscient_surface"), needs_ground_truth=True,
+                   summary="surface gain on the ground truth"),  # fmt: skip
     )
 }
 
@@ -94,9 +105,14 @@ def ros_method(name: str, default: str) -> MethodSpec:
     name = "cnn_prob" if name == "prob" else name
     spec = METHODS.get(name)
     if spec is None or spec.needs_ground_truth:
-        allowed = sorted(m for m, s in METHODS.items() if not s.needs_ground_truth)
-        raise ValueError(f"unknown method {name!r}; expected one of {allowed}")
+        raise ValueError(f"unknown method {name!r}; expected one of {ros_method_names()}")
     return spec
+
+
+def ros_method_names() -> list[str]:
+    """The methods the ROS nodes serve, sorted: every one of :data:`METHODS` but the oracles
+    (the launch scripts' ``--method`` choices)."""
+    return sorted(name for name, spec in METHODS.items() if not spec.needs_ground_truth)
 
 
 def check_ros_method(name: str) -> None:

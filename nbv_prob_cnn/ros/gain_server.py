@@ -47,6 +47,7 @@ from nbv_prob_cnn.planners.base import bounded, filter_region
 from nbv_prob_cnn.planners.methods import cnn_completion, probability_map
 from nbv_prob_cnn.planners.pose_scoring import EVALUATE_RAYS_ACROSS, INVALID_POSE, score_poses
 from nbv_prob_cnn.planners.ranked_views import ranked_to_arrays, view_mask_from_bytes
+from nbv_prob_cnn.planners.registry import DEFAULT_METHOD
 from nbv_prob_cnn.planners.requests import (
     allowed_origins_filter,
     gain_method,
@@ -81,7 +82,7 @@ class GainServerConfig(SensorParams, ArmViewParams):
     (:class:`SensorParams`), then these."""
 
     dataset: str = param("3dt", "sensor/ray defaults and CNN weights", choices=tuple(sorted(DATASETS)))
-    method: str = param("cnn_prob", "method when a request names none", dynamic=True, check=check_ros_method)
+    method: str = param(DEFAULT_METHOD, "method when a request names none", dynamic=True, check=check_ros_method)
     backend: Backend = backend_param("ray-casting backend")
     n_rays: int = n_rays_param("ray sub-cells per side (0 = data set default)")
     gain_variant: str = gain_variant_param(
@@ -197,7 +198,7 @@ class GainServer(Node):
             prob = probability_map(method, state, context)
             scores = score_poses(state, prob, geometry, positions, quats, context, method.mode,
                                  score_unknown_cells=request.score_unknown_cells,
-                                 rays_across=self.config.evaluate_rays_across)  # fmt: skip
+                                 rays_across=self.config.evaluate_rays_across, surface=method.surface)  # fmt: skip
             reasons = list(scores.reasons)
             for i, error in frame_errors.items():
                 scores.validity[i] = INVALID_POSE
