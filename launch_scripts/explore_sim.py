@@ -20,8 +20,12 @@ path to the controller (``move_mode:=trajectory``). ``--move-mode arm`` uses our
 
 Every process gets localhost discovery, its own ROS_DOMAIN_ID and the Fast DDS shared-memory
 profile. Ctrl-C cancels the exploration and stops every process (no orphans), then removes the
-shared-memory files the graph left behind. Outputs: <out>/views.csv, <out>/explored.png,
+shared-memory files the graph left behind. When a node exits, the launcher prints its last error
+line and its log and stops the rest. Outputs: <out>/views.csv, <out>/explored.png,
 <out>/grid.npz and one log per node in <out>/logs/.
+
+Exit status: 0 explored, 1 the exploration failed, 2 a bad argument, 3 a node exited,
+124 ``--timeout`` passed, 130 Ctrl-C.
 
 Example:  .venv/bin/python launch_scripts/explore_sim.py --views 10 --method cnn_prob [--no-arm]
 """
@@ -33,6 +37,7 @@ import sys
 from pathlib import Path
 
 from nbv_prob_cnn.basics.camera import dataset_defaults
+from nbv_prob_cnn.planners.registry import ros_method_names
 from nbv_prob_cnn.ros.graph import NodeGraph, ros_environment, run_graph
 from nbv_prob_cnn.sensing.sensor_noise import PRESETS
 
@@ -61,7 +66,11 @@ def parse_args(argv=None) -> argparse.Namespace:
     parser.add_argument("--dataset", default="3dt", choices=["3du", "3dt"], help="scene type (default 3dt)")
     parser.add_argument("--seed", type=int, default=1000, help="scene seed (default 1000, a held-out scene)")
     parser.add_argument("--views", type=int, default=10, help="views to plan (default 10)")
-    parser.add_argument("--method", default="cnn_prob", help="cnn_prob, cnn_prob_d, prob_ig or ig")
+    methods = ros_method_names()
+    parser.add_argument(
+        "--method", default="cnn_prob", choices=methods, metavar="METHOD",
+        help="the planner's method (default cnn_prob): " + ", ".join(methods),
+    )  # fmt: skip
     parser.add_argument("--in-process", action="store_true", help="planner completes and ray-casts itself")
     parser.add_argument("--no-arm", action="store_true", help="free-flying camera (no arm_sim, no reachability)")
     parser.add_argument(
@@ -86,7 +95,10 @@ def parse_args(argv=None) -> argparse.Namespace:
     parser.add_argument("--stop-unknown", type=float, default=0.0, help="stop at this unknown fraction")
     parser.add_argument("--out", default="out/explore_sim", help="output directory")
     parser.add_argument("--domain-id", type=int, help="ROS_DOMAIN_ID (default: derived from the pid)")
-    parser.add_argument("--timeout", type=float, default=1800.0, help="seconds for the whole exploration")
+    parser.add_argument(
+        "--timeout", type=float, default=1800.0,
+        help="seconds for the whole run, the start of the graph included (default 1800; then exit status 124)",
+    )  # fmt: skip
     return parser.parse_args(argv)
 
 
@@ -127,7 +139,8 @@ def main(argv=None) -> int:
         + (f", {args.noise}" if args.noise else ""),
         "--timeout", str(args.timeout),
     ]  # fmt: skip
-    return run_graph(start_nodes, client, ros_environment(args.domain_id), out / "logs", "explore_sim")
+    env = ros_environment(args.domain_id)
+    return run_graph(start_nodes, client, env, out / "logs", "explore_sim", timeout_s=args.timeout)
 
 
 if __name__ == "__main__":

@@ -11,7 +11,12 @@ simulated bags) or, in a bag without it, by ``/tf`` (``pose_source:=tf``: a robo
 at ``--voxel`` and every camera position (found offline first, as ``nbv gain-study`` does).
 
 Same process handling as explore_sim.py (own ROS_DOMAIN_ID, localhost discovery, shared-memory
-profile, clean Ctrl-C). Outputs: <out>/ranked_views.csv, <out>/ranked_views.png, node logs.
+profile, clean Ctrl-C, a node's exit reported with its last error line and log: then the rest stop).
+``bag_replay`` ends by itself after the last message. Outputs: <out>/ranked_views.csv,
+<out>/ranked_views.png, node logs.
+
+Exit status: 0 planned, 1 the planning failed, 2 a bad argument or bag, 3 a node exited,
+124 ``--timeout`` passed, 130 Ctrl-C.
 
 Examples:
     .venv/bin/python launch_scripts/plan_from_bag.py --bag bags/3dt_seed1000_sample
@@ -29,6 +34,7 @@ from nbv_prob_cnn.basics.camera import dataset_defaults
 from nbv_prob_cnn.basics.geometry import GridGeometry
 from nbv_prob_cnn.perception.bags import BagError, bag_pose_source, read_frames
 from nbv_prob_cnn.perception.realized_gain import Fusion, recording_box
+from nbv_prob_cnn.planners.registry import ros_method_names
 from nbv_prob_cnn.ros.graph import NodeGraph, ros_environment, run_graph
 
 #: ``pose_source:=tf``: how long the integrator holds an image for its transform [s] (the node's
@@ -52,7 +58,11 @@ def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--bag", default="bags/3dt_seed1000_sample", help="rosbag2 directory or .mcap")
     parser.add_argument("--dataset", default="3dt", choices=["3du", "3dt"], help="grid box and CNN weights")
-    parser.add_argument("--method", default="cnn_prob")
+    methods = ros_method_names()
+    parser.add_argument(
+        "--method", default="cnn_prob", choices=methods, metavar="METHOD",
+        help="the planner's method (default cnn_prob): " + ", ".join(methods),
+    )  # fmt: skip
     parser.add_argument("--top-k", type=int, default=5)
     parser.add_argument("--rate", type=float, default=5.0, help="replay speed factor")
     parser.add_argument(
@@ -65,6 +75,10 @@ def main(argv=None) -> int:
     parser.add_argument("--depth-max", type=float, default=3.0, help="ignore returns beyond this depth, m")
     parser.add_argument("--out", default="out/plan_from_bag")
     parser.add_argument("--domain-id", type=int)
+    parser.add_argument(
+        "--timeout", type=float, default=3600.0,
+        help="seconds for the whole run, the start of the graph included (default 3600; then exit status 124)",
+    )  # fmt: skip
     args = parser.parse_args(argv)
     args.bag = Path(args.bag).resolve()
     if not args.bag.exists():
@@ -99,11 +113,12 @@ def main(argv=None) -> int:
         graph.start_node("nbv_planner", "nbv_planner", {**common, "method": args.method})
         # a longer wait than the default 30 s: four nodes load at once
         replay = {"bag": str(args.bag), "rate": args.rate, "wait_timeout_s": 60.0}
-        graph.start_node("bag_replay", "bag_replay", replay)
+        graph.start_node("bag_replay", "bag_replay", replay, may_exit=True)  # done after the last message
 
     client = [sys.executable, "-m", "nbv_prob_cnn.ros.plan_client", "--method", args.method,
               "--top-k", str(args.top_k), "--out", args.out]  # fmt: skip
-    return run_graph(start_nodes, client, ros_environment(args.domain_id), Path(args.out) / "logs", "plan_from_bag")
+    env = ros_environment(args.domain_id)
+    return run_graph(start_nodes, client, env, Path(args.out) / "logs", "plan_from_bag", timeout_s=args.timeout)
 
 
 if __name__ == "__main__":

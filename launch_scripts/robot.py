@@ -15,7 +15,12 @@ this shell (``ROS_DOMAIN_ID``, discovery as configured): the robot's, not a priv
 
 With ``--views N`` an ``Explore`` goal of N views is sent once the graph is up (the CSV, PNG and
 ``graph.json`` go to ``--out``); without it the nodes serve until Ctrl-C. Ctrl-C stops every
-process (no orphans). Logs: one file per node in ``<out>/logs/``.
+process (no orphans). When a node exits (a bad parameter, no ``/robot_description`` within its
+wait), the launcher prints its last error line and its log, and stops the rest. Logs: one file per
+node in ``<out>/logs/``.
+
+Exit status: 0 explored, 1 the exploration failed, 2 a bad argument, 3 a node exited,
+124 ``--timeout`` passed (with ``--views``), 130 Ctrl-C.
 
 Example:
     python launch_scripts/robot.py --params-file nbv_prob_cnn/ros/config/ur5e_d435.yaml \\
@@ -27,12 +32,11 @@ from __future__ import annotations
 
 import argparse
 import os
-import signal
 import sys
-import time
 from pathlib import Path
 
-from nbv_prob_cnn.ros.graph import NodeGraph, hear_ctrl_c, run_graph
+from nbv_prob_cnn.planners.registry import ros_method_names
+from nbv_prob_cnn.ros.graph import NodeGraph, run_graph
 
 #: Our nodes, started in this order (the servers before the planner that calls them).
 NODES = ("integrator", "completion_server", "gain_server", "nbv_planner")
@@ -57,9 +61,17 @@ def parse_args(argv=None) -> argparse.Namespace:
     parser.add_argument("--namespace", default="", help="namespace of our nodes (e.g. /nbv1)")
     parser.add_argument("--nodes", nargs="+", default=list(NODES), choices=NODES, help="which of our nodes to start")
     parser.add_argument("--views", type=int, default=0, help="send an Explore goal of this many views (0: serve only)")
-    parser.add_argument("--method", default="", help="Explore goal's method ('' = the planner's parameter)")
+    methods = ros_method_names()
+    parser.add_argument(
+        "--method", default="", choices=["", *methods], metavar="METHOD",
+        help="the Explore goal's method (default: the planner's parameter): " + ", ".join(methods),
+    )  # fmt: skip
     parser.add_argument("--out", type=Path, default=Path("out/robot"), help="logs and exploration outputs")
-    parser.add_argument("--timeout", type=float, default=3600.0, help="seconds for the whole exploration")
+    parser.add_argument(
+        "--timeout", type=float, default=3600.0,
+        help="with --views: seconds for the whole run, the start of the graph included (default 3600; then "
+        "exit status 124); without, the nodes serve until Ctrl-C",
+    )  # fmt: skip
     return parser.parse_args(argv)
 
 
@@ -76,32 +88,17 @@ def main(argv=None) -> int:
         for node in args.nodes:
             graph.start(node, node_command(node, args.params_file, args.remap, args.namespace))
 
-    if args.views > 0:
-        env.setdefault("ROS_DOMAIN_ID", "0")
-        client = [sys.executable, "-m", "nbv_prob_cnn.ros.explore_client", "--views", str(args.views),
-                  "--method", args.method, "--out", str(args.out), "--title", "your robot",
-                  "--timeout", str(args.timeout), "--ready-timeout", "300"]  # fmt: skip
-        if args.namespace:
-            raise SystemExit("--views with --namespace: the Explore client runs without a namespace; send the goal "
-                             "to <namespace>/nbv/explore yourself")  # fmt: skip
-        return run_graph(start_nodes, client, env, args.out / "logs", "robot")
-    hear_ctrl_c()
-    graph = NodeGraph(env, log_dir=args.out / "logs")
-    print(f"[robot] starting {', '.join(args.nodes)}; logs in {args.out / 'logs'}; Ctrl-C stops them", flush=True)
-    try:
-        start_nodes(graph)
-        while all(graph.alive().values()):
-            time.sleep(0.5)
-        dead = [name for name, alive in graph.alive().items() if not alive]
-        print(f"[robot] {', '.join(dead)} stopped (see its log); stopping the others", flush=True)
-        return 1
-    except KeyboardInterrupt:
-        signal.signal(signal.SIGINT, signal.SIG_IGN)
-        print("\n[robot] interrupted: stopping our nodes", flush=True)
-        return 130
-    finally:
-        codes = graph.stop()
-        print(f"[robot] stopped {len(codes)} processes", flush=True)
+    env["ROS_DOMAIN_ID"] = env.get("ROS_DOMAIN_ID") or "0"  # unset or empty: the default domain, named
+    if args.views <= 0:
+        print(f"[robot] starting {', '.join(args.nodes)}; Ctrl-C stops them", flush=True)
+        return run_graph(start_nodes, None, env, args.out / "logs", "robot")
+    if args.namespace:
+        raise SystemExit("--views with --namespace: the Explore client runs without a namespace; send the goal "
+                         "to <namespace>/nbv/explore yourself")  # fmt: skip
+    client = [sys.executable, "-m", "nbv_prob_cnn.ros.explore_client", "--views", str(args.views),
+              "--method", args.method, "--out", str(args.out), "--title", "your robot",
+              "--timeout", str(args.timeout), "--ready-timeout", "300"]  # fmt: skip
+    return run_graph(start_nodes, client, env, args.out / "logs", "robot", timeout_s=args.timeout)
 
 
 if __name__ == "__main__":

@@ -326,6 +326,9 @@ def main(argv: list[str] | None = None) -> int:
         )
         return 0 if client.status == "succeeded" and result.views > 0 else 1
     except KeyboardInterrupt:
+        if getattr(client, "_goal_handle", None) is None:
+            print("[explore] interrupted before a goal was sent", flush=True)
+            return 130
         print("[explore] interrupted: cancelling the exploration", flush=True)
         status = client.cancel()
         print(f"[explore] exploration {status or 'not confirmed ended'}", flush=True)

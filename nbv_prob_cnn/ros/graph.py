@@ -19,6 +19,8 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import IO
 
+from nbv_prob_cnn.ros.node_exits import NodeExit, exited_nodes
+
 PROFILE = Path(__file__).with_name("fastdds_shm_profile.xml")
 #: The signal on which our nodes write every thread's Python stack into their log (``kill -USR2 <pid>``,
 #: :func:`enable_stack_dumps`), even while stuck in native code, where no Python handler runs.
@@ -83,9 +85,14 @@ class NodeGraph:
         self.env = env or ros_environment()
         self.log_dir = Path(log_dir) if log_dir else None
         self.processes: dict[str, subprocess.Popen] = {}
+        self.may_exit: set[str] = set()  # processes that end by themselves when done (exit 0), see exited
         self.shm_seen: set[str] = set()  # /dev/shm files the processes mapped (see note_shm)
 
-    def start(self, name: str, command: list[str]) -> subprocess.Popen:
+    def start(self, name: str, command: list[str], may_exit: bool = False) -> subprocess.Popen:
+        """Start ``command`` as the process ``name`` (log: ``<log_dir>/<name>.log``). ``may_exit``:
+        it ends by itself when its work is done (status 0), which :meth:`exited` does not report."""
+        if may_exit:
+            self.may_exit.add(name)
         out: IO[str] | int = subprocess.DEVNULL
         if self.log_dir:
             self.log_dir.mkdir(parents=True, exist_ok=True)
@@ -101,11 +108,17 @@ class NodeGraph:
         parameters: dict | None = None,
         remappings: dict | None = None,
         namespace: str = "",
+        may_exit: bool = False,
     ):
-        return self.start(name, node_command(node, parameters, remappings, namespace))
+        return self.start(name, node_command(node, parameters, remappings, namespace), may_exit)
 
     def alive(self) -> dict[str, bool]:
         return {name: proc.poll() is None for name, proc in self.processes.items()}
+
+    def exited(self) -> list[NodeExit]:
+        """The processes that have ended, with their status and last error line, but those
+        started with ``may_exit`` that ended with status 0 (:func:`~nbv_prob_cnn.ros.node_exits.exited_nodes`)."""
+        return exited_nodes(self.processes, self.log_dir, self.may_exit)
 
     def note_shm(self) -> set[str]:
         """Add the /dev/shm files the live processes map now to :attr:`shm_seen` (also done by
@@ -239,23 +252,96 @@ def hear_ctrl_c() -> None:
     signal.signal(signal.SIGINT, signal.default_int_handler)
 
 
+#: Exit statuses of the launchers (:func:`run_graph`, ``launch_scripts/*.py``), beside the client's own
+#: 0 (done) and 1 (it failed: the graph not ready in time, an exploration or a plan that failed) and
+#: argparse's 2 (a bad argument): a node exited while the run needed it ...
+EXIT_NODE_EXITED = 3
+#: ... the run's ``--timeout`` passed (as ``timeout(1)``) ...
+EXIT_TIMED_OUT = 124
+#: ... Ctrl-C (128 + SIGINT, as a shell reports it).
+EXIT_INTERRUPTED = 130
+#: How often :func:`watch_graph` looks at the processes [s].
+WATCH_PERIOD_S = 0.2
+#: How long a stopped client may take to end what it was doing (cancel an exploration) [s].
+CLIENT_STOP_S = 15.0
+
+
+def report_exits(exits: list[NodeExit], label: str) -> None:
+    """Tell the user which nodes ended, each with its last error line and log (on stderr)."""
+    for node in exits:
+        print(f"[{label}] {node.describe()}", file=sys.stderr, flush=True)
+
+
+def watch_graph(
+    graph: NodeGraph,
+    client: subprocess.Popen | None,
+    label: str,
+    deadline: float | None = None,
+    timeout_s: float | None = None,
+) -> int:
+    """Wait until the client ends, a node ends, or ``deadline`` (``time.monotonic``) passes.
+
+    Returns:
+        The client's exit status; :data:`EXIT_NODE_EXITED` when a node ended first (or while a
+        failing client ended: what it failed on), each reported with its last error line and log;
+        :data:`EXIT_TIMED_OUT` at the deadline. Without a client: only the latter two.
+    """
+    while True:
+        status = client.poll() if client is not None else None
+        if status == 0:
+            return 0
+        exits = graph.exited()
+        if exits:
+            report_exits(exits, label)
+            return EXIT_NODE_EXITED
+        if status is not None:
+            return status
+        if deadline is not None and time.monotonic() >= deadline:
+            limit = f"--timeout {timeout_s:g} s" if timeout_s is not None else "the time limit"
+            print(f"[{label}] {limit} passed (for the whole run, the wait for the graph included)",
+                  file=sys.stderr, flush=True)  # fmt: skip
+            return EXIT_TIMED_OUT
+        time.sleep(WATCH_PERIOD_S)
+
+
+def stop_client(client: subprocess.Popen, wait_s: float = CLIENT_STOP_S) -> None:
+    """Ctrl-C to the client (it cancels what it was doing), SIGKILL after ``wait_s``."""
+    if client.poll() is not None:
+        return
+    with contextlib.suppress(ProcessLookupError):
+        client.send_signal(signal.SIGINT)
+    try:
+        client.wait(timeout=wait_s)
+    except subprocess.TimeoutExpired:
+        client.kill()
+        client.wait()
+
+
 def run_graph(
     start_nodes: Callable[[NodeGraph], None],
-    client_cmd: list[str],
+    client_cmd: list[str] | None,
     env: dict[str, str],
     log_dir: str | Path,
     label: str = "graph",
+    timeout_s: float | None = None,
 ) -> int:
-    """Start a node graph, run a client process against it, and stop everything.
+    """Start a node graph, run a client process against it (None: serve until Ctrl-C), and stop
+    everything.
 
-    The client runs in its own session, so Ctrl-C reaches only this launcher, which forwards it
-    once (the client cancels what it was doing), then stops the nodes and removes the
-    shared-memory files they left behind. The launcher itself joins no ROS graph.
+    The nodes are watched while the client runs (:func:`watch_graph`): when one ends, its last
+    error line and log are printed and the run stops at once (a client waiting for the graph
+    would wait on a dead one). ``timeout_s`` bounds the whole run, the start of the graph and the
+    client's wait for it included. The client runs in its own session, so Ctrl-C reaches only this
+    launcher, which forwards it once (the client cancels what it was doing), then stops the nodes
+    and removes the shared-memory files they left behind. The launcher itself joins no ROS graph.
 
     Returns:
-        The client's exit status (130 after Ctrl-C).
+        The client's exit status, or :data:`EXIT_NODE_EXITED`, :data:`EXIT_TIMED_OUT`,
+        :data:`EXIT_INTERRUPTED` (Ctrl-C).
     """
+    deadline = time.monotonic() + timeout_s if timeout_s is not None else None
     domain = int(env["ROS_DOMAIN_ID"])
+    previous_sigint = signal.getsignal(signal.SIGINT)
     hear_ctrl_c()
     shm_before = shm_segments()
     graph = NodeGraph(env, log_dir=log_dir)
@@ -264,24 +350,24 @@ def run_graph(
     code = 1
     try:
         start_nodes(graph)
-        client = subprocess.Popen(client_cmd, env=env, start_new_session=True)
-        code = client.wait()
+        if client_cmd is not None:
+            client = subprocess.Popen(client_cmd, env=env, start_new_session=True)
+        code = watch_graph(graph, client, label, deadline, timeout_s)
+        if code in (EXIT_NODE_EXITED, EXIT_TIMED_OUT):
+            print(f"[{label}] stopping the graph", file=sys.stderr, flush=True)
     except KeyboardInterrupt:
         print(f"\n[{label}] interrupted: stopping the graph", flush=True)
-        signal.signal(signal.SIGINT, signal.SIG_IGN)  # a second Ctrl-C must not cut the clean-up short
-        if client is not None and client.poll() is None:
-            client.send_signal(signal.SIGINT)
-            with contextlib.suppress(subprocess.TimeoutExpired):
-                client.wait(timeout=15)
-        code = 130
+        code = EXIT_INTERRUPTED
     finally:
+        signal.signal(signal.SIGINT, signal.SIG_IGN)  # a (second) Ctrl-C must not cut the clean-up short
+        if client is not None:
+            stop_client(client)
         codes = graph.stop()
-        if client is not None and client.poll() is None:
-            client.kill()
-            client.wait()
         # files of our stopped processes that nothing uses any more (Fast DDS leaves some port files)
         removed = remove_stale_shm(graph.shm_seen | leaked_segments(shm_before, domain))
         print(f"[{label}] stopped {len(codes)} processes; removed {len(removed)} stale shared-memory files", flush=True)
+        if previous_sigint is not None:  # None: a handler not set from Python
+            signal.signal(signal.SIGINT, previous_sigint)
     return code
 
 
@@ -408,6 +494,9 @@ def send_goal_with_resend(
 
 
 __all__ = [
+    "EXIT_INTERRUPTED",
+    "EXIT_NODE_EXITED",
+    "EXIT_TIMED_OUT",
     "NodeGraph",
     "call_with_resend",
     "hear_ctrl_c",
@@ -419,5 +508,7 @@ __all__ = [
     "run_graph",
     "send_goal_with_resend",
     "shm_segments",
+    "stop_client",
     "wait_for",
+    "watch_graph",
 ]
