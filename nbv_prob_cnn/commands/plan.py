@@ -1,4 +1,4 @@
-"""``nbv plan --grid grid.npz``: the best next views on a saved grid, without ROS."""
+"""``nbv plan --grid grid.npz`` (or ``--octomap map.bt``): the best next views on a saved grid, without ROS."""
 
 from __future__ import annotations
 
@@ -19,10 +19,13 @@ STAGES = (("cnn", "CNN"), ("raycast", "ray casting"), ("views", "views"))
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     from nbv_prob_cnn.basics.datasets import DATASET_SPECS
     from nbv_prob_cnn.basics.modes import CNN_PRECISIONS
+    from nbv_prob_cnn.commands._grid_source import add_octomap_arguments
     from nbv_prob_cnn.gain import BACKENDS
     from nbv_prob_cnn.planners import METHODS
 
-    parser.add_argument("--grid", required=True, type=Path, help="grid .npz (keys grid, origin, resolution)")
+    source = parser.add_mutually_exclusive_group(required=True)
+    source.add_argument("--grid", type=Path, help="grid .npz (keys grid, origin, resolution)")
+    add_octomap_arguments(parser, source)
     parser.add_argument(
         "--method",
         default="cnn_prob",
@@ -67,11 +70,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from nbv_prob_cnn.basics.peak_memory import peak_rss_mb
-    from nbv_prob_cnn.perception.saved_grid import read_saved_grid
+    from nbv_prob_cnn.commands._grid_source import read_grid
     from nbv_prob_cnn.planners.offline import infer_dataset, plan_views, resolution_note, write_views_csv
     from nbv_prob_cnn.viz.exploration import plot_views
 
-    saved = read_saved_grid(args.grid)
+    saved = read_grid(args)
     dataset = infer_dataset(saved.state.shape, args.dataset)
     note = resolution_note(dataset, saved.geometry)
     if note:
@@ -90,7 +93,7 @@ def run(args: argparse.Namespace) -> int:
 
     cells = np.array([p.cell for p in poses], dtype=float).reshape(-1, saved.state.ndim)
     quats = np.array([p.quaternion_xyzw for p in poses]).reshape(-1, 4)
-    title = f"{args.grid.name}: the {len(poses)} best views of {args.method} ({dataset} sensor)"
+    title = f"{saved.path.name}: the {len(poses)} best views of {args.method} ({dataset} sensor)"
     plot_views(saved.state, cells, quats, png, title, geometry=saved.geometry)
     for rank, pose in enumerate(poses, start=1):
         x, y, z = pose.position_m

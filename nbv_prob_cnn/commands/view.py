@@ -1,4 +1,5 @@
-"""``nbv view``: render a saved grid (``--grid``) or a recorded bag (``--bag``) to PNG and CSV."""
+"""``nbv view``: render a saved grid (``--grid``), an OctoMap (``--octomap``) or a recorded bag (``--bag``) to
+PNG and CSV."""
 
 from __future__ import annotations
 
@@ -15,12 +16,14 @@ HELP = (
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     from nbv_prob_cnn.basics.datasets import DATASET_SPECS
+    from nbv_prob_cnn.commands._grid_source import add_octomap_arguments
     from nbv_prob_cnn.gain import BACKENDS
     from nbv_prob_cnn.planners.methods import GAIN_METHODS
 
     source = parser.add_mutually_exclusive_group(required=True)
     source.add_argument("--grid", type=Path, help="grid .npz (keys grid, origin, resolution)")
     source.add_argument("--bag", type=Path, help="rosbag2 directory or .mcap file")
+    add_octomap_arguments(parser, source)
     parser.add_argument("--out", required=True, type=Path, help="output .png (the heat map CSV goes next to it)")
     parser.add_argument(
         "--method",
@@ -36,11 +39,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    if args.grid is not None:
-        from nbv_prob_cnn.perception.saved_grid import read_saved_grid
+    if args.grid is not None or args.octomap is not None:
+        from nbv_prob_cnn.commands._grid_source import read_grid
 
-        saved = read_saved_grid(args.grid)
-        return _render_grid(args, saved.state, saved.geometry, args.grid.name, None)
+        saved = read_grid(args)
+        return _render_grid(args, saved.state, saved.geometry, saved.path.name, None)
     from nbv_prob_cnn.perception.bags import BagError
     from nbv_prob_cnn.viz.recorded_run import load_run, render_run
 

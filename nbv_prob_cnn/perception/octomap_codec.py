@@ -44,6 +44,7 @@ __all__ = [
     "known_bounds",
     "leaves_to_grid",
     "read_octomap_file",
+    "read_octomap_grid",
     "write_bt",
 ]
 
@@ -445,3 +446,28 @@ def write_bt(path: str | Path, state: np.ndarray, geometry: GridGeometry, unknow
     )
     Path(path).write_bytes(header.encode("ascii") + stream.data)
     return int(stream.nodes or 0)
+
+
+def read_octomap_grid(
+    path: str | Path, box=None, occupancy_threshold: float = DEFAULT_OCCUPANCY_THRESHOLD, option: str = "--octomap"
+):
+    """The ternary grid of an OctoMap file (``.bt``/``.ot``) inside ``box`` (``(min, max)`` [m, the
+    tree's frame], default: the bounds of the tree's known leaves), as a
+    :class:`~nbv_prob_cnn.perception.saved_grid.SavedGrid`; ``option`` names the argument in errors.
+
+    Raises:
+        FileNotFoundError: no such file.
+        OctomapError: not an OcTree file, a truncated or corrupt one, or a box it cannot take.
+    """
+    from nbv_prob_cnn.perception.saved_grid import SavedGrid
+
+    path = Path(path)
+    try:
+        if not path.is_file():
+            raise FileNotFoundError(f"{option} {path}: no such file")
+        leaves = decode(read_octomap_file(path), occupancy_threshold)
+        low, high = known_bounds(leaves) if box is None else (np.asarray(box[0]), np.asarray(box[1]))
+        state, geometry = leaves_to_grid(leaves, low, high)
+    except OctomapError as exc:
+        raise OctomapError(f"{option} {path}: {str(exc).removeprefix(f'{path}: ')}") from None
+    return SavedGrid(state, geometry, path)
