@@ -29,12 +29,18 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
+    """Run one command; the exit codes: :mod:`nbv_prob_cnn.basics.results` (README, "Exit codes")."""
+    from nbv_prob_cnn.basics.results import EXIT_BAD_INPUT, EXIT_EMPTY, EXIT_OK, EmptyResultError
+
+    args = build_parser().parse_args(argv)  # usage errors exit with 2 (EXIT_BAD_INPUT)
     try:
-        return int(args._run(args) or 0)
+        return int(args._run(args) or EXIT_OK)
+    except EmptyResultError as exc:
+        print(f"nbv {args.command}: nothing found: {exc}", file=sys.stderr)
+        return EXIT_EMPTY
     except (ValueError, FileNotFoundError) as exc:
         print(f"nbv {args.command}: error: {exc}", file=sys.stderr)
-        return 2
+        return EXIT_BAD_INPUT
 
 
 if __name__ == "__main__":

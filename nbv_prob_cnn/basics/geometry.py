@@ -25,10 +25,16 @@ class GridGeometry:
     def __post_init__(self) -> None:
         if not (np.isfinite(self.resolution) and self.resolution > 0):
             raise ValueError(f"resolution: expected a positive cell size in metres, got {self.resolution}")
-        if not np.all(np.isfinite(self.origin)):
-            raise ValueError(f"origin: expected finite coordinates, got {self.origin}")
-        if len(self.shape) not in (2, 3) or min(self.shape) < 1:
-            raise ValueError(f"shape: expected 2 or 3 positive sizes, got {self.shape}")
+        if np.shape(self.origin) != (3,) or not np.all(np.isfinite(self.origin)):
+            raise ValueError(
+                f"origin: expected 3 finite coordinates in metres (z too for a 2D grid), got {self.origin}"
+            )
+        if (
+            len(self.shape) not in (2, 3)
+            or not all(isinstance(n, (int, np.integer)) and not isinstance(n, bool) for n in self.shape)
+            or min(self.shape) < 1
+        ):
+            raise ValueError(f"shape: expected 2 (x, y) or 3 (x, y, z) positive integer sizes, got {self.shape}")
 
     @property
     def dims(self) -> int:

@@ -88,7 +88,10 @@ def view_pose(
     """
     index = np.asarray(cell)
     if index.shape != (geometry.dims,) or not np.issubdtype(index.dtype, np.integer):
-        raise ValueError(f"cell: expected {geometry.dims} integer indices, got {np.asarray(cell).tolist()!r}")
+        raise ValueError(
+            f"cell: expected {geometry.dims} integer indices (geometry: shape {tuple(geometry.shape)}; "
+            f"a {index.size}D grid needs a {index.size}D geometry), got {np.asarray(cell).tolist()!r}"
+        )
     if np.any(index < 0) or np.any(index >= np.array(geometry.shape)):
         raise ValueError(f"cell: {index.tolist()} lies outside the grid of shape {tuple(geometry.shape)}")
     quat = view_quaternion(view_index, geometry.dims, orientations)

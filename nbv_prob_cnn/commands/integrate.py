@@ -84,14 +84,18 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--cloud", type=Path, help="also write the occupied cell centres (world metres) as a PLY cloud")
     parser.add_argument("--mesh-png", type=Path, help="also draw the surface (decimated, coloured by height) to a PNG")
+    parser.add_argument(
+        "--force", action="store_true", help="overwrite --out (and --mesh, --cloud, --mesh-png) when they exist"
+    )
 
 
 def run(args: argparse.Namespace) -> int:
     """Integrate every frame of the bag and write the grid."""
     from nbv_prob_cnn.basics.grid import EMPTY, OCCUPIED, UNKNOWN
+    from nbv_prob_cnn.basics.results import EmptyResultError
     from nbv_prob_cnn.perception.bags import TOPIC_POSE, bag_pose_source, read_frames
     from nbv_prob_cnn.perception.surfaces import occupied_centres, render_mesh_png, write_ply
-    from nbv_prob_cnn.perception.tsdf import TsdfIntegrator
+    from nbv_prob_cnn.perception.tsdf import TsdfIntegrator, save_grid
 
     if any(s <= 0 for s in args.shape):
         raise ValueError(f"--shape: sizes must be positive, got {args.shape}")
@@ -102,6 +106,12 @@ def run(args: argparse.Namespace) -> int:
             raise ValueError(f"{option}: expected a .ply file, got {path}")
     if args.bounds == "auto" and args.fusion == "dense":
         raise ValueError("--bounds auto needs --fusion sparse (dense fusion updates a fixed box)")
+    outputs = (("--out", args.out), ("--mesh", args.mesh), ("--cloud", args.cloud), ("--mesh-png", args.mesh_png))
+    for option, path in outputs:
+        if path is not None and path.exists() and not args.force:
+            raise ValueError(
+                f"{option} {path} exists; nothing was written (give another path, or --force to overwrite)"
+            )
     t0 = time.perf_counter()
     integrator = TsdfIntegrator(
         origin_m=np.array(args.origin, dtype=np.float64),
@@ -124,8 +134,17 @@ def run(args: argparse.Namespace) -> int:
             f"--bag {args.bag}: no depth image could be posed (poses from {poses}), nothing was fused and no grid "
             "was written; the warnings above name the skipped messages"
         )
-    grid = integrator.save(args.out)
     origin, shape = integrator.grid_box()
+    grid = integrator.ternary()
+    if grid.max() == UNKNOWN:  # no return and no free space inside the box
+        where = "the --bounds box" if args.bounds == "box" else "the grid"
+        raise EmptyResultError(
+            f"no return of the {integrator.stats.frames} frame(s) fell inside {where} (origin "
+            f"{[round(float(v), 3) for v in origin]} m, {tuple(shape)} cells of {args.voxel} m), so every cell is "
+            f"unknown and no grid was written: fuse where the recording lies with `--bounds auto`, or give "
+            f"--origin/--shape around it"
+        )
+    save_grid(args.out, grid, origin, args.voxel, frames=integrator.stats.frames)
     t_end = time.perf_counter()
     labels = (("unknown", UNKNOWN), ("empty", EMPTY), ("occupied", OCCUPIED))
     counts = {name: int(np.count_nonzero(grid == value)) for name, value in labels}

@@ -22,13 +22,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     from nbv_prob_cnn.commands._grid_source import add_octomap_arguments
     from nbv_prob_cnn.gain import BACKENDS
     from nbv_prob_cnn.planners import METHODS
+    from nbv_prob_cnn.planners.registry import DEFAULT_METHOD
 
     source = parser.add_mutually_exclusive_group(required=True)
     source.add_argument("--grid", type=Path, help="grid .npz (keys grid, origin, resolution)")
     add_octomap_arguments(parser, source)
     parser.add_argument(
         "--method",
-        default="cnn_prob",
+        default=DEFAULT_METHOD,
         choices=[m for m, s in METHODS.items() if not s.needs_ground_truth],
         help="next-best-view method (default: %(default)s)",
     )
@@ -69,8 +70,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from nbv_prob_cnn.basics.grid import EMPTY
     from nbv_prob_cnn.basics.peak_memory import peak_rss_mb
-    from nbv_prob_cnn.commands._grid_source import read_grid
+    from nbv_prob_cnn.basics.results import EmptyResultError, no_view_reason
+    from nbv_prob_cnn.commands._grid_source import read_grid, source_text
     from nbv_prob_cnn.planners.offline import infer_dataset, plan_views, resolution_note, write_views_csv
     from nbv_prob_cnn.viz.exploration import plot_views
 
@@ -79,6 +82,8 @@ def run(args: argparse.Namespace) -> int:
     note = resolution_note(dataset, saved.geometry)
     if note:
         print(note)
+    if not (saved.state == EMPTY).any():  # before the CNN: no cell to put a camera in
+        raise EmptyResultError(f"{source_text(args)}: no view: {no_view_reason(saved.state)}")
     times: dict[str, float] = {}
     start = time.perf_counter()
     poses = plan_views(
@@ -86,6 +91,8 @@ def run(args: argparse.Namespace) -> int:
         args.cnn_window, args.cnn_precision,
     )  # fmt: skip
     plan_s = time.perf_counter() - start
+    if not poses:
+        raise EmptyResultError(f"{source_text(args)}: no view with a positive gain: {no_view_reason(saved.state)}")
     args.out.parent.mkdir(parents=True, exist_ok=True)
     csv_path = write_views_csv(poses, args.out.with_suffix(".csv"))
     png = args.out.with_suffix(".png")
@@ -102,8 +109,6 @@ def run(args: argparse.Namespace) -> int:
             f"#{rank}: gain {pose.gain:.4f} at ({x:.3f}, {y:.3f}, {z:.3f}) m, "
             f"quaternion (x, y, z, w) ({qx:.4f}, {qy:.4f}, {qz:.4f}, {qw:.4f}), cell {list(pose.cell)}"
         )
-    if not poses:
-        print("no view with a positive gain (nothing unknown in reach?)")
     print(f"wrote {csv_path}, {png}")
     stages = ", ".join(f"{name} {times.get(key, 0.0):.2f} s" for key, name in STAGES)
     print(f"plan {plan_s:.2f} s ({stages}), peak RSS {peak_rss_mb():.0f} MB")

@@ -19,6 +19,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     from nbv_prob_cnn.commands._grid_source import add_octomap_arguments
     from nbv_prob_cnn.gain import BACKENDS
     from nbv_prob_cnn.planners.methods import GAIN_METHODS
+    from nbv_prob_cnn.planners.registry import DEFAULT_METHOD
 
     source = parser.add_mutually_exclusive_group(required=True)
     source.add_argument("--grid", type=Path, help="grid .npz (keys grid, origin, resolution)")
@@ -27,7 +28,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", required=True, type=Path, help="output .png (the heat map CSV goes next to it)")
     parser.add_argument(
         "--method",
-        default="prob_ig",
+        default=DEFAULT_METHOD,
         choices=[m for m in GAIN_METHODS if m != "omniscient"],
         help="gain of the heat map on a grid (default: %(default)s; cnn_prob needs the data set's weights)",
     )
@@ -44,16 +45,14 @@ def run(args: argparse.Namespace) -> int:
 
         saved = read_grid(args)
         return _render_grid(args, saved.state, saved.geometry, saved.path.name, None)
-    from nbv_prob_cnn.perception.bags import BagError
-    from nbv_prob_cnn.viz.recorded_run import load_run, render_run
+    from nbv_prob_cnn.perception.bags import bag_topics
+    from nbv_prob_cnn.viz.recorded_run import PLANNING_TOPICS, load_run, render_run
 
-    try:
-        run_data = load_run(args.bag)
-    except (BagError, FileNotFoundError, ValueError) as exc:
-        print(f"nbv view: {exc}")
-        return 1
+    if not PLANNING_TOPICS & set(bag_topics(args.bag)):  # FileNotFoundError, BagError (a ValueError)
+        return _render_camera_bag(args)
+    run_data = load_run(args.bag)
     if len(run_data.candidates) == 0:
-        return _render_camera_bag(args, run_data.camera_positions)
+        return _render_camera_bag(args)
     png, csv = render_run(run_data, args.out, args.cell)
     print(
         f"{len(run_data.camera_positions)} camera pose(s), {len(run_data.next_best_views)} next best view(s), "
@@ -62,32 +61,41 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _render_camera_bag(args: argparse.Namespace, camera_positions) -> int:
-    """A bag without planning topics: fuse its depth frames (the ``nbv integrate`` defaults) and
+def _render_camera_bag(args: argparse.Namespace) -> int:
+    """A bag without a planner's candidates: fuse its depth frames (the ``nbv integrate`` defaults) and
     render that grid with the camera path."""
     import numpy as np
 
     from nbv_prob_cnn.basics.geometry import GridGeometry
+    from nbv_prob_cnn.basics.grid import UNKNOWN
+    from nbv_prob_cnn.basics.results import EmptyResultError
     from nbv_prob_cnn.perception.bags import BagError, read_frames
     from nbv_prob_cnn.perception.tsdf import DEFAULT_ORIGIN_M, DEFAULT_SHAPE, DEFAULT_VOXEL_M, TsdfIntegrator
 
     try:
         frames = read_frames(args.bag)
-    except (BagError, ValueError) as exc:
-        print(f"nbv view: {args.bag}: no planning topics and no depth frames to fuse ({exc})")
-        return 1
+    except BagError as exc:
+        raise BagError(f"--bag {args.bag}: no planning topics and no depth frames to fuse ({exc})") from None
     integrator = TsdfIntegrator(np.array(DEFAULT_ORIGIN_M), DEFAULT_SHAPE, DEFAULT_VOXEL_M)
-    count = 0
+    positions = []
     for frame in frames:
         integrator.integrate(frame.depth_m, frame.intrinsics, frame.pose_4x4)
-        count += 1
+        positions.append(frame.pose_4x4[:3, 3])
+    count = len(positions)
     geometry = GridGeometry(DEFAULT_ORIGIN_M, DEFAULT_VOXEL_M, tuple(DEFAULT_SHAPE))
+    state = integrator.ternary()
+    if np.all(state == UNKNOWN):
+        raise EmptyResultError(
+            f"--bag {args.bag}: no return of its {count} depth frame(s) fell inside the box of `nbv integrate`'s "
+            f"defaults ({DEFAULT_SHAPE} cells of {DEFAULT_VOXEL_M} m at {list(DEFAULT_ORIGIN_M)}); fuse it where it "
+            f"lies: `nbv integrate --bag {args.bag} --bounds auto --voxel 0.04 --out grid.npz`, then "
+            "`nbv view --grid grid.npz`"
+        )
     print(
         f"{args.bag}: no planning topics; fused {count} depth frame(s) into the {DEFAULT_SHAPE} grid of `nbv integrate`"
     )
-    return _render_grid(
-        args, integrator.ternary(), geometry, f"{args.bag.name} ({count} frames fused)", camera_positions
-    )
+    cameras = np.array(positions, dtype=float).reshape(-1, 3)
+    return _render_grid(args, state, geometry, f"{args.bag.name} ({count} frames fused)", cameras)
 
 
 def _render_grid(args: argparse.Namespace, state, geometry, name: str, camera_positions) -> int:

@@ -31,6 +31,7 @@ from typing import Any
 
 import numpy as np
 
+from nbv_prob_cnn.basics.file_kind import check_kind, sniff
 from nbv_prob_cnn.perception.bag_pairing import (
     CAMERA_TOPICS,
     MSG_TF,
@@ -202,6 +203,12 @@ def _open_reader(path: Path) -> Any:
 
     if not path.exists():
         raise FileNotFoundError(f"{path}: no such bag")
+    found = sniff(path)
+    if found.kind not in ("bag", "folder"):  # a folder without metadata.yaml: rosbags says what it misses
+        try:
+            check_kind(path, "", ("bag",), "a rosbag2 bag (a folder with metadata.yaml, or an .mcap file)")
+        except ValueError as exc:
+            raise BagError(str(exc)) from None
     try:
         reader = Reader(path)
         reader.open()
@@ -385,6 +392,9 @@ def _raw_pass(path: Path, topics: set[str] | None, deserialize: bool) -> Iterato
     reader = _open_reader(path)
     try:
         conns = [c for c in reader.connections if topics is None or c.topic in topics]
+        if not conns:
+            # rosbags reads every connection when given none: a filter that matches nothing reads nothing
+            return
         stream = reader.messages(connections=conns)
         read = 0
         while True:

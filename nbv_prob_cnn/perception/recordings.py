@@ -35,6 +35,7 @@ from pathlib import Path
 import numpy as np
 
 from nbv_prob_cnn.basics.camera import matrix_from_quaternion
+from nbv_prob_cnn.basics.file_kind import check_kind, sniff
 from nbv_prob_cnn.perception.depth_camera import ROTATION_TOLERANCE, Intrinsics, check_pose
 
 __all__ = [
@@ -368,6 +369,13 @@ def read_recording(format_name: str, src: str | Path, **kwargs) -> Recording:
     readers = {"7scenes": read_7scenes, "tum": read_tum}
     if format_name not in readers:
         raise RecordingError(f"format: expected one of {FORMATS}, got {format_name!r}")
+    found = sniff(src)
+    if found.kind != "folder" and found.kind != "missing":  # a bare folder: the reader names what it misses
+        expected = {"7scenes": "a 7-Scenes recording folder", "tum": "a TUM RGB-D recording folder"}[format_name]
+        try:
+            check_kind(src, "SRC", (format_name,), f"{expected} (--format {format_name})")
+        except ValueError as exc:
+            raise RecordingError(str(exc)) from None
     return readers[format_name](src, **kwargs)
 
 

@@ -18,35 +18,28 @@ from typing import Literal
 
 import numpy as np
 
+from nbv_prob_cnn.basics.file_kind import check_kind, sniff
 from nbv_prob_cnn.basics.geometry import GridGeometry
 from nbv_prob_cnn.basics.grid import check_state
 
-FileKind = Literal["grid", "world", "other"]
+SavedFileKind = Literal["grid", "world", "other"]
 
 #: What a user is told a grid file holds.
 GRID_KEYS = "grid (int8 -1/0/1), origin (3 floats, m), resolution (m)"
 
 
-def saved_file_kind(path: str | Path) -> FileKind:
-    """``"grid"``, ``"world"`` or ``"other"`` by the keys of an ``.npz`` file.
+def saved_file_kind(path: str | Path) -> SavedFileKind:
+    """``"grid"``, ``"world"`` or ``"other"`` (any other file, never unpickled;
+    :func:`~nbv_prob_cnn.basics.file_kind.sniff`).
 
     Raises:
         FileNotFoundError: no such file.
-        ValueError: not a readable ``.npz`` archive.
     """
     path = Path(path)
-    if not path.is_file():
+    if not path.exists():
         raise FileNotFoundError(f"{path}: no such file")
-    try:
-        with np.load(path) as data:
-            keys = set(data.files)
-    except (OSError, ValueError) as exc:
-        raise ValueError(f"{path}: not a readable .npz file ({exc})") from None
-    if {"grid", "origin", "resolution"} <= keys:
-        return "grid"
-    if {"ground_truth", "meta"} <= keys:
-        return "world"
-    return "other"
+    kind = sniff(path).kind
+    return "grid" if kind == "grid" else "world" if kind == "world" else "other"
 
 
 @dataclass
@@ -59,25 +52,24 @@ class SavedGrid:
     path: Path
 
 
-def read_saved_grid(path: str | Path) -> SavedGrid:
-    """Read a grid file (see the module docstring).
+def read_saved_grid(path: str | Path, option: str = "--grid") -> SavedGrid:
+    """Read a grid file (see the module docstring); ``option`` names the argument in errors.
 
     Raises:
         FileNotFoundError: no such file.
-        ValueError: a world file (says what to do instead), another archive, or bad contents.
+        ValueError: a world file (says what to do instead), another kind of file (says which, and the
+            command that takes it), or bad contents.
     """
     path = Path(path)
-    kind = saved_file_kind(path)
+    kind = saved_file_kind(path)  # FileNotFoundError first
     if kind == "world":
         raise ValueError(
-            f"{path} is a world file (ground truth from `nbv world`), not a grid a camera has seen. "
+            f"{option} {path} is a world file (ground truth from `nbv world`), not a grid a camera has seen. "
             f"Simulate a camera in it with `nbv explore --scene {path} ...`; a grid file holds {GRID_KEYS} "
             "(`nbv integrate --bag BAG --out grid.npz`, the integrator's save service, the main job's grid.npz)."
         )
     if kind == "other":
-        with np.load(path) as data:
-            keys = sorted(data.files)
-        raise ValueError(f"{path}: not a grid file: keys {keys}; expected {GRID_KEYS}")
+        check_kind(path, option, ("grid",), f"a grid file (.npz with keys {GRID_KEYS})")
     with np.load(path) as data:
         state = check_state(np.asarray(data["grid"]), name=f"{path}: grid")
         origin = np.asarray(data["origin"], dtype=np.float64).reshape(-1)

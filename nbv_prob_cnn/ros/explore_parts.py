@@ -68,7 +68,7 @@ class GoalPlanner:
         interrupt.check()  # a plan interrupted while it waited for a server answers an error
         if planned.success:
             return PlannedResponse(planned, planned.best_gain, chosen, planned.time_total_s)
-        if planned.message == NO_POSITIVE_GAIN or planned.message.startswith(NO_REACHABLE_VIEW):
+        if planned.message.startswith(NO_POSITIVE_GAIN) or planned.message.startswith(NO_REACHABLE_VIEW):
             return NoView(planned.message)
         raise ValueError(f"planning failed: {planned.message}")
 

@@ -63,6 +63,7 @@ from nbv_prob_cnn.basics.camera import DATASETS
 from nbv_prob_cnn.basics.geometry import GridGeometry
 from nbv_prob_cnn.basics.interrupt import Interrupt, WaitInterruptedError
 from nbv_prob_cnn.basics.modes import CNN_PRECISIONS, MOVE_MODES, Backend, MoveMode
+from nbv_prob_cnn.basics.results import no_view_reason
 from nbv_prob_cnn.exploration.session import (
     ExplorationSession,
     FailedMove,
@@ -76,6 +77,7 @@ from nbv_prob_cnn.exploration.view_guard import ViewGuard
 from nbv_prob_cnn.planners import ViewChoice, check_ros_method, make_planner, ros_method
 from nbv_prob_cnn.planners.base import OriginFilter
 from nbv_prob_cnn.planners.recording import RecordingPlanner
+from nbv_prob_cnn.planners.registry import DEFAULT_METHOD
 from nbv_prob_cnn.planners.requests import origin_filter, planning_context, view_pose
 from nbv_prob_cnn.planners.workspace import Box, height_box, intersect_boxes, workspace_box
 from nbv_prob_cnn.ros import names
@@ -118,7 +120,7 @@ class PlannerConfig(SensorParams, ArmViewParams, MoveItParams):
         "(/camera/pose)", choices=POSE_SOURCES,
     )  # fmt: skip
     dataset: str = param("3dt", "sensor/ray defaults and CNN weights", choices=tuple(sorted(DATASETS)))
-    method: str = param("cnn_prob", "method when a request names none", dynamic=True, check=check_ros_method)
+    method: str = param(DEFAULT_METHOD, "method when a request names none", dynamic=True, check=check_ros_method)
     in_process: bool = param(False, "complete and ray-cast here instead of via the servers")
     backend: Backend = backend_param("ray-casting backend (in-process mode)")
     n_rays: int = n_rays_param("ray sub-cells per side (0 = default)")
@@ -380,7 +382,7 @@ class NbvPlanner(Node):
                 response.time_ik_collision_s = report.times.get("ik_collision", 0.0)
                 response.arm_checked = int(report.checked)
             if not views:
-                raise ValueError(NO_POSITIVE_GAIN)
+                raise ValueError(f"{NO_POSITIVE_GAIN}: {no_view_reason(state)}")
             ranked_msgs = [ViewScore(pose=arrays_to_pose_stamped(p, q, frame, grid.header.stamp), gain=float(g))
                            for p, q, g in views]  # fmt: skip
             response.best_pose, response.best_gain = ranked_msgs[0].pose, ranked_msgs[0].gain

@@ -21,6 +21,8 @@ TOPIC_POSE = "/camera/pose"
 TOPIC_NBV = "/nbv/next_best_view"
 TOPIC_OCCUPIED = "/nbv/grid_occupied"
 TOPIC_MARKERS = "/nbv/markers"
+#: What a planning run records beyond a camera bag's topics.
+PLANNING_TOPICS = frozenset({TOPIC_NBV, TOPIC_OCCUPIED, TOPIC_MARKERS})
 
 
 @dataclass

@@ -101,8 +101,11 @@ class World:
         """Read a world written by :meth:`save`.
 
         Raises:
-            ValueError: the file is not a world file or is corrupt.
+            ValueError: the file is not a world file (says what it is) or is corrupt.
         """
+        from nbv_prob_cnn.basics.file_kind import check_kind
+
+        check_kind(path, "", ("world",), "a world file (ground truth from `nbv world --out scene.npz`)")
         try:
             with np.load(path) as data:
                 meta = json.loads(bytes(data["meta"]).decode())

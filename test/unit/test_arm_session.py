@@ -84,7 +84,7 @@ def test_set_up_is_claimed_once_per_3d_geometry():
     session = ArmSession(PointSetup())
     assert session.claim_set_up(GEOMETRY) and not session.claim_set_up(GEOMETRY)
     assert session.claim_set_up(GridGeometry((0.0, 0.0, 0.0), 0.05, (10, 10, 10)))
-    assert not session.claim_set_up(GridGeometry((0.0, 0.0), 1.0, (10, 10)))  # the arm plans in 3D only
+    assert not session.claim_set_up(GridGeometry((0.0, 0.0, 0.0), 1.0, (10, 10)))  # the arm plans in 3D only
 
 
 @pytest.fixture

@@ -158,3 +158,13 @@ def test_the_writer_puts_each_pose_on_tf_before_its_image(tmp_path):
         np.testing.assert_allclose(frame.pose_4x4, pose, atol=1e-12)
     with pytest.raises(ValueError, match="pose_source"):
         BagWriter(tmp_path / "x", pose_source="odom")
+
+
+def test_a_topic_filter_that_matches_nothing_reads_nothing(tmp_path):
+    # rosbags reads every connection when given an empty list: a filter that matches no topic of the bag
+    # must read no message (it read the bag's /tf and camera messages, and `nbv view --bag` crashed on them)
+    bag = write_bag(tmp_path / "tf", [(TOPIC_TF, tf_msg(("world", "camera_optical", S, turn_z(0.0)))), *camera_msgs(S)])
+    for validate in (True, False):
+        assert list(read_raw_messages(bag, ["/nosuch"], validate=validate)) == []
+        assert list(read_raw_messages(bag, [], validate=validate)) == []
+        assert [m.topic for m in read_raw_messages(bag, ["/nosuch", TOPIC_TF], validate=validate)] == [TOPIC_TF]

@@ -51,3 +51,25 @@ def test_box_region_by_hand_and_its_bad_bounds():
     assert grid.box_region([10.0, 0.0, 0.0], [11.0, 1.0, 1.0]) is None  # beyond the grid
     with pytest.raises(ValueError, match="workspace"):
         grid.box_region([0.0, 0.0, float("nan")], [1.0, 1.0, 1.0])
+
+
+def test_bad_placements_raise_naming_the_argument():
+    # issue 48: a 2-coordinate origin and non-integer sizes were accepted
+    with pytest.raises(ValueError, match="origin: expected 3 finite coordinates"):
+        GridGeometry((0.5, -0.3), 0.0116, (64, 64))
+    with pytest.raises(ValueError, match="origin"):
+        GridGeometry((0.5, -0.3, float("nan")), 0.0116, (64, 64, 64))
+    for shape in ((64.0, 64, 64), (64, 64, 64, 64), (64,), (0, 64), (True, 4)):
+        with pytest.raises(ValueError, match="shape: expected 2 .* or 3 .* positive integer sizes"):
+            GridGeometry((0.0, 0.0, 0.0), 0.0116, shape)
+    with pytest.raises(ValueError, match="resolution"):
+        GridGeometry((0.0, 0.0, 0.0), 0.0, (4, 4, 4))
+    # a 2D grid keeps a 3D origin (its height), and numpy sizes are sizes
+    assert GridGeometry((0.0, 0.0, 0.5), 0.1, (np.int64(4), 4)).dims == 2
+
+
+def test_a_3d_view_on_a_2d_geometry_names_the_geometry():
+    from nbv_prob_cnn.basics.view_pose import view_pose
+
+    with pytest.raises(ValueError, match=r"geometry: shape \(64, 64\); a 3D grid needs a 3D geometry"):
+        view_pose((1, 2, 3), 0, GridGeometry((0.0, 0.0, 0.0), 0.0116, (64, 64)))
