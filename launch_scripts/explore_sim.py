@@ -24,7 +24,7 @@ shared-memory files the graph left behind. When a node exits, the launcher print
 line and its log and stops the rest. Outputs: <out>/views.csv, <out>/explored.png,
 <out>/grid.npz and one log per node in <out>/logs/.
 
-Exit status: 0 explored, 1 the exploration failed, 2 a bad argument, 3 a node exited,
+Exit status: 0 explored, 1 the exploration failed, 2 a bad argument, 4 a node exited,
 124 ``--timeout`` passed, 130 Ctrl-C.
 
 Example:  .venv/bin/python launch_scripts/explore_sim.py --views 10 --method cnn_prob [--no-arm]

@@ -15,7 +15,7 @@ profile, clean Ctrl-C, a node's exit reported with its last error line and log: 
 ``bag_replay`` ends by itself after the last message. Outputs: <out>/ranked_views.csv,
 <out>/ranked_views.png, node logs.
 
-Exit status: 0 planned, 1 the planning failed, 2 a bad argument or bag, 3 a node exited,
+Exit status: 0 planned, 1 the planning failed, 2 a bad argument or bag, 4 a node exited,
 124 ``--timeout`` passed, 130 Ctrl-C.
 
 Examples:

@@ -19,7 +19,7 @@ process (no orphans). When a node exits (a bad parameter, no ``/robot_descriptio
 wait), the launcher prints its last error line and its log, and stops the rest. Logs: one file per
 node in ``<out>/logs/``.
 
-Exit status: 0 explored, 1 the exploration failed, 2 a bad argument, 3 a node exited,
+Exit status: 0 explored, 1 the exploration failed, 2 a bad argument, 4 a node exited,
 124 ``--timeout`` passed (with ``--views``), 130 Ctrl-C.
 
 Example:

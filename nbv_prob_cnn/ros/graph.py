@@ -254,8 +254,9 @@ def hear_ctrl_c() -> None:
 
 #: Exit statuses of the launchers (:func:`run_graph`, ``launch_scripts/*.py``), beside the client's own
 #: 0 (done) and 1 (it failed: the graph not ready in time, an exploration or a plan that failed) and
-#: argparse's 2 (a bad argument): a node exited while the run needed it ...
-EXIT_NODE_EXITED = 3
+#: argparse's 2 (a bad argument): a node exited while the run needed it (not 3, the ``nbv`` commands'
+#: "ran, but the result is empty", README "Exit codes") ...
+EXIT_NODE_EXITED = 4
 #: ... the run's ``--timeout`` passed (as ``timeout(1)``) ...
 EXIT_TIMED_OUT = 124
 #: ... Ctrl-C (128 + SIGINT, as a shell reports it).

@@ -1,5 +1,5 @@
 """Issue 48: the launch scripts never wait on a dead graph. A node that dies at start-up ends the
-run at once, with exit status 3, the node's last error line and the path of its log; ``--timeout``
+run at once, with exit status 4, the node's last error line and the path of its log; ``--timeout``
 bounds the whole run, the wait for the graph included (exit status 124). Before, the scripts' clients
 waited up to their 300 s ready timeout and ``--timeout`` bounded only the exploration."""
 

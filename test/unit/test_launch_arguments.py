@@ -71,3 +71,17 @@ def test_the_method_choices_are_read_from_the_registry(script, monkeypatch) -> N
     monkeypatch.delitem(registry.METHODS, "added_for_test")
     with pytest.raises(SystemExit):
         parse(script, ["--method", "added_for_test"])
+
+
+def test_the_launchers_exit_codes_are_documented() -> None:
+    from nbv_prob_cnn.ros.graph import EXIT_INTERRUPTED, EXIT_NODE_EXITED, EXIT_TIMED_OUT
+
+    readme = (SCRIPTS.parent / "README.md").read_text()
+    section = " ".join(readme[readme.index("### Exit codes") :].split("\n## ", 1)[0].split())
+    assert f"`{EXIT_NODE_EXITED}` a node exited" in section
+    assert f"`{EXIT_TIMED_OUT}` `--timeout` passed" in section
+    assert f"`{EXIT_INTERRUPTED}` Ctrl-C" in section
+    # distinct from 0-2 and from 3, the nbv commands' empty result
+    assert len({EXIT_NODE_EXITED, EXIT_TIMED_OUT, EXIT_INTERRUPTED, 0, 1, 2, 3}) == 7
+    for script in ("explore_sim", "plan_from_bag", "robot"):
+        assert f"{EXIT_NODE_EXITED} a node exited" in (SCRIPTS / f"{script}.py").read_text()
