@@ -12,4 +12,5 @@ NODES = (
     "gain_server",
     "nbv_planner",
     "arm_sim",
+    "octomap_bridge",
 )

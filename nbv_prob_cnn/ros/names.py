@@ -41,6 +41,12 @@ INTEGRATOR_SAVE_MESH = "integrator/save_mesh"
 #: The occupied cells of the integrator's grid (PointCloud2, for RViz).
 INTEGRATOR_OCCUPIED_CELLS = "integrator/occupied_cells"
 INTEGRATOR_DIAGNOSTICS = "integrator/diagnostics"
+#: The grid as an OctoMap (octomap_msgs/Octomap), the octomap_bridge's ``~/octomap``.
+OCTOMAP_BRIDGE_OCTOMAP = "octomap_bridge/octomap"
+#: MoveIt's planning scene diffs (move_group's planning scene monitor subscribes to it).
+PLANNING_SCENE = "planning_scene"
+#: octomap_server's binary map (the default of ``grid_source:=octomap``).
+OCTOMAP_BINARY = "octomap_binary"
 #: The robot-wide diagnostics topic (absolute: every node reports there).
 DIAGNOSTICS = "/diagnostics"
 # actions
