@@ -49,6 +49,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--surface-blend", type=float, default=None,
                         help="the surface methods' blend beta in [0, 1]: 0 the paper's gain, 1 the surface alone "
                              "(default: DEFAULT_SURFACE_BLEND, docs/method.md#surface-gain)")  # fmt: skip
+    parser.add_argument("--stop-surface-cells", type=float, default=0.0,
+                        help="stop when the best view is expected to add fewer surface cells than this "
+                             "(0: never; docs/method.md#stopping-when-the-surface-is-finished)")  # fmt: skip
+    parser.add_argument("--stop-surface-share", type=float, default=0.0,
+                        help="stop when the best view is expected to add less surface than this share of the "
+                             "surface seen so far (0: never; the larger threshold of the two holds)")  # fmt: skip
     parser.add_argument("--no-guard", action="store_true",
                         help="the paper's plain loop: a view that changed nothing may be taken again")  # fmt: skip
     parser.add_argument("--guard-min-cells", type=int, default=None,
@@ -110,8 +116,11 @@ def run(args: argparse.Namespace) -> int:
 
     if args.chamfer and world.dims != 3:
         raise ValueError(f"--chamfer needs a 3D world with meshes (3dt, 3du), not {args.dataset}")
+    from nbv_prob_cnn.planners.surface_stop import SurfaceStop
+
+    stop = SurfaceStop(args.stop_surface_cells, args.stop_surface_share)
     result = explore(world, planner, context, args.views, progress=not args.quiet, noise=noise,
-                     room_margin_m=args.room_margin, guard=guard, chamfer=args.chamfer)  # fmt: skip
+                     room_margin_m=args.room_margin, guard=guard, chamfer=args.chamfer, stop_surface=stop)  # fmt: skip
     write_csv(result.records, args.log)
     written = [args.log]
     if args.png:

@@ -20,6 +20,7 @@ from nbv_prob_cnn.exploration.session import ExplorationSession, NoView, Planned
 from nbv_prob_cnn.exploration.surface_metrics import SurfaceCoverage
 from nbv_prob_cnn.exploration.view_guard import ViewGuard
 from nbv_prob_cnn.planners import Planner, PlanningContext, ViewChoice
+from nbv_prob_cnn.planners.surface_stop import SurfaceStop
 from nbv_prob_cnn.sensing.observe import observe
 from nbv_prob_cnn.sensing.sensor_noise import SensorNoise
 from nbv_prob_cnn.worlds.world import World
@@ -28,13 +29,17 @@ CSV_COLUMNS = [
     "iteration", "unknown_fraction", "unknown_fraction_all", "gain",
     "time_total_s", "time_cnn_s", "time_raycast_s", "time_views_s",
     "x_m", "y_m", "z_m", "qx", "qy", "qz", "qw", "changed_cells", "ruled_out_views", "surface_coverage",
+    "new_surface_cells",
 ]  # fmt: skip
 #: Units of the columns: fractions and gains are ratios; times in seconds (``_s``); the camera
 #: position in metres of the grid frame (``_m``); the quaternion (x, y, z, w) of the camera;
 #: counts of cells (``changed_cells``: cells whose state the view changed) and of views
 #: (``ruled_out_views``: poses the view guard has ruled out after this view; 0 without a guard);
 #: ``surface_coverage``: the share of the ground-truth surface seen so far, of the surface facing
-#: the first view's free space (:meth:`~nbv_prob_cnn.exploration.surface_metrics.SurfaceCoverage.seen_from`).
+#: the first view's free space (:meth:`~nbv_prob_cnn.exploration.surface_metrics.SurfaceCoverage.seen_from`);
+#: ``new_surface_cells``: the surface the planned view was expected to add, in cells, on the
+#: method's map (:func:`~nbv_prob_cnn.planners.surface_stop.predicted_new_surface`; empty for a
+#: random view and for methods without a gain), what the stop rule compares.
 
 
 @dataclass
@@ -55,6 +60,7 @@ class IterationRecord:
     changed_cells: int = 0
     ruled_out_views: int = 0
     surface_coverage: float = float("nan")
+    new_surface_cells: float = float("nan")
 
     def csv_row(self) -> list:
         return [
@@ -71,6 +77,7 @@ class IterationRecord:
             self.changed_cells,
             self.ruled_out_views,
             f"{self.surface_coverage:.6f}",
+            "" if np.isnan(self.new_surface_cells) else f"{self.new_surface_cells:.3f}",
         ]
 
 
@@ -105,6 +112,7 @@ def explore(
     first: ViewChoice | None = None,
     guard: ViewGuard | None = None,
     chamfer: bool = False,
+    stop_surface: SurfaceStop | None = None,
 ) -> ExplorationResult:
     """Run one exploration of ``world`` with ``planner`` for at most ``views`` views.
 
@@ -122,6 +130,8 @@ def explore(
     and mover. ``chamfer``: also fuse a depth image of the world's meshes per view into a TSDF and
     give the Chamfer distance of its mesh after the last view
     (:class:`~nbv_prob_cnn.exploration.mesh_chamfer.MeshReconstruction`; 3D worlds only).
+    ``stop_surface``: stop once the planned view's predicted new surface is below its threshold
+    (docs/method.md#stopping-when-the-surface-is-finished).
     """
     if views < 1:
         raise ValueError(f"views: expected at least 1 view, got {views}")
@@ -155,6 +165,7 @@ def explore(
                 changed_cells=taken.changed_cells,
                 ruled_out_views=taken.ruled_out_views,
                 surface_coverage=coverages[0](taken.grid),
+                new_surface_cells=taken.planned.new_surface if taken.planned.new_surface is not None else float("nan"),
             )
         )
         if reconstruction is not None:
@@ -167,7 +178,8 @@ def explore(
         )
 
     session = ExplorationSession(
-        simulated, SimulatedPlanner(world, planner, context, first), simulated, views, guard=guard, on_view=record
+        simulated, SimulatedPlanner(world, planner, context, first), simulated, views, guard=guard, on_view=record,
+        stop_surface=stop_surface,
     )
     result = session.run()
     bar.close()
@@ -226,7 +238,8 @@ class SimulatedPlanner:
         seconds = time.perf_counter() - start
         if planned is None:
             return NoView("no view with positive gain (or none feasible)")
-        return PlannedView(planned, planned.gain, planned, seconds)
+        estimate = planned.surface_estimate
+        return PlannedView(planned, planned.gain, planned, seconds, estimate() if estimate is not None else None)
 
 
 def write_csv(records: list[IterationRecord], path: str | Path | TextIO) -> None:

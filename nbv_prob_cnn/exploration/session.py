@@ -18,6 +18,7 @@ its :attr:`SessionResult.reason`:
 * the planner has no view: ``<the planner's reason> after N views``, and how many poses the guard
   ruled out when it ruled any out;
 * the planned view's gain at most ``stop_gain``: ``best gain G <= S``;
+* the planned view's predicted new surface below ``stop_surface``'s threshold: ``surface finished: ...``;
 * ``max_failed_moves`` failed moves in a row: ``stopped: K planned views in a row failed to execute (<error>)``;
 * the interrupt, triggered with :data:`CANCELED`: ``canceled after N views`` (outcome ``canceled``);
   with another reason (a shutdown): ``stopped after N views: <its reason>`` (outcome ``interrupted``);
@@ -43,6 +44,7 @@ from nbv_prob_cnn.basics.grid import unknown_fraction_all
 from nbv_prob_cnn.basics.interrupt import Interrupt, WaitInterruptedError
 from nbv_prob_cnn.exploration.view_guard import ViewGuard
 from nbv_prob_cnn.planners import ViewChoice
+from nbv_prob_cnn.planners.surface_stop import SurfaceStop
 
 #: The reason of an interrupt that cancels an exploration (a client's cancel request): the
 #: outcome is ``canceled``, not ``interrupted``.
@@ -65,12 +67,16 @@ class PlannedView(Generic[TargetT]):
         gain: the view's gain (``stop_gain`` compares it).
         choice: its (cell, orientation), which the view guard records; None: not recorded.
         seconds: the planning time (0 for a view that needed no planning, e.g. a random first view).
+        new_surface: the surface the view is expected to add, in cells
+            (:func:`~nbv_prob_cnn.planners.surface_stop.predicted_new_surface`), which ``stop_surface``
+            compares; None: not known (a random view), never stops.
     """
 
     target: TargetT
     gain: float
     choice: ViewChoice | None = None
     seconds: float = 0.0
+    new_surface: float | None = None
 
 
 @dataclass
@@ -190,6 +196,8 @@ class ExplorationSession(Generic[TargetT]):
         guard: the view guard, or how to make one from the first grid's shape; None: no guard.
         stop_unknown_fraction: > 0: stop once the unknown fraction of all cells is at most this.
         stop_gain: stop when the planned view's gain is at most this; None: never.
+        stop_surface: stop when the planned view's predicted new surface is below its threshold
+            (:class:`~nbv_prob_cnn.planners.surface_stop.SurfaceStop`); None: never.
         max_failed_moves: failed moves in a row that stop the exploration (>= 1).
         interrupt: its trigger ends every wait and the exploration (default: one never triggered).
         on_view: called after each view taken.
@@ -206,6 +214,7 @@ class ExplorationSession(Generic[TargetT]):
         guard: GuardSpec = None,
         stop_unknown_fraction: float = 0.0,
         stop_gain: float | None = None,
+        stop_surface: SurfaceStop | None = None,
         max_failed_moves: int = 1,
         interrupt: Interrupt | None = None,
         on_view: Callable[[TakenView[TargetT]], None] | None = None,
@@ -224,6 +233,7 @@ class ExplorationSession(Generic[TargetT]):
         self.guard_spec = guard
         self.stop_unknown_fraction = float(stop_unknown_fraction)
         self.stop_gain = stop_gain
+        self.stop_surface = stop_surface if stop_surface is not None and stop_surface.active else None
         self.max_failed_moves = max_failed_moves
         self.interrupt = interrupt if interrupt is not None else Interrupt()
         self.on_view, self.on_failed_move = on_view, on_failed_move
@@ -256,6 +266,10 @@ class ExplorationSession(Generic[TargetT]):
                     return end(Outcome.SUCCEEDED, no_view_reason(planned.reason, views, guard))
                 if self.stop_gain is not None and planned.gain <= self.stop_gain:
                     return end(Outcome.SUCCEEDED, f"best gain {planned.gain:.4f} <= {self.stop_gain}")
+                if self.stop_surface is not None and planned.new_surface is not None:
+                    finished = self.stop_surface.reason(grid, planned.new_surface)
+                    if finished is not None:
+                        return end(Outcome.SUCCEEDED, finished)
                 moving = time.perf_counter()
                 try:
                     stamp_ns = self.mover.move(planned, interrupt)

@@ -211,12 +211,16 @@ class PlanningContext:
 @dataclass
 class ViewChoice:
     """A chosen view: ``cell`` (grid index of the camera cell), ``view_index`` into
-    ``context.orientations``, its ``gain`` and the seconds spent per stage."""
+    ``context.orientations``, its ``gain`` and the seconds spent per stage. ``surface_estimate``
+    (gain-based methods): computes the surface the view is expected to add, in cells, on the map it
+    was planned on (:func:`~nbv_prob_cnn.planners.surface_stop.predicted_new_surface`; on demand:
+    a ranking of many views pays only for those asked)."""
 
     cell: np.ndarray
     view_index: int
     gain: float
     times: dict[str, float] = field(default_factory=lambda: {"cnn": 0.0, "raycast": 0.0, "views": 0.0})
+    surface_estimate: Callable[[], float] | None = field(default=None, repr=False, compare=False)
 
     def pose(self, geometry: GridGeometry, orientations: np.ndarray | None = None) -> ViewPose:
         """This view as a pose: the cell centre in metres and the quaternion ``(x, y, z, w)`` in the

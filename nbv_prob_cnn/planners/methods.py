@@ -24,6 +24,7 @@ still evaluates up to the full budget inside the box.
 
 from __future__ import annotations
 
+import functools
 import time
 from dataclasses import dataclass
 
@@ -41,6 +42,7 @@ from nbv_prob_cnn.planners.base import (
     search_views,
 )
 from nbv_prob_cnn.planners.candidates import near_unknown_origins, ray_reach
+from nbv_prob_cnn.planners.surface_stop import predicted_new_surface
 
 #: Origins evaluated by the downsampled method, per dimensionality (docs/method.md#candidate-views-and-view-gain).
 DOWNSAMPLED_ORIGINS = {2: 2000, 3: 500}
@@ -159,8 +161,11 @@ class GainPlanner(RankingPlanner):
                 state, prob, origins, context, self.method.mode, top_k, view_mask=view_mask,
                 probability=self.method.probability, surface=self.method.surface,
             )  # fmt: skip
+        surface_map = prob if prob is not None else probability_with_constant(state, context.defaults.p0)
         for choice in found:
             choice.times["cnn"] = t_prob if uses_cnn else 0.0
+            choice.surface_estimate = functools.partial(predicted_new_surface, state, surface_map, choice.cell,
+                                                        choice.view_index, context)  # fmt: skip
         return found
 
     def candidates(

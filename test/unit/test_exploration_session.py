@@ -259,3 +259,42 @@ def test_bad_options_are_named(options, match):
     arguments = {"max_views": 3, **options}
     with pytest.raises(ValueError, match=match):
         ExplorationSession(Grids([unknown()]), Planner([1.0]), Mover(), **arguments)
+
+
+class SurfacePlanner:
+    """Plans view k with the predicted new surface ``surfaces[k]`` (None: not known)."""
+
+    def __init__(self, surfaces: list[float | None]) -> None:
+        self.surfaces = surfaces
+
+    def plan(self, grid, views, guard, interrupt):
+        surface = self.surfaces[min(views, len(self.surfaces) - 1)]
+        return PlannedView(f"view {views}", 1.0, ViewChoice(np.array([views, 0]), 0, 1.0), new_surface=surface)
+
+
+def test_stop_surface_in_cells_and_as_a_share_of_the_surface_seen():
+    from nbv_prob_cnn.planners.surface_stop import SurfaceStop
+
+    seen = unknown()
+    seen.reshape(-1)[:6] = 1  # 6 surface cells seen
+    grids = [unknown(), seen, seen, seen]
+    result, taken, _ = run(grids, SurfacePlanner([None, 40.0, 9.0, 1.0]), Mover(), 5,
+                           stop_surface=SurfaceStop(cells=10))  # fmt: skip
+    # view 0 (no estimate) and view 1 (40 >= 10) are taken; view 2's 9 cells are below 10
+    assert len(taken) == 2 and result.outcome is Outcome.SUCCEEDED
+    assert result.reason.startswith("surface finished: the best view's predicted new surface 9.0 cells < 10.0")
+    # a share of the 6 surface cells: 2.0 x 6 = 12 > 10 cells, the larger threshold holds
+    result, taken, _ = run(grids, SurfacePlanner([None, 13.0, 11.0]), Mover(), 5,
+                           stop_surface=SurfaceStop(cells=10, share=2.0))  # fmt: skip
+    assert len(taken) == 2 and "11.0 cells < 12.0" in result.reason
+    # inactive rule: never stops
+    result, taken, _ = run(grids, SurfacePlanner([None, 0.0]), Mover(), 3, stop_surface=SurfaceStop())
+    assert result.reason == "reached 3 views"
+
+
+@pytest.mark.parametrize("field,value", [("cells", -1.0), ("share", float("nan")), ("cells", float("inf"))])
+def test_bad_surface_stop_thresholds(field, value):
+    from nbv_prob_cnn.planners.surface_stop import SurfaceStop
+
+    with pytest.raises(ValueError, match=f"stop_new_surface_{field}"):
+        SurfaceStop(**{field: value})
