@@ -85,3 +85,24 @@ def test_the_launchers_exit_codes_are_documented() -> None:
     assert len({EXIT_NODE_EXITED, EXIT_TIMED_OUT, EXIT_INTERRUPTED, 0, 1, 2, 3}) == 7
     for script in ("explore_sim", "plan_from_bag", "robot"):
         assert f"{EXIT_NODE_EXITED} a node exited" in (SCRIPTS / f"{script}.py").read_text()
+
+
+@pytest.mark.parametrize("script", ["explore_sim", "plan_from_bag", "robot"])
+def test_timeout_reaches_the_watch_of_the_whole_run(script, monkeypatch, tmp_path) -> None:
+    """``--timeout`` is handed to run_graph, which bounds the whole run with it (the clients' own
+    waits for the graph are longer: 300 s); its watching is tested in test/ros/test_node_exits.py."""
+    module = load_script(script)
+    seen: dict = {}
+
+    def fake_run_graph(start_nodes, client_cmd, env, log_dir, label="graph", timeout_s=None) -> int:
+        seen.update(client=client_cmd, timeout_s=timeout_s)
+        return 0
+
+    monkeypatch.setattr(module, "run_graph", fake_run_graph)
+    argv = ["--timeout", "7", "--out", str(tmp_path)]
+    if script == "plan_from_bag":
+        argv += ["--bag", str(SCRIPTS.parent / "bags" / "3dt_seed1000_sample")]
+    if script == "robot":
+        argv += ["--views", "1"]
+    assert module.main(argv) == 0
+    assert seen["timeout_s"] == 7.0 and seen["client"]
