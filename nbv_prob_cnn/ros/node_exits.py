@@ -25,8 +25,9 @@ LOG_TAIL_BYTES = 256 * 1024
 
 
 def last_error_line(log: Path | None) -> str:
-    """The last line of ``log`` that :data:`ERROR_LINE` matches, else its last non-empty line,
-    else a note that there is none (no log, an empty log)."""
+    """The last ``[FATAL]`` line of ``log`` (what ended one of our nodes, though an error of its
+    shutdown may follow it), else the last line :data:`ERROR_LINE` matches, else its last
+    non-empty line, else a note that there is none (no log, an empty log)."""
     if log is None:
         return "(no log: the graph was started without a log folder)"
     try:
@@ -38,7 +39,8 @@ def last_error_line(log: Path | None) -> str:
     except OSError as exc:
         return f"(its log cannot be read: {exc})"
     lines = [line.strip() for line in text.splitlines() if line.strip()]
-    errors = [line for line in lines if ERROR_LINE.search(line)]
+    fatal = [line for line in lines if "[FATAL]" in line]
+    errors = fatal or [line for line in lines if ERROR_LINE.search(line)]
     if errors:
         return errors[-1]
     return lines[-1] if lines else "(its log is empty)"

@@ -128,6 +128,12 @@ def test_last_error_line_picks_what_ended_the_node(tmp_path) -> None:
         "[INFO] [3.0] [n.summary]: 0 frames\n"
     )
     assert last_error_line(log) == "nbv_prob_cnn.perception.bags.BagError: no such topic '/camera'"
+    log.write_text(
+        "[FATAL] [1.0] [n]: cannot start: bad parameter\n"
+        "[ERROR] [2.0] [n]: a callback still runs 12 s after shutdown began\n"
+        "[INFO] [3.0] [n.summary]: 0 frames\n"
+    )
+    assert last_error_line(log) == "[FATAL] [1.0] [n]: cannot start: bad parameter"  # what ended it
     log.write_text("[INFO] [1.0] [n]: started\n[INFO] [1.0] [n]: still going\n\n")
     assert last_error_line(log) == "[INFO] [1.0] [n]: still going"  # no error line: the last line
     log.write_text("")
