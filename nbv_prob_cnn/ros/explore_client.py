@@ -218,13 +218,14 @@ def write_outputs(client: ExploreClient, result: Explore.Result, out_dir: Path, 
     with open(csv_path, "w", newline="") as handle:
         writer = csv.writer(handle)
         header = ["view", "elapsed_s", "gain", "unknown_fraction", "x_m", "y_m", "z_m", "qx", "qy", "qz", "qw"]
+        header.append("fallback")  # 1: the planner found no feasible ranked view and took one near the camera
         writer.writerow(header + (["joint_travel", *joint_names] if joint_names else []))
         for elapsed, fb in taken:
             position, quat = pose_to_arrays(fb.pose.pose)
             arm = [f"{fb.joint_travel:.6f}", *(f"{v:.6f}" for v in fb.joint_goal.position)] if joint_names else []
             writer.writerow(
                 [fb.view_index, f"{elapsed:.3f}", f"{fb.gain:.6g}", f"{fb.unknown_fraction:.6f}",
-                 *(f"{v:.5f}" for v in position), *(f"{v:.6f}" for v in quat), *arm]
+                 *(f"{v:.5f}" for v in position), *(f"{v:.6f}" for v in quat), int(fb.fallback), *arm]
             )  # fmt: skip
     written = [csv_path]
     grid = client.latest_grid()
@@ -320,7 +321,8 @@ def main(argv: list[str] | None = None) -> int:
         written.append(graph)
         print(
             f"[explore] done: {result.views} views in {time.monotonic() - started:.1f} s, final unknown fraction "
-            f"{result.final_unknown_fraction:.4f}, {result.failed_executions} failed moves, {client.status}: "
+            f"{result.final_unknown_fraction:.4f}, {result.failed_executions} failed moves, {result.fallbacks} "
+            f"near-camera fallbacks, {client.status}: "
             f"{result.reason_stopped}; wrote " + ", ".join(str(p) for p in written),
             flush=True,
         )

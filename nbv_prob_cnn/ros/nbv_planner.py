@@ -395,6 +395,7 @@ class NbvPlanner(Node):
                 quaternion = reached_quaternion(report.view, quaternion)  # the arm may take it turned about its axis
                 response.best_pose = arrays_to_pose_stamped(position, quaternion, frame, grid.header.stamp)
                 response.best_gain, response.reachable = float(chosen.gain), True
+                response.fallback = bool(report.fallback)  # the view is near the camera, none ranked was feasible
                 response.joint_goal = joint_state_msg(self._arm.robot, report.view.q)
                 response.joint_goal.header.stamp, response.joint_goal.header.frame_id = grid.header.stamp, frame
                 response.joint_path_length = report.view.path_length
@@ -473,7 +474,7 @@ class NbvPlanner(Node):
                 stop_unknown_fraction=goal.stop_unknown_fraction, stop_gain=goal.stop_gain,
                 max_failed_moves=cfg.max_failed_executions, interrupt=interrupt,
                 on_view=partial(self._took_view, goal_handle, result),
-                on_failed_move=partial(self._move_failed, goal_handle),
+                on_failed_move=partial(self._move_failed, goal_handle, result),
             )  # fmt: skip
             ended = session.run()
             if ended.outcome is Outcome.CANCELED:  # (rclpy refuses two severities from one line)
@@ -506,23 +507,29 @@ class NbvPlanner(Node):
         feedback = Explore.Feedback(
             view_index=taken.index, pose=planned.best_pose, gain=planned.best_gain,
             unknown_fraction=taken.unknown_fraction, executed=True, ruled_out_views=taken.ruled_out_views,
+            fallback=planned.fallback,
         )  # fmt: skip
+        result.fallbacks += int(planned.fallback)
         if self.config.move_mode in ARM_MOVE_MODES:
             feedback.joint_goal, feedback.joint_travel = planned.joint_goal, planned.joint_path_length
         goal_handle.publish_feedback(feedback)
+        fell_back = " (fallback: no ranked view was feasible)" if planned.fallback else ""
         self.get_logger().info(
-            f"view {taken.index}: gain {planned.best_gain:.4f}, unknown fraction {taken.unknown_fraction:.4f}, "
-            f"{taken.changed_cells} cells changed; {stage_times(planned, taken.move_s, taken.grid_wait_s)}"
+            f"view {taken.index}{fell_back}: gain {planned.best_gain:.4f}, "
+            f"unknown fraction {taken.unknown_fraction:.4f}, {taken.changed_cells} cells changed; "
+            f"{stage_times(planned, taken.move_s, taken.grid_wait_s)}"
             f"{server_stage_times(self._remote.server_times)}"
         )
 
-    def _move_failed(self, goal_handle, failed: FailedMove[PlanNextBestView.Response]) -> None:
+    def _move_failed(self, goal_handle, result: Explore.Result, failed: FailedMove[PlanNextBestView.Response]) -> None:
         """A move that failed (arm / trajectory / moveit modes): the feedback says why; the next view is tried."""
         planned = failed.planned.target
         feedback = Explore.Feedback(
             view_index=failed.index, pose=planned.best_pose, gain=planned.best_gain,
             unknown_fraction=failed.unknown_fraction, executed=False, execution_error=str(failed.error),
+            fallback=planned.fallback,
         )  # fmt: skip
+        result.fallbacks += int(planned.fallback)
         feedback.joint_goal, feedback.joint_travel = planned.joint_goal, planned.joint_path_length
         goal_handle.publish_feedback(feedback)
         self.get_logger().warning(f"view {failed.index}: move failed ({failed.error}); trying the next ranked view")
