@@ -63,7 +63,7 @@ from nbv_prob_cnn.ros.conversions import (
     msg_to_probability,
 )
 from nbv_prob_cnn.ros.gain_params import backend_param, gain_variant_param, n_rays_param
-from nbv_prob_cnn.ros.grid_holder import LatestGrid, grid_transport_param
+from nbv_prob_cnn.ros.grid_holder import GridSourceParams, LatestGrid, grid_transport_param
 from nbv_prob_cnn.ros.joint_state_intake import JointStateIntake
 from nbv_prob_cnn.ros.parameters import declare_config, param, positive_seconds
 from nbv_prob_cnn.ros.remote_planning import complete_via_service
@@ -76,10 +76,10 @@ MAX_POSES = 100_000
 
 
 @dataclass
-class GainServerConfig(SensorParams, ArmViewParams):
+class GainServerConfig(GridSourceParams, SensorParams, ArmViewParams):
     """Parameters of ``gain_server`` (``method`` and ``completion_timeout_s`` may change at run time):
-    the robot description and ``use_arm`` (:class:`ArmViewParams`), the planning frustum
-    (:class:`SensorParams`), then these."""
+    where grids come from (:class:`GridSourceParams`), the robot description and ``use_arm``
+    (:class:`ArmViewParams`), the planning frustum (:class:`SensorParams`), then these."""
 
     dataset: str = param("3dt", "sensor/ray defaults and CNN weights", choices=tuple(sorted(DATASETS)))
     method: str = param(DEFAULT_METHOD, "method when a request names none", dynamic=True, check=check_ros_method)
@@ -127,7 +127,7 @@ class GainServer(Node):
         self._streams = StreamNode(self)
         if self._arm is not None:
             self._joints = JointStateIntake(self._arm.robot, self, self._streams.node)
-        self._grid = LatestGrid(self, callback_group=group, transport=cfg.grid_transport)
+        self._grid = LatestGrid(self, callback_group=group, transport=cfg.grid_transport, source=cfg)
         self._tf = TfListener(self._streams.node)
         self._sensor = CameraInfoSensor(self, cfg, cfg.dataset, callback_group=group)
         self._complete_client = self.create_client(CompleteGrid, names.COMPLETE, callback_group=group)

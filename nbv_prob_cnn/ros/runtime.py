@@ -26,6 +26,7 @@ from nbv_prob_cnn.basics.process_heap import (
     release_free_heap,
 )
 from nbv_prob_cnn.ros.graph import enable_stack_dumps
+from nbv_prob_cnn.ros.shm_release import note_own_files, release_after_exit
 
 NodeT = TypeVar("NodeT", bound=Node)
 
@@ -225,7 +226,9 @@ def run_node(
     3. wait for the executor's worker threads (:data:`CALLBACK_JOIN_S` at most), stop it;
     4. destroy the node's action servers and clients, then the node (skipped, with an error
        logged, while a callback still runs: destroying it then could crash the process);
-    5. log the ``summary``, shut rclpy down.
+    5. log the ``summary``, shut rclpy down;
+    6. hand the Fast DDS files the process created to a detached process that removes them once
+       no process holds them (:mod:`~nbv_prob_cnn.ros.shm_release`).
 
     rclpy's signal handler is not installed: :class:`SignalStop` takes SIGINT and SIGTERM.
     SIGUSR2 writes every thread's stack into the log (:func:`~nbv_prob_cnn.ros.graph.enable_stack_dumps`).
@@ -265,10 +268,12 @@ def run_node(
             raise
         # else: interrupted during start-up (SIGINT can surface as another error, e.g. an aborted import)
     finally:
+        own_shm = note_own_files()  # before the participant closes them
         try:
             shut_down_node(node, executor, summary)
         finally:
             signals.ignore_from_now()
+            release_after_exit(own_shm)  # Fast DDS's own removal of them misses some (issue 47)
     return code
 
 
