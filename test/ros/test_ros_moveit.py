@@ -38,8 +38,8 @@ MOVEIT_PLANNER = {**ARM_PLANNER, "move_mode": "moveit", "moveit_group": "panda_a
 
 @pytest.fixture
 def ros(tmp_path, ros_domain):
-    """Domains 232..235 (this module only); arm_sim running; the bench's grid and a SeeingIntegrator."""
-    env = ros_domain(232 + (os.getpid() + next(_counter)) % 4)
+    """Domains 120..123 (this module only); arm_sim running; the bench's grid and a SeeingIntegrator."""
+    env = ros_domain(120 + (os.getpid() + next(_counter)) % 4)
     with spun_node("moveit_test") as node:
         bench = GraphBench(node)
         graph = NodeGraph(env, log_dir=tmp_path / "logs")
