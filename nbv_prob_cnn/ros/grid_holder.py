@@ -189,7 +189,7 @@ class LatestGrid:
         """
         with self._condition:
             if self._grid is None:
-                raise ValueError(f"no grid received yet on /{self.topic}")
+                raise ValueError(f"no grid received yet on /{self.topic.lstrip('/')}")
             return self._grid
 
     def wait_for_stamp(self, min_stamp_ns: int, timeout_s: float, interrupt: Interrupt | None = None) -> VoxelGrid:

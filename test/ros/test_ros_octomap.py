@@ -5,6 +5,7 @@ unchanged grid is not sent again; a burst of grids is thinned by the rate limit,
 
 from __future__ import annotations
 
+import time
 from pathlib import Path
 
 import numpy as np
@@ -71,8 +72,8 @@ class Bridge:
         node.create_subscription(Octomap, f"{namespace}/octomap_bridge/octomap", self.octomaps.append, GRID_QOS)
         node.create_subscription(PlanningScene, f"{namespace}/planning_scene", self.scenes.append, QoSProfile(depth=50))
 
-    def send(self, state: np.ndarray, stamp_s: int, origin=(0.1, -0.2, 0.05)) -> None:
-        geometry = GridGeometry(origin, RES, SHAPE)
+    def send(self, state: np.ndarray, stamp_s: int, origin=(0.1, -0.2, 0.05), resolution: float = RES) -> None:
+        geometry = GridGeometry(origin, resolution, state.shape)
         self.grid_pub.publish(grid_to_msg(state, geometry, "world", time_msg(stamp_s * 10**9)))
 
     def octomap_at(self, stamp_s: int, timeout_s: float = 30.0) -> Octomap:
@@ -147,4 +148,45 @@ def test_the_bridge_publishes_the_grid_as_an_octomap_and_a_planning_scene(ros_do
             moved = library_tree(main.octomap_at(30), tmp_path)
             np.testing.assert_array_equal(labels(moved, (0.1, -0.2, 0.05)), np.where(off == -1, 1, off))
         assert "moved by [-13.0, 0.0, 0.0] mm" in log_text(tmp_path, "octomap_bridge")
+        assert_clean_stop(graph)
+
+
+def test_gain_server_plans_on_the_octomap_the_bridge_publishes(ros_domain, tmp_path: Path) -> None:
+    """The chain a user with octomap_server runs, with our bridge as the map's publisher: the grid
+    -> octomap_bridge -> gain_server (grid_source:=octomap) ranks the same views as on the grid itself."""
+    from nbv_prob_cnn_msgs.srv import RankViews
+    from test_ros_planning import call
+
+    geometry = GridGeometry((8 * 0.0116, -16 * 0.0116, 0.0), 0.0116, (48, 48, 40))  # on the 1.16 cm lattice
+    rng = np.random.default_rng(4)
+    state = np.full(geometry.shape, -1, dtype=np.int8)
+    state[6:42, 6:42, 4:30] = rng.choice(np.array([-1, 0, 0, 0, 1], dtype=np.int8), size=(36, 36, 26))
+    box_max = [geometry.origin[i] + geometry.shape[i] * geometry.resolution for i in range(3)]
+    env = ros_domain(domain_id(13))
+    with NodeGraph(env, log_dir=tmp_path) as graph:
+        graph.start_node("octomap_bridge", "octomap_bridge", {"unknown_as_occupied": False})
+        graph.start_node("gain_server", "gain_server", {
+            "dataset": "3du", "backend": "opencl", "method": "prob_ig", "grid_source": "octomap",
+            "octomap_topic": "/octomap_bridge/octomap", "octomap_box_min": list(geometry.origin),
+            "octomap_box_max": box_max,
+        })  # fmt: skip
+        with RosClient(int(env["ROS_DOMAIN_ID"])) as client:
+            Bridge(client).send(state, 5, origin=geometry.origin, resolution=geometry.resolution)
+            direct = RankViews.Request(grid=grid_to_msg(state, geometry, "world"), method="prob_ig", top_k=20)
+            on_grid = call(client.node, client.context, RankViews, "/nbv/rank_views", direct)
+            assert on_grid.success, on_grid.message
+            latest = RankViews.Request(method="prob_ig", top_k=20)  # no grid: the server's own, from the OctoMap
+            deadline, on_octomap = time.monotonic() + 60.0, None
+            while time.monotonic() < deadline:
+                on_octomap = call(client.node, client.context, RankViews, "/nbv/rank_views", latest)
+                if on_octomap.success or "no grid received yet" not in on_octomap.message:
+                    break
+                time.sleep(0.5)
+            assert on_octomap is not None and on_octomap.success, on_octomap and on_octomap.message
+            assert len(on_octomap.ranked) == len(on_grid.ranked) == 20
+            for a, b in zip(on_octomap.ranked, on_grid.ranked, strict=True):
+                assert a.gain == pytest.approx(b.gain, rel=1e-6)
+                assert a.pose.header.frame_id == "world"
+                p, q = a.pose.pose.position, b.pose.pose.position
+                assert (p.x, p.y, p.z) == pytest.approx((q.x, q.y, q.z), abs=1e-6)
         assert_clean_stop(graph)
