@@ -382,7 +382,17 @@ def wait_for(predicate, timeout_s: float, interval_s: float = 0.1) -> bool:
     return bool(predicate())
 
 
-def call_with_resend(client, request, timeout_s: float, *, executor=None, resend_s: float = 10.0):
+def call_with_resend(
+    client,
+    request,
+    timeout_s: float,
+    *,
+    executor=None,
+    resend_s: float = 10.0,
+    wait: Callable[[Callable[[], bool], float], bool] | None = None,
+    servers: Callable[[], set] | None = None,
+    name: str | None = None,
+):
     """Call an idempotent service and return its response, sending the request again every
     ``resend_s`` seconds until an answer comes or ``timeout_s`` passes.
 
@@ -400,23 +410,43 @@ def call_with_resend(client, request, timeout_s: float, *, executor=None, resend
         executor: spun here until the answer comes; None when a background thread spins the
             client's node.
         resend_s: wait for one answer at most this long before sending again.
+        wait: ``wait(predicate, seconds)`` returns whether ``predicate()`` came to hold within the
+            seconds (it may raise to end the call, e.g. on the node's shutdown); used instead of
+            ``executor`` and of ``wait_for_service``. Default: polling (:func:`wait_for`).
+        servers: the servers' identities now (the request readers' endpoint GIDs): a server that
+            was not there at the last send gets the request at once (a restarted server that
+            matched this client after the request went out never receives it: volatile
+            durability), without waiting ``resend_s``.
+        name: the service's name in messages (default: ``client.srv_name``).
 
     Raises:
         TimeoutError: the service did not appear, or nothing answered within ``timeout_s``.
     """
     deadline = time.monotonic() + timeout_s
-    if not client.wait_for_service(timeout_sec=timeout_s):
-        raise TimeoutError(f"service {client.srv_name} did not appear within {timeout_s:g} s")
+    name = name or client.srv_name
+    if wait is None:
+        appeared = client.wait_for_service(timeout_sec=timeout_s)
+    else:
+        appeared = wait(client.service_is_ready, timeout_s)
+    if not appeared:
+        raise TimeoutError(f"service {name} did not appear within {timeout_s:g} s")
     pending: list = []  # every request sent: a slow server's answer to an earlier one counts too
     try:
         while (remaining := deadline - time.monotonic()) > 0:
+            known = servers() if servers is not None else set()
             future = client.call_async(request)
             pending.append(future)
             wait_s = min(resend_s, remaining)
+
+            def answered_or_new_server(known: set = known) -> bool:
+                return any(f.done() for f in pending) or (servers is not None and not servers() <= known)
+
             if executor is not None:
                 executor.spin_until_future_complete(future, timeout_sec=wait_s)
+            elif wait is not None:
+                wait(answered_or_new_server, wait_s)
             else:
-                wait_for(lambda: any(f.done() for f in pending), wait_s, 0.01)
+                wait_for(answered_or_new_server, wait_s, 0.01)
             answered = next((f for f in pending if f.done()), None)
             if answered is not None:
                 return answered.result()
@@ -425,7 +455,7 @@ def call_with_resend(client, request, timeout_s: float, *, executor=None, resend
             if not future.done():
                 client.remove_pending_request(future)  # unanswered requests no longer wait for a reply
     sent = len(pending)
-    raise TimeoutError(f"service {client.srv_name}: no answer within {timeout_s:g} s ({sent} request(s) sent)")
+    raise TimeoutError(f"service {name}: no answer within {timeout_s:g} s ({sent} request(s) sent)")
 
 
 def send_goal_with_resend(

@@ -25,7 +25,7 @@ from nbv_prob_cnn.basics.process_heap import (
     limit_heap_retention,
     release_free_heap,
 )
-from nbv_prob_cnn.ros.graph import enable_stack_dumps
+from nbv_prob_cnn.ros.graph import call_with_resend, enable_stack_dumps
 from nbv_prob_cnn.ros.shm_release import note_own_files, release_after_exit
 
 NodeT = TypeVar("NodeT", bound=Node)
@@ -45,11 +45,32 @@ def shutdown_interrupt(node: Node) -> Interrupt:
         return interrupt
 
 
+#: :func:`call_service` sends a request again when no answer came within this many times the
+#: client's last answer time (at least :data:`RESEND_MIN_S`; before a first answer: half the timeout).
+RESEND_FACTOR = 3.0
+RESEND_MIN_S = 2.0
+_answer_s: weakref.WeakKeyDictionary[Any, float] = weakref.WeakKeyDictionary()
+
+
+def service_servers(node: Node, name: str) -> set[bytes]:
+    """The endpoint GIDs of the servers of service ``name`` (full name) in ``node``'s graph: the
+    readers of its request topic; empty while the node's graph cannot be read (shutting down)."""
+    try:
+        infos = node.get_subscriptions_info_by_topic(f"rq{name}Request", no_mangle=True)
+    except Exception:  # noqa: BLE001 - rclpy's errors of a context being shut down vary
+        return set()
+    return {bytes(info.endpoint_gid) for info in infos}
+
+
 def call_service(node: Node, client, request, timeout_s: float, interrupt: Interrupt | None = None):
     """Call a service from inside a callback (needs a multi-threaded executor and a reentrant
-    callback group on the client). Returns the response. The wait (for the service, then for
-    its answer) ends at once when ``interrupt`` (default: the node's :func:`shutdown_interrupt`)
-    is triggered; the pending request is then dropped.
+    callback group on the client). Returns the response. ``timeout_s`` bounds the whole call: the
+    wait for the service, then for an answer to the request or to a copy of it
+    (:func:`~nbv_prob_cnn.ros.graph.call_with_resend`): a copy goes out at once when a server
+    appears that was not there at the last send (a restarted server), and after
+    :data:`RESEND_FACTOR` times the client's last answer time without an answer (a request or its
+    answer lost while DDS matched the two). The waits end at once when ``interrupt`` (default:
+    the node's :func:`shutdown_interrupt`) is triggered; the pending requests are then dropped.
 
     Raises:
         TimeoutError: the service is not available or did not answer in time.
@@ -57,20 +78,20 @@ def call_service(node: Node, client, request, timeout_s: float, interrupt: Inter
     """
     interrupt = interrupt or shutdown_interrupt(node)
     name = node.resolve_service_name(client.srv_name)  # the full name, namespace included
-    if not interrupt.wait_until(client.service_is_ready, min(timeout_s, 5.0)):
-        raise TimeoutError(f"service {name} is not available")
-    future = client.call_async(request)
+    last = _answer_s.get(client)
+    resend_s = timeout_s / 2 if last is None else max(RESEND_MIN_S, RESEND_FACTOR * last)
+    start = time.monotonic()
     try:
-        answered = interrupt.wait_future(future, timeout_s)
-    except WaitInterruptedError:
-        client.remove_pending_request(future)
+        reply = call_with_resend(
+            client, request, timeout_s, resend_s=resend_s, wait=interrupt.wait_until,
+            servers=lambda: service_servers(node, name), name=name,
+        )  # fmt: skip
+    except (TimeoutError, WaitInterruptedError):
         raise
-    if not answered:
-        client.remove_pending_request(future)
-        raise TimeoutError(f"service {name} did not answer within {timeout_s:.1f} s")
-    if future.exception() is not None:
-        raise RuntimeError(f"service {name} failed: {future.exception()}")
-    return future.result()
+    except Exception as exc:  # noqa: BLE001 - the future's exception
+        raise RuntimeError(f"service {name} failed: {exc}") from exc
+    _answer_s[client] = time.monotonic() - start
+    return reply
 
 
 #: Longest time the main thread of :func:`run_node` stays in one wait of the executor, so that a

@@ -31,6 +31,9 @@ class LossyClient:
     def wait_for_service(self, timeout_sec: float) -> bool:
         return self.available
 
+    def service_is_ready(self) -> bool:
+        return self.available
+
     def call_async(self, request: int) -> Future:
         self.sent.append(request)
         return Future(None if len(self.sent) <= self.lost else request * 2)
@@ -50,6 +53,34 @@ def test_lost_requests_are_sent_again_and_forgotten():
     assert call_with_resend(client, 5, 5.0, resend_s=0.05) == 10
     assert client.sent == [5, 5, 5]
     assert len(client.removed) == 2  # the two unanswered requests no longer wait for a reply
+
+
+def test_a_server_that_appears_after_the_send_gets_a_copy_at_once():
+    """Issue 47: the first request went to the servers known then (a killed one among them); the
+    restarted server, seen only afterwards, gets a copy without waiting ``resend_s``."""
+    client = LossyClient(lost=1)
+
+    def servers() -> set:
+        return {b"old"} if not client.sent else {b"old", b"restarted"}
+
+    assert call_with_resend(client, 3, 30.0, resend_s=1000.0, servers=servers) == 6
+    assert client.sent == [3, 3] and len(client.removed) == 1
+
+
+def test_a_wait_that_raises_ends_the_call_and_forgets_its_requests():
+    client = LossyClient(lost=10**6)
+    calls: list[float] = []
+
+    def wait(predicate, seconds: float) -> bool:
+        calls.append(seconds)
+        if len(calls) > 1:  # the first wait is for the service
+            raise InterruptedError("shutting down")
+        return predicate()
+
+    with pytest.raises(InterruptedError):
+        call_with_resend(client, 1, 30.0, resend_s=5.0, wait=wait)
+    assert calls == [30.0, 5.0] and client.sent == [1]
+    assert len(client.removed) == 1
 
 
 class SpinningExecutor:
