@@ -5,7 +5,8 @@
                 (/joint_states), a joint_trajectory_controller (FollowJointTrajectory), a depth
                 camera driver (16UC1 depth + CameraInfo in its optical frame)
     ours:       integrator -> /nbv/grid; nbv_planner (/nbv/plan, /nbv/explore) <->
-                completion_server, gain_server (/nbv/evaluate_views)
+                completion_server, gain_server (/nbv/evaluate_views); on request (--nodes) the
+                octomap_bridge (/nbv/grid -> OctoMap, MoveIt's /planning_scene)
 
 Every node gets the same ``--params-file`` (a ROS 2 parameters YAML: a ``/**`` block for what they
 share, one block per node; examples for a UR5e-like and a Panda-like arm with a D435-like camera in
@@ -40,6 +41,8 @@ from nbv_prob_cnn.ros.graph import NodeGraph, run_graph
 
 #: Our nodes, started in this order (the servers before the planner that calls them).
 NODES = ("integrator", "completion_server", "gain_server", "nbv_planner")
+#: Nodes started only when ``--nodes`` names them.
+OPTIONAL_NODES = ("octomap_bridge",)
 
 
 def node_command(node: str, params_file: Path | None, remaps: list[str], namespace: str) -> list[str]:
@@ -59,7 +62,10 @@ def parse_args(argv=None) -> argparse.Namespace:
     parser.add_argument("--params-file", type=Path, help="ROS 2 parameters YAML for every node")
     parser.add_argument("--remap", action="append", default=[], metavar="FROM:=TO", help="remapping for every node")
     parser.add_argument("--namespace", default="", help="namespace of our nodes (e.g. /nbv1)")
-    parser.add_argument("--nodes", nargs="+", default=list(NODES), choices=NODES, help="which of our nodes to start")
+    parser.add_argument(
+        "--nodes", nargs="+", default=list(NODES), choices=NODES + OPTIONAL_NODES,
+        help="which of our nodes to start (default: " + " ".join(NODES) + ")",
+    )  # fmt: skip
     parser.add_argument("--views", type=int, default=0, help="send an Explore goal of this many views (0: serve only)")
     methods = ros_method_names()
     parser.add_argument(
