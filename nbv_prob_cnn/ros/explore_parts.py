@@ -67,7 +67,9 @@ class GoalPlanner:
         planned, chosen = self._plan(self.request, interrupt, guard)
         interrupt.check()  # a plan interrupted while it waited for a server answers an error
         if planned.success:
-            return PlannedResponse(planned, planned.best_gain, chosen, planned.time_total_s)
+            estimate = getattr(chosen, "surface_estimate", None)  # the stop rule's (docs/method.md)
+            new_surface = estimate() if estimate is not None else None
+            return PlannedResponse(planned, planned.best_gain, chosen, planned.time_total_s, new_surface)
         if planned.message.startswith(NO_POSITIVE_GAIN) or planned.message.startswith(NO_REACHABLE_VIEW):
             return NoView(planned.message)
         raise ValueError(f"planning failed: {planned.message}")

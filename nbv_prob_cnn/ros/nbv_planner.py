@@ -77,6 +77,7 @@ from nbv_prob_cnn.exploration.view_guard import ViewGuard
 from nbv_prob_cnn.planners import ViewChoice, check_ros_method, make_planner, ros_method
 from nbv_prob_cnn.planners.base import OriginFilter
 from nbv_prob_cnn.planners.recording import RecordingPlanner
+from nbv_prob_cnn.planners.surface_stop import SurfaceStop
 from nbv_prob_cnn.planners.registry import DEFAULT_METHOD
 from nbv_prob_cnn.planners.requests import origin_filter, planning_context, view_pose
 from nbv_prob_cnn.planners.workspace import Box, height_box, intersect_boxes, workspace_box
@@ -85,7 +86,7 @@ from nbv_prob_cnn.ros.camera_sensor import CameraInfoSensor, SensorParams
 from nbv_prob_cnn.ros.conversions import arrays_to_pose_stamped, geometry_of, msg_to_grid
 from nbv_prob_cnn.ros.explore_parts import NO_POSITIVE_GAIN, ExploreGrids, GoalPlanner, cancel_requested
 from nbv_prob_cnn.ros.gain_params import backend_param, gain_variant_param, n_rays_param
-from nbv_prob_cnn.ros.grid_holder import LatestGrid, grid_transport_param
+from nbv_prob_cnn.ros.grid_holder import GridSourceParams, LatestGrid, grid_transport_param
 from nbv_prob_cnn.ros.joint_state_intake import JointStateIntake
 from nbv_prob_cnn.ros.markers import planning_markers
 from nbv_prob_cnn.ros.moveit_mover import MoveGroupMover, MoveItParams
@@ -109,11 +110,11 @@ ARM_MOVE_MODES = ("arm", "trajectory", "moveit")
 
 
 @dataclass
-class PlannerConfig(SensorParams, ArmViewParams, MoveItParams):
+class PlannerConfig(GridSourceParams, SensorParams, ArmViewParams, MoveItParams):
     """Parameters of ``nbv_planner`` (``method`` and ``service_timeout_s`` may change at run time):
-    the robot description and ``use_arm`` (:class:`ArmViewParams`), the planning frustum
-    (:class:`SensorParams`: CameraInfo + range), ``move_mode:=moveit``'s (:class:`MoveItParams`),
-    then these."""
+    where grids come from (:class:`GridSourceParams`), the robot description and ``use_arm``
+    (:class:`ArmViewParams`), the planning frustum (:class:`SensorParams`: CameraInfo + range),
+    ``move_mode:=moveit``'s (:class:`MoveItParams`), then these."""
 
     pose_source: str = param(
         "tf", "camera pose (move_mode topic: arrival): tf (camera_frame in the grid frame, newest) or topic "
@@ -244,8 +245,9 @@ class NbvPlanner(Node):
             on_configuration = self._arm.saw_configuration if cfg.arm_carve_swept else None
             self._joints = JointStateIntake(self._arm.robot, self, self._streams.node, on_configuration)
         self._grid = LatestGrid(
-            self, callback_group=group, on_grid=self._prepare_arm if self._arm else None, transport=cfg.grid_transport
-        )
+            self, callback_group=group, on_grid=self._prepare_arm if self._arm else None,
+            transport=cfg.grid_transport, source=cfg,
+        )  # fmt: skip
         # the scan of docs/nodes.md reads this expression: _streams is not None whenever pose_source is tf
         self._tf = TfListener(self._streams.node) if cfg.pose_source == "tf" else None  # type: ignore[union-attr]
         self._camera = CameraPosition(self._tf, cfg.camera_frame)
@@ -446,6 +448,11 @@ class NbvPlanner(Node):
         if goal.max_views < 1 or not np.isfinite(goal.stop_unknown_fraction) or not np.isfinite(goal.stop_gain):
             self.get_logger().warning("explore: rejected a goal with max_views < 1 or non-finite thresholds")
             return GoalResponse.REJECT
+        try:
+            SurfaceStop(float(goal.stop_new_surface_cells), float(goal.stop_new_surface_share))
+        except ValueError as exc:
+            self.get_logger().warning(f"explore: rejected a goal: {exc}")
+            return GoalResponse.REJECT
         if not self._slot.claim():
             self.get_logger().warning("explore: rejected a goal: another exploration is running (one at a time)")
             return GoalResponse.REJECT
@@ -472,6 +479,7 @@ class NbvPlanner(Node):
                 ExploreGrids(self._grid, cfg.grid_timeout_s), planner, self._mover, goal.max_views,
                 guard=None if cfg.guard_min_cells == 0 else partial(ViewGuard.for_grid, min_changed_cells=guard_cells),
                 stop_unknown_fraction=goal.stop_unknown_fraction, stop_gain=goal.stop_gain,
+                stop_surface=SurfaceStop(float(goal.stop_new_surface_cells), float(goal.stop_new_surface_share)),
                 max_failed_moves=cfg.max_failed_executions, interrupt=interrupt,
                 on_view=partial(self._took_view, goal_handle, result),
                 on_failed_move=partial(self._move_failed, goal_handle, result),
@@ -507,6 +515,7 @@ class NbvPlanner(Node):
         feedback = Explore.Feedback(
             view_index=taken.index, pose=planned.best_pose, gain=planned.best_gain,
             unknown_fraction=taken.unknown_fraction, executed=True, ruled_out_views=taken.ruled_out_views,
+            new_surface_cells=float("nan") if taken.planned.new_surface is None else taken.planned.new_surface,
             fallback=planned.fallback,
         )  # fmt: skip
         result.fallbacks += int(planned.fallback)
