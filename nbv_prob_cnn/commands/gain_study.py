@@ -15,8 +15,9 @@ HELP = (
     "revealed (Spearman rho per anchor and pooled, bootstrap intervals; CSV and PNG)."
 )
 TABLE_HEADER = "| variant | method | pooled rho [95 %] | within-anchor rho [95 %] | anchors | rays in frustum |"
-#: The variants of the issue: rays, sensor model and sampling, crossed.
-DEFAULT_VARY = ("n_rays=4,8,16", "sensor=paper,returns", "sampling=rounded,exact")
+#: The default variants: sensor model and sampling, crossed, on the service's rays (across each pose's image;
+#: n_rays is read only with rays_across=0, e.g. --vary rays_across=0,32 --vary n_rays=4,8,16).
+DEFAULT_VARY = ("sensor=paper,returns", "sampling=rounded,exact")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -32,7 +33,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--vary", action="append", metavar="KEY=V1,V2,...",
         help="scoring settings to vary from the service's defaults, crossed; KEY: n_rays, sensor (paper, returns), "
         "sampling (rounded, exact), rays_across (0 = the view search's rays; N = N rays across the pose's image), "
-        f"max_range_m (0 = the data set's); default: {' '.join(DEFAULT_VARY)}",
+        "max_range_m (0 = the data set's); n_rays is read only where rays_across is 0 (the service casts rays "
+        f"across the image by default); default: {' '.join(DEFAULT_VARY)}",
     )  # fmt: skip
     parser.add_argument("--depth-max", type=float, default=3.0, help="fusion: returns beyond this depth are "
                         "ignored, m (default: %(default)s)")  # fmt: skip
@@ -103,7 +105,6 @@ def _report(study, summary, default_label: str, command: str) -> list[str]:
             continue
         within = by_key[(method, variant, "within")]
         lines.append(
-            f"| {variant} | {method} | {row.rho:.2f} [{row.low:.2f}, {row.high:.2f}] | "
-            f"{within.rho:.2f} [{within.low:.2f}, {within.high:.2f}] | {row.anchors} | {row.mean_rays_in_frustum:.1f} |"
+            f"| {variant} | {method} | {row.text()} | {within.text()} | {row.anchors} | {row.mean_rays_in_frustum:.1f} |"
         )
     return lines

@@ -5,7 +5,8 @@ Per method and scoring variant:
 * **per anchor**: Spearman ρ between the predicted and the realized gains of the anchor's next poses
   (0 when the prediction is constant and the realized gains are not: it ranks nothing; undefined
   when the realized gains are all equal);
-* **pooled**: ρ of every (anchor, pose) pair together. It also counts how well the gains tell the
+* **pooled**: ρ of every (anchor, pose) pair together (undefined, NaN, when the prediction is one value
+  everywhere: ``RhoRow.constant_gain``, printed as "undefined"). It also counts how well the gains tell the
   anchors apart (an early anchor, with most of the room unknown, has larger gains on both sides);
 * **within**: the mean of the per-anchor ρ, the ranking a planner needs when it picks one of the
   poses open to it at one moment.
@@ -46,6 +47,15 @@ class RhoRow:
     anchors: int  # anchors that count (realized gains not all equal)
     poses: int
     mean_rays_in_frustum: float
+    constant_gain: bool = False  # the predicted gain is one value (per anchor; pooled/within: at every anchor)
+
+    def text(self) -> str:
+        """``0.86 [0.71, 0.93]``, or why ρ is undefined (a constant prediction; realized gains all equal)."""
+        if self.constant_gain:
+            return "undefined (constant predicted gain: it ranks nothing)"
+        if not np.isfinite(self.rho):
+            return "undefined (the realized gains are all equal)"
+        return f"{self.rho:.2f} [{self.low:.2f}, {self.high:.2f}]"
 
 
 def anchor_groups(rows: Sequence[PoseRow], method: str, variant: str) -> dict[int, Group]:
@@ -70,16 +80,23 @@ def summarise(study: GainStudy, n_resamples: int = 2000, level: float = 0.95, se
         rhos = {anchor: ranking_rho(*group) for anchor, group in groups.items()}
         counting = int(np.count_nonzero(np.isfinite(list(rhos.values()))))
         n_poses = sum(len(g[0]) for g in groups.values())
+        constant = {anchor: bool(np.all(g[0] == g[0][0])) for anchor, g in groups.items()}
         for anchor, rho in rhos.items():
             out.append(RhoRow(method, variant, "anchor", anchor, rho, rho, rho, int(np.isfinite(rho)),
-                              len(groups[anchor][0]), mean_rays))  # fmt: skip
+                              len(groups[anchor][0]), mean_rays, constant[anchor]))  # fmt: skip
         all_groups = list(groups.values())
+        predicted = np.concatenate([g[0] for g in all_groups])
+        if np.all(predicted == predicted[0]):  # no ranking at all: rho is undefined, not 0
+            nan = float("nan")
+            for scope in ("pooled", "within"):
+                out.append(RhoRow(method, variant, scope, -1, nan, nan, nan, counting, n_poses, mean_rays, True))
+            continue
         low, high = bootstrap_interval(all_groups, pooled_rho, n_resamples, level, seed)
         out.append(RhoRow(method, variant, "pooled", -1, pooled_rho(all_groups), low, high, counting, n_poses,
                           mean_rays))  # fmt: skip
         low, high = bootstrap_interval(list(rhos.values()), finite_mean, n_resamples, level, seed)
         out.append(RhoRow(method, variant, "within", -1, finite_mean(list(rhos.values())), low, high, counting,
-                          n_poses, mean_rays))  # fmt: skip
+                          n_poses, mean_rays, all(constant.values())))  # fmt: skip
     return out
 
 
@@ -101,7 +118,7 @@ def rho_line(summary: Sequence[RhoRow], variant: str, scope: str = "pooled") -> 
     chosen = [r for r in summary if r.variant == variant and r.scope == scope]
     if not chosen:
         raise ValueError(f"variant: no {scope} rho for {variant!r}")
-    parts = [f"{r.method} {r.rho:.2f} [{r.low:.2f}, {r.high:.2f}]" for r in chosen]
+    parts = [f"{r.method} {r.text()}" for r in chosen]
     anchors = max(r.anchors for r in chosen)
     label = ("rho" if scope == "pooled" else f"rho {scope} anchors") + (" (baseline)" if variant == BASELINE[1] else "")
     return f"{label}: {', '.join(parts)} ({anchors} anchors)"

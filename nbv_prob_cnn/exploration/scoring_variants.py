@@ -79,12 +79,21 @@ def cross_variants(base: ScoringVariant, specs: Sequence[str]) -> list[ScoringVa
     kept; ``base`` always comes first.
 
     Raises:
-        ValueError: a bad spec, a key given twice, or a value the variant refuses.
+        ValueError: a bad spec, a key given twice, a value the variant refuses, or several ``n_rays`` where
+            no variant reads them (every ``rays_across`` non-zero).
     """
     parsed = [parse_vary(s) for s in specs]
     keys = [k for k, _ in parsed]
     if len(set(keys)) != len(keys):
         raise ValueError(f"--vary: a key given twice in {list(specs)}")
+    values = dict(parsed)
+    across = values.get("rays_across", [base.rays_across])
+    if len(set(values.get("n_rays", []))) > 1 and all(across):
+        raise ValueError(
+            f"--vary n_rays: not read while rays are cast across each pose's image (rays_across "
+            f"{', '.join(map(str, across))}{'' if 'rays_across' in values else ', the default'}): add rays_across=0 "
+            f"(the view search's rays), e.g. --vary rays_across=0,{across[0]}"
+        )
     found = [base]
     for combination in itertools.product(*[values for _, values in parsed]):
         variant = replace(base, **dict(zip(keys, combination, strict=True)))

@@ -65,7 +65,8 @@ def test_the_study_ranks_the_services_scores_against_what_each_frame_revealed(ro
     lines = capsys.readouterr().out.strip().splitlines()
     number = r"-?\d\.\d\d|nan"
     interval = rf"({number}) \[({number}), ({number})\]"
-    assert re.fullmatch(rf"rho: ig {interval}, prob_ig {interval} \(2 anchors\)", lines[-1]), lines[-1]
+    undefined = r"undefined \(constant predicted gain: it ranks nothing\)"  # ig's is constant in this room
+    assert re.fullmatch(rf"rho: ig (?:{interval}|{undefined}), prob_ig {interval} \(2 anchors\)", lines[-1]), lines[-1]
     assert lines[-2].startswith("rho within anchors: ig ")
     assert lines[-3].startswith("rho (baseline): frames since anchor ")
     assert {p.name for p in out.iterdir()} == {"poses.csv", "rho.csv", "rho.png", "summary.md"}
@@ -171,3 +172,40 @@ def test_on_the_shared_kitchen_the_scores_rank_what_the_kinect_revealed(tmp_path
     # the frames reveal cells (the camera moves on), and the own-frustum rays sum 16 x 12 rays per pose
     assert max(int(r["realized"]) for r in rows) > 100
     assert {int(r["rays_in_frustum"]) for r in rows if r["variant"].startswith("across=16")} == {16 * 12}
+
+
+def test_the_default_vary_keeps_its_promise_and_n_rays_alone_is_refused():
+    # issue 48: the help promised n_rays=4,8,16 by default; with rays across the image (the service's default)
+    # no variant read n_rays, so the run silently dropped it
+    from nbv_prob_cnn.commands.gain_study import DEFAULT_VARY
+    from nbv_prob_cnn.planners.pose_scoring import EVALUATE_RAYS_ACROSS
+
+    base = ScoringVariant(n_rays=4, rays_across=EVALUATE_RAYS_ACROSS)
+    for spec in DEFAULT_VARY:  # each default key makes as many variants as it has values
+        key, values = parse_vary(spec)
+        assert len(cross_variants(base, [spec])) == len(set(values) | {getattr(base, key)})
+    assert len(cross_variants(base, list(DEFAULT_VARY))) == 4
+    with pytest.raises(ValueError, match=r"--vary n_rays: not read .*rays_across 32, the default.*rays_across=0"):
+        cross_variants(base, ["n_rays=4,8,16"])
+    with pytest.raises(ValueError, match="--vary n_rays"):
+        cross_variants(base, ["n_rays=4,8", "rays_across=16,32"])
+    assert len(cross_variants(base, ["n_rays=4,8,16", "rays_across=0,32"])) == 4  # read where rays_across is 0
+
+
+def test_rho_of_a_constant_gain_is_undefined_not_zero():
+    from nbv_prob_cnn.basics.geometry import GridGeometry
+    from nbv_prob_cnn.exploration.gain_study import GainStudy, PoseRow
+    from nbv_prob_cnn.exploration.gain_study_summary import rho_line, summarise
+
+    study = GainStudy(GridGeometry((0.0, 0.0, 0.0), 0.1, (4, 4, 4)), [0, 5])
+    realized = {0: [5, 3, 1], 5: [4, 2, 0]}
+    for anchor, gains in realized.items():
+        for i, gain in enumerate(gains):
+            study.rows.append(PoseRow(anchor, anchor + i + 1, "ig", "v", 7.0, gain, False, 10))  # constant
+            study.rows.append(PoseRow(anchor, anchor + i + 1, "prob_ig", "v", float(gain), gain, False, 10))
+    summary = summarise(study, n_resamples=50)
+    ig = {r.scope: r for r in summary if r.method == "ig" and r.scope != "anchor"}
+    assert ig["pooled"].constant_gain and math.isnan(ig["pooled"].rho) and ig["within"].constant_gain
+    line = rho_line(summary, "v", "pooled")
+    assert "ig undefined (constant predicted gain" in line and "prob_ig 1.00 [1.00, 1.00]" in line
+    assert "0.00" not in line
