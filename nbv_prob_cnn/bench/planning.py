@@ -45,6 +45,7 @@ from typing import Any
 import numpy as np
 
 from nbv_prob_cnn.basics.grid import probability_with_constant, unknown_fraction
+from nbv_prob_cnn.bench.table_lines import Echo, EchoedLines
 from nbv_prob_cnn.gain import GainSettings, origin_view_gains
 from nbv_prob_cnn.gain.directions import distance_weights, sample_offsets
 from nbv_prob_cnn.planners import PlanningContext, make_planner
@@ -436,16 +437,17 @@ def format_table(results: list[BenchResult]) -> str:
     return "\n".join(lines)
 
 
-def cnn_table(seed: int = 1000, repeats: int = 3) -> str:
+def cnn_table(seed: int = 1000, repeats: int = 3, echo: Echo | None = None) -> str:
     """CNN inference time and a full ``cnn_prob`` planning iteration (CNN + ray casting + views)
-    per data set at ~50 % explored, next to ``prob_ig``; markdown table."""
+    per data set at ~50 % explored, next to ``prob_ig``; markdown table (``echo``: each line as soon as it
+    is measured)."""
     from nbv_prob_cnn.completion import complete
     from nbv_prob_cnn.worlds import load_or_generate
 
-    lines = [
+    lines = EchoedLines([
         "| data set | grid | CNN inference (s) | cnn_prob iteration (s) | prob_ig iteration (s) |",
         "|---|---|---|---|---|",
-    ]
+    ], echo)  # fmt: skip
     for dataset in ("2d", "3du", "3dt"):
         world = load_or_generate(dataset, seed)
         context = PlanningContext(_defaults(dataset), rng=np.random.default_rng(seed), backend="opencl")
@@ -460,10 +462,11 @@ def cnn_table(seed: int = 1000, repeats: int = 3) -> str:
     return "\n".join(lines)
 
 
-def cnn_layout_table(seed: int = 1000, repeats: int = 3) -> str:
+def cnn_layout_table(seed: int = 1000, repeats: int = 3, echo: Echo | None = None) -> str:
     """Forward time of every shipped 3D network with the layers as trained (autograd on, frozen
     weights) against the inference path (channels-last deconvs, see ``CompletionNet._upsample``),
-    side by side on the same half-explored grid; largest output difference; markdown table."""
+    side by side on the same half-explored grid; largest output difference; markdown table (``echo``:
+    each line as soon as it is measured)."""
     import copy
 
     import torch
@@ -474,12 +477,12 @@ def cnn_layout_table(seed: int = 1000, repeats: int = 3) -> str:
     from nbv_prob_cnn.worlds import load_or_generate
 
     device = resolve_device(None)
-    lines = [
+    lines = EchoedLines([
         f"CNN forward, {torch.get_num_threads()} torch threads on {device}:",
         "",
         "| data set | network | output | as trained (s) | inference path (s) | ratio | max difference |",
         "|---|---|---|---|---|---|---|",
-    ]
+    ], echo)  # fmt: skip
     for dataset in ("3du", "3dt"):
         world = load_or_generate(dataset, seed)
         context = PlanningContext(_defaults(dataset), rng=np.random.default_rng(seed), backend="opencl")

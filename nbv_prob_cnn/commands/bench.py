@@ -177,9 +177,12 @@ def run_ros(args: argparse.Namespace) -> None:
 def run_cnn(args: argparse.Namespace) -> None:
     from nbv_prob_cnn.bench.planning import cnn_layout_table, cnn_table
 
-    print(cnn_table(args.seed, args.repeats))
+    def echo(line: str) -> None:  # each row as soon as it is measured (the suite takes about 40 s)
+        print(line, flush=True)
+
+    cnn_table(args.seed, args.repeats, echo)
     print()
-    print(cnn_layout_table(args.seed, args.repeats))
+    cnn_layout_table(args.seed, args.repeats, echo)
 
 
 def run_planning(args: argparse.Namespace) -> None:

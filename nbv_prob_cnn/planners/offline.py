@@ -14,11 +14,12 @@ from pathlib import Path
 
 import numpy as np
 
+from nbv_prob_cnn.basics.camera import optical_axis
 from nbv_prob_cnn.basics.datasets import DATASET_SPECS
 from nbv_prob_cnn.basics.geometry import GridGeometry
 from nbv_prob_cnn.basics.view_pose import ViewPose
 from nbv_prob_cnn.gain import origin_view_gains
-from nbv_prob_cnn.planners.base import MAX_VIEWS_PER_CALL, OriginFilter, PlanningContext, bounded
+from nbv_prob_cnn.planners.base import MAX_VIEWS_PER_CALL, OriginFilter, PlanningContext, ViewChoice, bounded
 from nbv_prob_cnn.planners.methods import GAIN_METHODS, method_origins, probability_map
 from nbv_prob_cnn.planners.registry import METHODS, make_planner
 
@@ -119,10 +120,28 @@ def plan_views(
         infer_dataset(state.shape, dataset), rng=np.random.default_rng(seed), backend=backend,
         cnn_window=cnn_window, cnn_precision=cnn_precision,
     )  # fmt: skip
-    ranked = make_planner(method).rank(state, context, top_k, workspace_filter(geometry, workspace_m))
+    # 3D: a view and the same view rolled about its optical axis are one view (nbv_planner's arm_roll_symmetric);
+    # each axis has two rolls, so twice top_k ranked views hold top_k distinct ones
+    wanted = 2 * top_k if state.ndim == 3 else top_k
+    ranked = make_planner(method).rank(state, context, wanted, workspace_filter(geometry, workspace_m))
     if times is not None and ranked:
         times.update(ranked[0].times)
-    return [choice.pose(geometry, context.orientations) for choice in ranked]
+    distinct = one_per_optical_axis(ranked, context.orientations) if state.ndim == 3 else ranked
+    return [choice.pose(geometry, context.orientations) for choice in distinct[:top_k]]
+
+
+def one_per_optical_axis(ranked: Sequence[ViewChoice], orientations: np.ndarray) -> list[ViewChoice]:
+    """``ranked`` (best first, 3D) without the views that differ from a better one only by a roll about
+    the optical axis (same cell, same viewing direction; ``orientations``: quaternions by view index)."""
+    seen: set[tuple] = set()
+    kept = []
+    for choice in ranked:
+        axis = optical_axis(orientations[choice.view_index], 3)
+        key = (tuple(int(v) for v in choice.cell), tuple(np.round(axis, 6)))
+        if key not in seen:
+            seen.add(key)
+            kept.append(choice)
+    return kept
 
 
 def best_gain_per_origin(

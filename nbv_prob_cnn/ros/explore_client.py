@@ -208,7 +208,8 @@ def write_outputs(client: ExploreClient, result: Explore.Result, out_dir: Path, 
     """Per-view CSV and a PNG of the last grid with the chosen views; when the planner drove the
     arm (feedback with joint goals) the CSV adds the joint travel and goal of each view and the
     PNG the arm at each view (default robot description). Moves that failed (``executed`` false)
-    are not views: they are counted in the result's ``failed_executions``."""
+    are not views: they are counted in the result's ``failed_executions``. Views count from 1, as the
+    console does."""
     from nbv_prob_cnn.viz.exploration import plot_views
 
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -224,7 +225,7 @@ def write_outputs(client: ExploreClient, result: Explore.Result, out_dir: Path, 
             position, quat = pose_to_arrays(fb.pose.pose)
             arm = [f"{fb.joint_travel:.6f}", *(f"{v:.6f}" for v in fb.joint_goal.position)] if joint_names else []
             writer.writerow(
-                [fb.view_index, f"{elapsed:.3f}", f"{fb.gain:.6g}", f"{fb.unknown_fraction:.6f}",
+                [fb.view_index + 1, f"{elapsed:.3f}", f"{fb.gain:.6g}", f"{fb.unknown_fraction:.6f}",
                  *(f"{v:.5f}" for v in position), *(f"{v:.6f}" for v in quat), int(fb.fallback), *arm]
             )  # fmt: skip
     written = [csv_path]
@@ -234,7 +235,7 @@ def write_outputs(client: ExploreClient, result: Explore.Result, out_dir: Path, 
         poses = [pose_to_arrays(p.pose) for p in result.poses]
         cells = np.array([geometry.to_index(p) for p, _ in poses]).reshape(-1, geometry.dims)
         quats = np.array([q for _, q in poses]).reshape(-1, 4)
-        curve = ([fb.view_index for _, fb in taken], [fb.unknown_fraction for _, fb in taken])
+        curve = ([fb.view_index + 1 for _, fb in taken], [fb.unknown_fraction for _, fb in taken])  # 1 = first view
         png = out_dir / "explored.png"
         arms = arm_polylines([fb.joint_goal for _, fb in taken], geometry) if joint_names else None
         plot_views(

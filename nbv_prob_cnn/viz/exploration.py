@@ -33,6 +33,21 @@ def state_image_2d(state: np.ndarray, truth: np.ndarray | None) -> np.ndarray:
     return rgb
 
 
+def height_colorbar(fig: Figure, ax, heights: tuple[int, int], geometry: GridGeometry | None) -> None:
+    """The colour bar of :func:`projection_image`'s heights (cell indices ``(lowest, highest)``), in metres
+    of the grid frame with ``geometry``, else in cells."""
+    from matplotlib import colormaps
+    from matplotlib.cm import ScalarMappable
+    from matplotlib.colors import Normalize
+
+    low, high = float(heights[0]), float(heights[1])
+    if geometry is not None:  # cell index -> height of the cell centre in metres
+        low, high = (geometry.origin[2] + (h + 0.5) * geometry.resolution for h in (low, high))
+    bar = ScalarMappable(norm=Normalize(low, max(high, low + 1e-9)), cmap=colormaps["plasma"])
+    unit = "m" if geometry is not None else "cells"
+    fig.colorbar(bar, ax=ax, fraction=0.046, pad=0.02, label=f"height of the highest seen occupied cell ({unit})")
+
+
 def projection_image(state: np.ndarray, hidden_axis: int) -> tuple[np.ndarray, tuple[int, int] | None]:
     """RGB projection along one axis: brightness = share of known cells along the line of
     sight, red where a seen occupied cell lies on it. Seen from above (along z), occupied
@@ -96,11 +111,9 @@ def plot_views(
 
     With ``geometry`` the axes are in metres of the grid frame, else in cells. Each panel has a
     legend naming what its colours show. Returns the figure (already saved)."""
-    from matplotlib import colormaps
-    from matplotlib.cm import ScalarMappable
-    from matplotlib.colors import Normalize
     from matplotlib.lines import Line2D
     from matplotlib.patches import Patch
+    from matplotlib.ticker import MaxNLocator
 
     cells = np.asarray(cells, dtype=float).reshape(-1, state.ndim)
     quats = np.asarray(quats, dtype=float).reshape(-1, 4)
@@ -159,16 +172,11 @@ def plot_views(
             ax.legend(handles=handles, loc="upper center", bbox_to_anchor=(0.5, -0.17), ncol=2, fontsize=6.5)
             ax.set_title(f"projection along {_AXES[hidden]}", fontsize=9)
             if heights is not None:
-                low, high = float(heights[0]), float(heights[1])
-                if geometry is not None:  # cell index -> height of the cell centre in metres
-                    low, high = (geometry.origin[2] + (h + 0.5) * geometry.resolution for h in (low, high))
-                bar = ScalarMappable(norm=Normalize(low, max(high, low + 1e-9)), cmap=colormaps["plasma"])
-                fig.colorbar(
-                    bar, ax=ax, fraction=0.046, pad=0.02, label=f"height of the highest seen occupied cell ({unit})"
-                )
+                height_colorbar(fig, ax, heights, geometry)
     if curve is not None:
         ax = axes[-1]
         ax.plot(curve[0], [100 * f for f in curve[1]], "-o", ms=3)
+        ax.xaxis.set_major_locator(MaxNLocator(integer=True))  # views are counted, not measured
         ax.set_xlabel("view")
         ax.set_ylabel(curve_label)
         ax.grid(alpha=0.3)

@@ -16,6 +16,7 @@ from nbv_prob_cnn.viz.exploration import (
     COLOUR_SEEN_OCCUPIED,
     COLOUR_UNKNOWN,
     axis_extent,
+    height_colorbar,
     projection_image,
     state_image_2d,
 )
@@ -83,7 +84,7 @@ def render_saved_grid(
         axes[0].legend(handles=handles, loc="upper center", bbox_to_anchor=(0.5, -0.1), ncol=3, fontsize=7)
     else:
         for ax, (a, b) in zip(axes[:2], ((0, 1), (0, 2)), strict=True):
-            picture, _ = projection_image(state, 3 - a - b)
+            picture, heights = projection_image(state, 3 - a - b)
             ax.imshow(np.transpose(picture, (1, 0, 2)), origin="lower", extent=axis_extent(geometry, state.shape, a, b),
                       interpolation="nearest")  # fmt: skip
             if len(cams):
@@ -100,6 +101,8 @@ def render_saved_grid(
             if len(cams):
                 legend.append(Line2D([], [], color="tab:blue", marker=".", label="camera positions"))
             ax.legend(handles=legend, loc="upper center", bbox_to_anchor=(0.5, -0.12), ncol=2, fontsize=7)
+            if heights is not None:  # seen from above: occupied columns coloured by height
+                height_colorbar(fig, ax, heights, geometry)
     heat = axes[-1]
     side = bin_cells * geometry.resolution
     o = geometry.origin

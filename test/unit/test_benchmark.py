@@ -75,3 +75,28 @@ def test_planning_time_sweep_writes_csv_and_png(tmp_path):
     assert png.stat().st_size > 1000
     sparse = planning_time_sweep("3du", 4, 5, progress=False, every=2)  # views 2 and 4 planned untimed
     assert [r[0] for r in sparse] == [1, 3] and all(r[-1] for r in sparse)
+
+
+def test_the_cnn_table_shows_each_row_as_soon_as_it_is_measured(monkeypatch):
+    # issue 48: `nbv bench --suite cnn` printed nothing for 37 s, then the whole table
+    import types
+
+    import nbv_prob_cnn.completion
+    import nbv_prob_cnn.worlds
+    from nbv_prob_cnn.bench import planning
+
+    events = []
+    world = types.SimpleNamespace(shape=(4, 4))
+    monkeypatch.setattr(nbv_prob_cnn.worlds, "load_or_generate", lambda d, s: events.append(("load", d)) or world)
+    monkeypatch.setattr(nbv_prob_cnn.completion, "complete", lambda *a, **k: None)
+    monkeypatch.setattr(planning, "_defaults", lambda d: None)
+    monkeypatch.setattr(planning, "PlanningContext", lambda *a, **k: None)
+    monkeypatch.setattr(planning, "half_explored", lambda w, c: None)
+    monkeypatch.setattr(planning, "make_planner", lambda name: None)
+    monkeypatch.setattr(planning, "_time", lambda fn, repeats: 0.25)
+    text = planning.cnn_table(echo=lambda line: events.append(("echo", line)))
+    echoed = [e[1] for e in events if e[0] == "echo"]
+    assert "\n".join(echoed) == text and len(echoed) == 5  # header, rule, 2D, 3DU, 3DT
+    assert [e[0] for e in events] == ["echo", "echo", "load", "echo", "load", "echo", "load", "echo"]
+    assert events[3] == ("echo", "| 2D | 4×4 | 0.250 | 0.250 | 0.250 |")
+    assert planning.cnn_table() == text  # without echo: the same table, printed by nobody

@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from nbv_prob_cnn.basics.camera import orientations
+from nbv_prob_cnn.basics.camera import matrix_from_quaternion, orientations
 from nbv_prob_cnn.basics.datasets import dataset_spec
 from nbv_prob_cnn.basics.grid import probability_with_constant
 from nbv_prob_cnn.cli import main
@@ -216,3 +216,42 @@ def test_explore_csv_names_its_units(tmp_path):
     from nbv_prob_cnn.exploration.explore import CSV_COLUMNS
 
     assert {"x_m", "y_m", "z_m", "time_total_s"} <= set(CSV_COLUMNS) and "x" not in CSV_COLUMNS
+
+
+def test_plan_lists_a_view_once_whatever_its_roll(tmp_path):
+    # issue 48: --top-k listed the same cell and viewing direction twice (rolls 0 and 90 degrees);
+    # two empty cells in unknown space: many views tie, the rolls of one axis among them
+    state = np.full((12, 12, 12), -1, dtype=np.int8)
+    state[6, 6, 5:7] = 0
+    grid = tmp_path / "two_cells.npz"
+    save_grid(grid, state, np.array(ORIGIN), RES)
+    out = tmp_path / "plan"
+    assert main(["plan", "--grid", str(grid), "--method", "prob_ig", "--dataset", "3du", "--top-k", "8",
+                 "--out", str(out), "--backend", "numpy"]) == 0  # fmt: skip
+    _, rows = read_csv(out.with_suffix(".csv"))
+    axes = [np.round(matrix_from_quaternion(np.array([float(r[k]) for k in ("qx", "qy", "qz", "qw")]))[:, 2], 4)
+            for r in rows]  # fmt: skip
+    keys = {(r["cell_x"], r["cell_y"], r["cell_z"], tuple(a)) for r, a in zip(rows, axes, strict=True)}
+    assert len(rows) == 8 and len(keys) == 8
+    # the reference: per (cell, viewing direction) the better of its two rolls, the 8 best of those
+    origins, view_gains = reference_view_gains(state)
+    per_axis = view_gains.reshape(len(origins), -1, 2).max(axis=2)  # orientations: each direction, rolls 0 and 90
+    expected = np.sort(per_axis.ravel())[::-1][:8]
+    np.testing.assert_allclose([float(r["gain"]) for r in rows], expected, rtol=1e-5)
+
+
+def test_view_has_a_colour_bar_for_the_heights(grid_file, tmp_path, monkeypatch):
+    # issue 48: the projection along z colours occupied columns by height, without a scale
+    from matplotlib.figure import Figure
+
+    figures = []
+    save = Figure.savefig
+    monkeypatch.setattr(Figure, "savefig", lambda fig, *a, **k: (figures.append(fig), save(fig, *a, **k)))
+    assert main(["view", "--grid", str(grid_file), "--out", str(tmp_path / "v.png"), "--method", "prob_ig",
+                 "--dataset", "3du"]) == 0  # fmt: skip
+    (fig,) = figures
+    labels = [ax.get_ylabel() for ax in fig.axes]
+    assert "height of the highest seen occupied cell (m)" in labels
+    bar = fig.axes[labels.index("height of the highest seen occupied cell (m)")]
+    low, high = bar.get_ylim()  # the wall spans cells z = 2..7: its top at 7 (centre 0.05 + 7.5 * 0.05 m)
+    assert high == pytest.approx(ORIGIN[2] + 7.5 * RES)
