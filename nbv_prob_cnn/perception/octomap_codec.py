@@ -64,6 +64,8 @@ BINARY_FREE_LOG_ODDS = np.float32(math.log(0.1192 / (1 - 0.1192)))
 LATTICE_TOLERANCE = 1e-4
 _BINARY_HEADER = "# Octomap OcTree binary file"
 _FULL_HEADER = "# Octomap OcTree file"
+#: Leaves of up to 4 cells a side written to a grid at once (bounds the index arrays: 64 Ki x 64 cells).
+_LEAF_CHUNK = 1 << 16
 #: Offsets of child ``i`` in x, y, z (bits 0, 1, 2 of ``i``).
 _CHILD_OFFSETS = np.array([[(i >> axis) & 1 for axis in range(3)] for i in range(8)], dtype=np.int64)
 
@@ -369,12 +371,13 @@ def leaves_to_grid(leaves: OctreeLeaves, box_min, box_max) -> tuple[np.ndarray, 
         values = np.where(leaves.occupied[chosen], OCCUPIED, EMPTY).astype(np.int8)
         inside = np.all((corners + size > 0) & (corners < shape), axis=1)
         corners, values = corners[inside], values[inside]
-        if size <= 4:  # small leaves: every cell of every leaf at once
+        if size <= 4:  # small leaves: every cell of a chunk of leaves at once (at most 4 M cells)
             offsets = np.argwhere(np.ones((size, size, size), dtype=bool))
-            cells = (corners[:, None, :] + offsets[None]).reshape(-1, 3)
-            repeated = np.repeat(values, len(offsets))
-            keep = np.all((cells >= 0) & (cells < shape), axis=1)
-            state[tuple(cells[keep].T)] = repeated[keep]
+            for start in range(0, len(corners), _LEAF_CHUNK):
+                cells = (corners[start : start + _LEAF_CHUNK, None, :] + offsets[None]).reshape(-1, 3)
+                repeated = np.repeat(values[start : start + _LEAF_CHUNK], len(offsets))
+                keep = np.all((cells >= 0) & (cells < shape), axis=1)
+                state[tuple(cells[keep].T)] = repeated[keep]
         else:
             lows = np.clip(corners, 0, shape)
             highs = np.clip(corners + size, 0, shape)

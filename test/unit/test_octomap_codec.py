@@ -270,3 +270,18 @@ def test_a_box_or_grid_off_the_trees_lattice_is_named():
         oc.decode(oc.OctreeStream("OcTree", 0.0, True, b""))
     with pytest.raises(oc.OctomapError, match="occupancy threshold"):
         oc.decode(library_stream(), occupancy_threshold=1.0)
+
+
+def test_more_small_leaves_than_one_chunk_holds(tmp_path):
+    """110 592 leaves of 2 cells a side (more than the 65 536 written to a grid at once), alternating
+    free and occupied as a 3D checkerboard of 2-cell blocks."""
+    blocks = np.indices((48, 48, 48)).sum(axis=0) % 2
+    state = np.repeat(np.repeat(np.repeat(blocks, 2, 0), 2, 1), 2, 2).astype(np.int8)
+    geometry = GridGeometry((0.0, 0.0, 0.0), RES, state.shape)
+    tree = library_tree(state, geometry)
+    path = tmp_path / "checker.bt"
+    assert tree.writeBinary(str(path).encode())
+    leaves = oc.decode(oc.read_octomap_file(path))
+    assert len(leaves) == 48**3 and set(leaves.depths.tolist()) == {15}
+    grid, _ = oc.leaves_to_grid(leaves, (0.0, 0.0, 0.0), (4.8, 4.8, 4.8))
+    np.testing.assert_array_equal(grid, state)
