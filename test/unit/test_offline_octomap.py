@@ -51,7 +51,7 @@ def rows(path: Path) -> list[dict]:
 
 def test_plan_on_the_octomap_gives_the_grid_files_views(files, tmp_path):
     grid, bt = files
-    common = ["--method", "prob_ig", "--top-k", "4", "--backend", "numpy", "--dataset", "3du"]
+    common = ["--method", "prob_ig", "--top-k", "4", "--backend", "opencl", "--dataset", "3du"]
     assert main(["plan", "--grid", str(grid), *common, "--out", str(tmp_path / "from_grid")]) == 0
     assert main(["plan", "--octomap", str(bt), "--box", *BOX, *common, "--out", str(tmp_path / "from_tree")]) == 0
     expected, got = rows(tmp_path / "from_grid.csv"), rows(tmp_path / "from_tree.csv")
