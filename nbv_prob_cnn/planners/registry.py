@@ -41,6 +41,15 @@ def _gain(name: str) -> Callable[[], Planner]:
     return lambda: GainPlanner(GAIN_METHODS[name])
 
 
+def _volumetric(name: str) -> Callable[[], Planner]:
+    def build() -> Planner:
+        from nbv_prob_cnn.planners.volumetric import VolumetricPlanner
+
+        return VolumetricPlanner(name)
+
+    return build
+
+
 def _city(name: str) -> Callable[[], Planner]:
     def build() -> Planner:
         from nbv_prob_cnn.planners.city_cnn import CityCnnPlanner
@@ -71,8 +80,17 @@ METHODS: dict[str, MethodSpec] = {
         MethodSpec("d_city_cnn", _city("d_city_cnn"), weights="d_city_cnn", summary="CNN: gain per ray"),
         MethodSpec("cnn_surface", _gain("cnn_surface"), weights="cnn_prob", summary="completion CNN + surface gain"),
         MethodSpec("prob_surface", _gain("prob_surface"), summary="surface gain with constant P0"),
-        MethodSpec("omniscient_surface", _gain("omniscient_surface"), needs_ground_truth=True,
-                   summary="surface gain on the ground truth"),  # fmt: skip
+        MethodSpec(
+            "omniscient_surface",
+            _gain("omniscient_surface"),
+            needs_ground_truth=True,
+            summary="surface gain on the ground truth",
+        ),  # fmt: skip
+        MethodSpec("occlusion_aware", _volumetric("occlusion_aware"), summary="Isler: visible entropy"),
+        MethodSpec("unobserved_voxel", _volumetric("unobserved_voxel"), summary="Isler: visible unknown entropy"),
+        MethodSpec("rear_side_voxel", _volumetric("rear_side_voxel"), summary="Isler: rays hitting a rear side"),
+        MethodSpec("proximity_count", _volumetric("proximity_count"), summary="Isler: unknown cells near surface"),
+        MethodSpec("average_entropy", _volumetric("average_entropy"), summary="Kriegel: mean entropy of hitting rays"),
     )
 }
 
