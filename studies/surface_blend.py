@@ -94,7 +94,7 @@ def write_summary(rows: list[dict], out: Path, views: int) -> None:
     table = []
     fig, ax = plt.subplots(figsize=(7, 4.5))
     for beta in betas:
-        runs = {}
+        runs: dict[int, list[tuple[int, float, float, float]]] = {}
         for r in rows:
             if float(r["beta"]) == beta:
                 runs.setdefault(int(r["seed"]), []).append(
