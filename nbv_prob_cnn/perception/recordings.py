@@ -217,6 +217,20 @@ def up_rotation(up: np.ndarray | tuple[float, float, float]) -> np.ndarray:
 
 
 # --------------------------------------------------------------------------------- 7-Scenes
+def _check_folder_kind(src: str | Path, format_name: str) -> None:
+    """Refuse a path that is another kind of file or recording (a bag, a grid, the other format), naming
+    what it is and the command that takes it; a bare folder is left to the reader, which names what it
+    misses."""
+    found = sniff(src)
+    if found.kind in ("folder", "missing"):
+        return
+    expected = {"7scenes": "a 7-Scenes recording folder", "tum": "a TUM RGB-D recording folder"}[format_name]
+    try:
+        check_kind(src, "SRC", (format_name,), f"{expected} (--format {format_name})")
+    except ValueError as exc:
+        raise RecordingError(str(exc)) from None
+
+
 def read_7scenes(
     src: str | Path,
     intrinsics: tuple[float, float, float, float] | None = None,
@@ -233,6 +247,7 @@ def read_7scenes(
             without its image), an unreadable / non-finite / non-rigid pose (file and line), a bad
             intrinsics or gravity file, an 8-bit or wrongly sized PNG.
     """
+    _check_folder_kind(src, "7scenes")
     root = Path(src)
     if not root.is_dir():
         raise RecordingError(f"{root}: no such folder")
@@ -303,6 +318,7 @@ def read_tum(
             non-finite or non-rigid line (file and line), stamps out of order, no matched frame,
             an 8-bit or wrongly sized PNG.
     """
+    _check_folder_kind(src, "tum")
     root = Path(src)
     if not root.is_dir():
         raise RecordingError(f"{root}: no such folder")
@@ -369,13 +385,6 @@ def read_recording(format_name: str, src: str | Path, **kwargs) -> Recording:
     readers = {"7scenes": read_7scenes, "tum": read_tum}
     if format_name not in readers:
         raise RecordingError(f"format: expected one of {FORMATS}, got {format_name!r}")
-    found = sniff(src)
-    if found.kind != "folder" and found.kind != "missing":  # a bare folder: the reader names what it misses
-        expected = {"7scenes": "a 7-Scenes recording folder", "tum": "a TUM RGB-D recording folder"}[format_name]
-        try:
-            check_kind(src, "SRC", (format_name,), f"{expected} (--format {format_name})")
-        except ValueError as exc:
-            raise RecordingError(str(exc)) from None
     return readers[format_name](src, **kwargs)
 
 

@@ -224,6 +224,13 @@ def test_planner_plans_through_the_servers(ros):
     core = GainPlanner(GAIN_METHODS["ig"]).rank(state, PlanningContext(dataset_defaults("3du"), backend="opencl"), 5)
     np.testing.assert_allclose([v.gain for v in reply.ranked], [c.gain for c in core], rtol=1e-6)
 
+    # a grid the camera saw nothing of: no view, and the message says why (issue 48: it said no more)
+    publisher.publish(grid_to_msg(np.full(GEOMETRY.shape, -1, dtype=np.int8), GEOMETRY))
+    assert wait_for(lambda: "no empty cell" in call(node, context, PlanNextBestView, "/nbv/plan", request).message,
+                    30.0, 0.5)  # fmt: skip
+    empty = call(node, context, PlanNextBestView, "/nbv/plan", request)
+    assert not empty.success and empty.message.startswith("no view with positive gain: the grid has no empty cell")
+
 
 def test_colcon_builds_the_package_and_runs_a_node(ros, tmp_path):
     """colcon builds nbv_prob_cnn in a workspace over the underlay that the set-up built, where the interface

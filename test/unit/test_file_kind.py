@@ -14,7 +14,7 @@ from nbv_prob_cnn.basics.file_kind import check_kind, sniff
 from nbv_prob_cnn.cli import main
 from nbv_prob_cnn.perception.bags import BagError, BagWriter, read_frames
 from nbv_prob_cnn.perception.depth_camera import Intrinsics
-from nbv_prob_cnn.perception.recordings import RecordingError, read_recording
+from nbv_prob_cnn.perception.recordings import RecordingError, read_7scenes, read_recording
 from nbv_prob_cnn.perception.tsdf import save_grid
 from nbv_prob_cnn.worlds.world import World
 
@@ -129,3 +129,5 @@ def test_scene_and_recording_readers_name_what_they_were_given(files):
         read_recording("7scenes", files["bag"])
     with pytest.raises(RecordingError, match=r"SRC .* is a TUM RGB-D recording.*goes to `nbv import-rgbd --format tum"):
         read_recording("7scenes", files["tum"])
+    with pytest.raises(RecordingError, match=r"SRC .* is a grid file"):  # the readers themselves (bench --recording)
+        read_7scenes(files["grid"])

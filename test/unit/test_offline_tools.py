@@ -255,3 +255,15 @@ def test_view_has_a_colour_bar_for_the_heights(grid_file, tmp_path, monkeypatch)
     bar = fig.axes[labels.index("height of the highest seen occupied cell (m)")]
     low, high = bar.get_ylim()  # the wall spans cells z = 2..7: its top at 7 (centre 0.05 + 7.5 * 0.05 m)
     assert high == pytest.approx(ORIGIN[2] + 7.5 * RES)
+
+
+def test_view_plan_and_the_nodes_score_with_one_default_method():
+    # issue 48: nbv view scored with prob_ig, nbv plan and the nodes with cnn_prob
+    from nbv_prob_cnn.cli import build_parser
+    from nbv_prob_cnn.planners.registry import DEFAULT_METHOD
+    from nbv_prob_cnn.ros.gain_server import GainServerConfig
+    from nbv_prob_cnn.ros.nbv_planner import PlannerConfig
+
+    commands = build_parser()._subparsers._group_actions[0].choices  # type: ignore[union-attr]
+    defaults = {commands["view"].get_default("method"), commands["plan"].get_default("method")}
+    assert defaults | {PlannerConfig().method, GainServerConfig().method} == {DEFAULT_METHOD} == {"cnn_prob"}
