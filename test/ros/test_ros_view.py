@@ -90,4 +90,4 @@ def test_recorded_run_renders(tmp_path: Path, ros_domain):
     shutil.copytree(bag, broken)
     mcap = next(broken.glob("*.mcap"))
     mcap.write_bytes(mcap.read_bytes()[: mcap.stat().st_size // 2])
-    assert cli.main(["view", "--bag", str(broken), "--out", str(tmp_path / "broken.png")]) == 1
+    assert cli.main(["view", "--bag", str(broken), "--out", str(tmp_path / "broken.png")]) == 2  # input refused
