@@ -23,7 +23,7 @@ TAKEN_BY: dict[str, str] = {
     "bag": "`nbv integrate --bag`, `nbv view --bag`, `plan_from_bag.py --bag`, `nbv gain-study --bag`",
     "7scenes": "`nbv import-rgbd --format 7scenes SRC --out BAG` (then `--bag BAG`)",
     "tum": "`nbv import-rgbd --format tum SRC --out BAG` (then `--bag BAG`)",
-    "octomap": "`--octomap`",
+    "octomap": "`nbv plan --octomap`, `nbv view --octomap`",
 }
 
 

@@ -460,14 +460,15 @@ def read_octomap_grid(
 
     Raises:
         FileNotFoundError: no such file.
-        OctomapError: not an OcTree file, a truncated or corrupt one, or a box it cannot take.
+        ValueError: another kind of file (says what it is and which command takes it).
+        OctomapError: not an OcTree, a truncated or corrupt one, or a box it cannot take.
     """
+    from nbv_prob_cnn.basics.file_kind import check_kind
     from nbv_prob_cnn.perception.saved_grid import SavedGrid
 
     path = Path(path)
+    check_kind(path, option, ("octomap",), "an OctoMap file (.bt or .ot)")  # a grid, a bag, ...: named
     try:
-        if not path.is_file():
-            raise FileNotFoundError(f"{option} {path}: no such file")
         leaves = decode(read_octomap_file(path), occupancy_threshold)
         low, high = known_bounds(leaves) if box is None else (np.asarray(box[0]), np.asarray(box[1]))
         state, geometry = leaves_to_grid(leaves, low, high)

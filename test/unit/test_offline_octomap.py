@@ -86,7 +86,10 @@ def test_bad_octomap_input_is_refused_naming_it(files, tmp_path, capsys):
     assert main([*base, "--octomap", str(cut)]) == EXIT_BAD_INPUT
     assert f"--octomap {cut}: " in (err := capsys.readouterr().err) and "truncated" in err
     assert main([*base, "--octomap", str(grid)]) == EXIT_BAD_INPUT
-    assert "not an OctoMap file" in capsys.readouterr().err
+    assert "is a grid file (.npz: grid, origin, resolution), not an OctoMap file" in capsys.readouterr().err
+    assert main([*base, "--grid", str(bt)]) == EXIT_BAD_INPUT
+    err = capsys.readouterr().err
+    assert "is an OctoMap (.bt/.ot), not a grid file" in err and "an OctoMap goes to `nbv plan --octomap`" in err
     assert main([*base, "--grid", str(grid), "--box", *BOX]) == EXIT_BAD_INPUT
     assert "--box applies to --octomap only" in capsys.readouterr().err
     assert not (tmp_path / "x.csv").exists()
