@@ -56,6 +56,9 @@ VARIANT_KEY = "gain_variant"
 #: Key of a run's ``.json`` that holds the view guard's threshold in cells (written only for a
 #: guarded run, :mod:`~nbv_prob_cnn.exploration.view_guard`; absent: the paper's plain loop).
 GUARD_KEY = "guard_min_cells"
+#: Key of a run's ``.json`` that holds a surface method's blend (docs/method.md#surface-gain; written
+#: only for the surface methods: a run of another blend is redone).
+SURFACE_KEY = "surface_blend"
 #: File-name label of guarded runs and their summaries (they sit beside the plain ones).
 GUARDED = "guarded"
 
@@ -123,6 +126,7 @@ def run_status(
     gain_variant: str = "paper",
     guard_min_cells: int | None = None,
     chamfer: bool = False,
+    surface_blend: float | None = None,
 ) -> str:
     """``"done"``: the run CSV exists for at least ``views`` views (or stopped early in a run that
     asked for as many) and was made with the weights of fingerprint ``weights`` (None: a method
@@ -130,7 +134,8 @@ def run_status(
     weights whose ``.json`` records another fingerprint or none), or ``"other gain variant"`` (its
     ``.json`` records another ``gain_variant``; none recorded: ``"paper"``), or ``"other guard"``
     (another view-guard threshold, ``guard_min_cells``; None: the plain loop, none recorded), or,
-    with ``chamfer``, ``"no chamfer"`` (its ``.json`` holds no Chamfer distance)."""
+    with ``chamfer``, ``"no chamfer"`` (its ``.json`` holds no Chamfer distance), or ``"other surface
+    blend"`` (a surface method's run whose ``.json`` records another blend than ``surface_blend``)."""
     if not path.is_file():
         return "missing"
     meta_path = path.with_suffix(".json")
@@ -147,6 +152,8 @@ def run_status(
             return "other guard"
         if chamfer and CHAMFER_KEY not in meta:
             return "no chamfer"
+        if meta.get(SURFACE_KEY) != surface_blend:
+            return "other surface blend"
     else:
         if gain_variant != "paper":
             return "other gain variant"
@@ -154,6 +161,8 @@ def run_status(
             return "other guard"
         if chamfer:
             return "no chamfer"
+        if surface_blend is not None:
+            return "other surface blend"
         with open(path) as handle:
             enough = sum(1 for _ in handle) - 1 >= views
         recorded = None
@@ -206,7 +215,18 @@ def run_one(
         meta[GUARD_KEY] = guard_min_cells
     if result.chamfer is not None:
         meta[CHAMFER_KEY] = result.chamfer.as_dict()
+    if _surface_blend(method) is not None:
+        meta[SURFACE_KEY] = context.surface_blend
     return text.getvalue(), meta
+
+
+def _surface_blend(method: str) -> float | None:
+    """The blend a surface method runs with (the default), None for the other methods."""
+    from nbv_prob_cnn.gain.settings import DEFAULT_SURFACE_BLEND
+    from nbv_prob_cnn.planners.methods import GAIN_METHODS
+
+    gain = GAIN_METHODS.get(method)
+    return DEFAULT_SURFACE_BLEND if gain is not None and gain.surface else None
 
 
 def _store(path: Path, text: str, meta: dict) -> None:
@@ -285,7 +305,9 @@ def evaluate(
         for seed, method in jobs:
             source = run_path(replay, dataset, method, seed, guard)
             fingerprints[seed, method] = recorded_weights(source)
-            status = run_status(source, views, fingerprints[seed, method], gain_variant, threshold)
+            status = run_status(
+                source, views, fingerprints[seed, method], gain_variant, threshold, surface_blend=_surface_blend(method)
+            )
             if status != "done":
                 raise ValueError(f"replay: {source}: {status} (needs {views} views of this gain variant and guard)")
             sources[seed, method] = str(source)
@@ -294,7 +316,7 @@ def evaluate(
     for seed, method in jobs:
         status = run_status(
             run_path(out, dataset, method, seed, guard), views, fingerprints[seed, method], gain_variant, threshold,
-            chamfer,
+            chamfer, _surface_blend(method),
         )  # fmt: skip
         if status != "done":
             pending[seed, method] = (dataset, method, seed, views, backend, gain_variant, threshold, chamfer,
