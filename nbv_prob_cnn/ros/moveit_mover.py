@@ -149,9 +149,12 @@ class MoveGroupMover:
         link = self._settings.link
         self._link_from_camera = None
         if self._settings.goal_type == "pose" and link != params.camera_frame:
-            # fixed on the camera: the same transform at two configurations (raises on an unknown link)
-            transforms = [link_from_camera(robot.frame_pose(q, link), robot.camera_pose(q))
-                          for q in (robot.reference_q, (robot.lower + robot.upper) / 2)]  # fmt: skip
+            # fixed on the camera: the same transform at two configurations
+            try:
+                transforms = [link_from_camera(robot.frame_pose(q, link), robot.camera_pose(q))
+                              for q in (robot.reference_q, (robot.lower + robot.upper) / 2)]  # fmt: skip
+            except ValueError as exc:
+                raise ValueError(f"moveit_link {link!r}: {exc}") from exc
             if not np.allclose(transforms[0], transforms[1], atol=1e-6):
                 raise ValueError(f"moveit_link {link!r}: the camera {params.camera_frame!r} is not fixed on it")
             self._link_from_camera = transforms[0]
