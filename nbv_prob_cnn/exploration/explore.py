@@ -178,7 +178,12 @@ def explore(
         )
 
     session = ExplorationSession(
-        simulated, SimulatedPlanner(world, planner, context, first), simulated, views, guard=guard, on_view=record,
+        simulated,
+        SimulatedPlanner(world, planner, context, first),
+        simulated,
+        views,
+        guard=guard,
+        on_view=record,
         stop_surface=stop_surface,
     )
     result = session.run()

@@ -77,9 +77,9 @@ from nbv_prob_cnn.exploration.view_guard import ViewGuard
 from nbv_prob_cnn.planners import ViewChoice, check_ros_method, make_planner, ros_method
 from nbv_prob_cnn.planners.base import OriginFilter
 from nbv_prob_cnn.planners.recording import RecordingPlanner
-from nbv_prob_cnn.planners.surface_stop import SurfaceStop
 from nbv_prob_cnn.planners.registry import DEFAULT_METHOD
 from nbv_prob_cnn.planners.requests import origin_filter, planning_context, view_pose
+from nbv_prob_cnn.planners.surface_stop import SurfaceStop
 from nbv_prob_cnn.planners.workspace import Box, height_box, intersect_boxes, workspace_box
 from nbv_prob_cnn.ros import names
 from nbv_prob_cnn.ros.camera_sensor import CameraInfoSensor, SensorParams
