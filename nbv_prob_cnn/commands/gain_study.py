@@ -104,7 +104,6 @@ def _report(study, summary, default_label: str, command: str) -> list[str]:
         if scope != "pooled":
             continue
         within = by_key[(method, variant, "within")]
-        lines.append(
-            f"| {variant} | {method} | {row.text()} | {within.text()} | {row.anchors} | {row.mean_rays_in_frustum:.1f} |"
-        )
+        cells = (variant, method, row.text(), within.text(), row.anchors, f"{row.mean_rays_in_frustum:.1f}")
+        lines.append("| " + " | ".join(map(str, cells)) + " |")
     return lines
