@@ -3,7 +3,9 @@
 (:mod:`nbv_prob_cnn.gain.volumetric`), on OctoMap's probabilities of the ternary grid (the prior in
 unknown cells, as the OctoMap implementations they come from), from a random subset of the
 candidate origins of the downsampled method's size (the numpy ray march of every empty cell would
-cost minutes a view)."""
+cost minutes a view). ``rear_side_voxel`` and ``proximity_count`` score nothing while no surface is
+known (a first view that saw none): then, and only then, ``unobserved_voxel`` ranks the views, and
+the choice's gain is that one's (never a silent stop after one view)."""
 
 from __future__ import annotations
 
@@ -15,6 +17,15 @@ from nbv_prob_cnn.gain.volumetric import volumetric_view_gains
 from nbv_prob_cnn.planners.base import OriginFilter, PlanningContext, RankingPlanner, ViewChoice
 from nbv_prob_cnn.planners.candidates import near_unknown_origins, ray_reach
 from nbv_prob_cnn.planners.methods import GainMethod, method_origins
+
+#: The formulations that score nothing while no surface is known.
+NEEDS_A_SURFACE = ("rear_side_voxel", "proximity_count")
+
+
+def _view_gains(state: np.ndarray, context: PlanningContext, origins: np.ndarray, formulation: str) -> np.ndarray:
+    sensor = context.active_sensor
+    return volumetric_view_gains(state, None, context.directions, sensor.r_max, context.membership, origins,
+                                 formulation).ravel()  # fmt: skip
 
 
 class VolumetricPlanner(RankingPlanner):
@@ -32,9 +43,9 @@ class VolumetricPlanner(RankingPlanner):
         if origins.shape[0] == 0:
             return []
         start = time.perf_counter()
-        sensor = context.active_sensor
-        gains = volumetric_view_gains(state, None, context.directions, sensor.r_max, context.membership, origins,
-                                      self.name).ravel()  # fmt: skip
+        gains = _view_gains(state, context, origins, self.name)
+        if self.name in NEEDS_A_SURFACE and not np.any(gains > 0.0):
+            gains = _view_gains(state, context, origins, "unobserved_voxel")
         seconds = time.perf_counter() - start
         order = np.lexsort((np.arange(gains.size), -gains))[: max(1, top_k)]
         n_views = context.membership.shape[1]
