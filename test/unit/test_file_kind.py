@@ -89,7 +89,7 @@ def test_check_kind_says_what_it_got_and_which_command_takes_it(files):
         ("pickle", r"is a Python pickle \(not read"),
         ("7scenes", r"is a 7-Scenes recording.*goes to `nbv import-rgbd --format 7scenes"),
         ("world", r"is a world file.*`nbv explore --scene"),
-        ("octomap", r"is an OctoMap"),
+        ("octomap", r"is an OctoMap \(\.bt/\.ot\).*goes to `nbv plan --octomap`"),
     ],
 )
 def test_grid_readers_name_what_they_were_given(files, given, says, tmp_path, capsys):
