@@ -115,4 +115,8 @@ def _render_grid(args: argparse.Namespace, state, geometry, name: str, camera_po
     )
     best = float(gains.max()) if gains.size else 0.0
     print(f"{len(origins)} candidate origin(s), best view gain {best:.4f} ({args.method}); wrote {png}, {csv}")
+    if not best > 0:  # the picture is still the grid's; say why its heat map is blank
+        from nbv_prob_cnn.basics.results import no_view_reason
+
+        print(f"note: no view with a positive gain: {no_view_reason(state)}")
     return 0

@@ -92,3 +92,11 @@ def test_view_reads_a_camera_bag_posed_by_tf(tf_bag, tmp_path, capsys):
     out = tmp_path / "v.png"
     assert main(["view", "--bag", str(tf_bag), "--out", str(out), "--method", "prob_ig"]) == EXIT_OK
     assert "fused 6 depth frame(s)" in capsys.readouterr().out and out.is_file()
+
+
+def test_view_of_a_grid_without_an_empty_cell_says_why_its_heat_map_is_blank(tmp_path, capsys):
+    grid = tmp_path / "unknown.npz"
+    save_grid(grid, np.full((20, 20, 12), UNKNOWN, np.int8), np.zeros(3), 0.05)
+    assert main(["view", "--grid", str(grid), "--method", "prob_ig", "--out", str(tmp_path / "v.png")]) == EXIT_OK
+    out = capsys.readouterr().out
+    assert "0 candidate origin(s)" in out and "note: no view with a positive gain: the grid has no empty cell" in out
