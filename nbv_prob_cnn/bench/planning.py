@@ -439,14 +439,16 @@ def format_table(results: list[BenchResult]) -> str:
 
 def cnn_table(seed: int = 1000, repeats: int = 3, echo: Echo | None = None) -> str:
     """CNN inference time and a full ``cnn_prob`` planning iteration (CNN + ray casting + views)
-    per data set at ~50 % explored, next to ``prob_ig``; markdown table (``echo``: each line as soon as it
-    is measured)."""
+    per data set at ~50 % explored, next to ``prob_ig`` and ``cnn_surface`` (the surface gain on the same
+    map; its time over ``cnn_prob``'s, measured side by side); markdown table (``echo``: each line as
+    soon as it is measured)."""
     from nbv_prob_cnn.completion import complete
     from nbv_prob_cnn.worlds import load_or_generate
 
     lines = EchoedLines([
-        "| data set | grid | CNN inference (s) | cnn_prob iteration (s) | prob_ig iteration (s) |",
-        "|---|---|---|---|---|",
+        ("| data set | grid | CNN inference (s) | cnn_prob iteration (s) | prob_ig iteration (s) "
+        "| cnn_surface iteration (s) | cnn_surface / cnn_prob |"),
+        "|---|---|---|---|---|---|---|",
     ], echo)  # fmt: skip
     for dataset in ("2d", "3du", "3dt"):
         world = load_or_generate(dataset, seed)
@@ -454,11 +456,13 @@ def cnn_table(seed: int = 1000, repeats: int = 3, echo: Echo | None = None) -> s
         state = half_explored(world, context)
         complete(state, dataset=dataset)  # warm-up: load the weights
         t_cnn = _time(lambda: complete(state, dataset=dataset), repeats)  # noqa: B023 - used right here
-        cnn, constant = make_planner("cnn_prob"), make_planner("prob_ig")
+        cnn, constant, surface = make_planner("cnn_prob"), make_planner("prob_ig"), make_planner("cnn_surface")
         t_plan = _time(lambda: cnn.plan(state, context), repeats)  # noqa: B023
         t_constant = _time(lambda: constant.plan(state, context), repeats)  # noqa: B023
+        t_surface = _time(lambda: surface.plan(state, context), repeats)  # noqa: B023
         shape = "×".join(map(str, world.shape))
-        lines.append(f"| {dataset.upper()} | {shape} | {t_cnn:.3f} | {t_plan:.3f} | {t_constant:.3f} |")
+        lines.append(f"| {dataset.upper()} | {shape} | {t_cnn:.3f} | {t_plan:.3f} | {t_constant:.3f} "
+                     f"| {t_surface:.3f} | {t_surface / t_plan:.2f} |")  # fmt: skip
     return "\n".join(lines)
 
 

@@ -109,8 +109,10 @@ def replay_rows(
     missing = {"unknown_fraction", "unknown_fraction_all", *pose_columns} - set(header)
     if missing:
         raise ValueError(f"{source}: not a run CSV (no column {', '.join(sorted(missing))})")
-    out_header = header if COVERAGE_COLUMN in header else [*header, COVERAGE_COLUMN]
-    column = out_header.index(COVERAGE_COLUMN)
+    # a missing coverage column goes where today's CSV has it: after ruled_out_views (or last)
+    column = header.index(COVERAGE_COLUMN) if COVERAGE_COLUMN in header else (
+        header.index("ruled_out_views") + 1 if "ruled_out_views" in header else len(header))  # fmt: skip
+    out_header = header if COVERAGE_COLUMN in header else [*header[:column], COVERAGE_COLUMN, *header[column:]]
     state = np.full(world.shape, -1, dtype=np.int8)
     reconstruction = MeshReconstruction(world, context.active_sensor) if chamfer else None
     out_rows, largest = [], 0.0
@@ -136,7 +138,7 @@ def replay_rows(
         largest = max(largest, difference)
         if reconstruction is not None:
             reconstruction.add_view(position, quaternion)
-        out = list(values) + ([""] if len(out_header) > len(header) else [])
+        out = list(values) if len(out_header) == len(header) else [*values[:column], "", *values[column:]]
         out[column] = f"{coverage(state):.6f}"
         out_rows.append(out)
     distance = None if reconstruction is None else reconstruction.chamfer()

@@ -112,4 +112,4 @@ def test_guarded_runs_sit_beside_the_plain_ones(tmp_path):
     assert guarded["prob_ig"][0].unknown_fraction[0] == plain["prob_ig"][0].unknown_fraction[0]
     with open(path) as handle:
         header = handle.readline().strip().split(",")
-    assert header[-3:] == ["changed_cells", "ruled_out_views", "surface_coverage"]
+    assert header[-4:] == ["changed_cells", "ruled_out_views", "surface_coverage", "new_surface_cells"]

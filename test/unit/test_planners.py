@@ -67,12 +67,15 @@ def test_downsampled_method_evaluates_a_fixed_number_of_origins(rng):
 
 def test_registry_is_the_one_list_of_methods():
     from nbv_prob_cnn.planners import METHODS, PLANNER_FACTORIES, make_planner, ros_method
+    from nbv_prob_cnn.planners.registry import PAPER_METHODS
 
     paper = {"random", "ig", "prob_ig", "cnn_prob", "cnn_prob_d", "omniscient"}
     paper |= {"flat_city_cnn", "b_city_cnn", "d_city_cnn"}
-    assert set(METHODS) == paper == set(PLANNER_FACTORIES)
+    ours = {"cnn_surface", "prob_surface", "omniscient_surface"}
+    ours |= {"occlusion_aware", "unobserved_voxel", "rear_side_voxel", "proximity_count", "average_entropy"}
+    assert set(METHODS) == paper | ours == set(PLANNER_FACTORIES) and set(PAPER_METHODS) == paper
     assert all(make_planner(name).name == name for name in METHODS)
-    assert [n for n, s in METHODS.items() if s.needs_ground_truth] == ["omniscient"]
+    assert [n for n, s in METHODS.items() if s.needs_ground_truth] == ["omniscient", "omniscient_surface"]
     assert METHODS["cnn_prob_d"].weights == "cnn_prob" and METHODS["prob_ig"].weights is None
     assert ros_method("", "prob").name == "cnn_prob" and ros_method("d_city_cnn", "ig").name == "d_city_cnn"
     with pytest.raises(ValueError, match="unknown method 'omniscient'"):
