@@ -80,7 +80,7 @@ def run(args: argparse.Namespace) -> int:
                 "`nbv world --dataset D --seed S --out scene.npz`. To plan on this grid: "
                 f"`nbv plan --grid {args.scene}`; to look at it: `nbv view --grid {args.scene} --out grid.png`"
             )
-        world = World.load(args.scene)
+        world = World.load(args.scene, "--scene")
         if world.dataset != args.dataset:
             raise ValueError(f"--scene {args.scene} is a {world.dataset!r} world, not {args.dataset!r}")
     else:

@@ -97,15 +97,15 @@ class World:
         )
 
     @classmethod
-    def load(cls, path: str | Path) -> World:
-        """Read a world written by :meth:`save`.
+    def load(cls, path: str | Path, option: str = "") -> World:
+        """Read a world written by :meth:`save` (``option``: the argument that named it, for messages).
 
         Raises:
             ValueError: the file is not a world file (says what it is) or is corrupt.
         """
         from nbv_prob_cnn.basics.file_kind import check_kind
 
-        check_kind(path, "", ("world",), "a world file (ground truth from `nbv world --out scene.npz`)")
+        check_kind(path, option, ("world",), "a world file (ground truth from `nbv world --out scene.npz`)")
         try:
             with np.load(path) as data:
                 meta = json.loads(bytes(data["meta"]).decode())

@@ -118,11 +118,14 @@ def test_bag_readers_name_what_they_were_given(files, given, says, tmp_path, cap
     assert not (tmp_path / "g.npz").exists()
 
 
-def test_scene_and_recording_readers_name_what_they_were_given(files):
+def test_scene_and_recording_readers_name_what_they_were_given(files, capsys):
     with pytest.raises(ValueError, match=r"is a rosbag2 bag \(mcap file\), not a world file"):
         World.load(files["mcap"])
     with pytest.raises(ValueError, match=r"is a CSV table.*, not a world file"):
         World.load(files["csv"])
+    log = str(files["grid"].parent / "x.csv")
+    assert main(["explore", "--dataset", "3dt", "--scene", str(files["bag"]), "--views", "1", "--log", log]) == 2
+    assert re.search(r"--scene .* is a rosbag2 bag \(folder\), not a world file", capsys.readouterr().err)
     with pytest.raises(RecordingError, match=r"SRC .* is a 7-Scenes recording .*not a TUM RGB-D recording folder"):
         read_recording("tum", files["7scenes"])
     with pytest.raises(RecordingError, match=r"SRC .* is a rosbag2 bag \(folder\), not a 7-Scenes recording folder"):
