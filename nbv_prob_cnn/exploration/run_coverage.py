@@ -1,0 +1,78 @@
+"""The surface coverage of each view of a run in a known world, measured on the grids that a
+mapping process (e.g. the ROS ``integrator``) builds in the world's frame: what the simulated
+main job prints per view and keeps in ``views.csv``.
+
+The coverage is :mod:`~nbv_prob_cnn.exploration.surface_metrics`' (as ``nbv explore`` and ``nbv
+evaluate`` report it): the share of the ground-truth surface that faces the first view's free
+space (:meth:`~nbv_prob_cnn.exploration.surface_metrics.SurfaceCoverage.seen_from`) with a cell seen
+occupied within one cell of it. The first view is the first one measured: its camera position
+fixes that free space (all the surface when the position lies outside the grid or in a cell the
+ground truth holds occupied). The surface is found once, at that first view; each view then costs
+one gather over the surface cells' neighbourhoods (no ROS here: callers convert their grid
+messages with :func:`~nbv_prob_cnn.ros.conversions.msg_to_grid`).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from nbv_prob_cnn.basics.geometry import GridGeometry
+from nbv_prob_cnn.exploration.surface_metrics import SurfaceCoverage
+from nbv_prob_cnn.worlds.world import World
+
+#: Grid origins and cell sizes within this many metres are the same placement.
+GEOMETRY_TOLERANCE_M = 1e-6
+
+
+class RunCoverage:
+    """Surface coverage per view of one run in one world (a new run needs a new instance: the
+    first view measured fixes the surface)."""
+
+    def __init__(self, ground_truth: np.ndarray, geometry: GridGeometry) -> None:
+        truth = np.asarray(ground_truth)
+        if truth.shape != tuple(geometry.shape):
+            raise ValueError(f"ground_truth: shape {truth.shape} differs from its geometry's {tuple(geometry.shape)}")
+        self.ground_truth, self.geometry = truth, geometry
+        self._coverage: SurfaceCoverage | None = None
+
+    @classmethod
+    def of_world(cls, world: World) -> RunCoverage:
+        return cls(world.ground_truth, world.geometry)
+
+    @property
+    def surface(self) -> SurfaceCoverage | None:
+        """The surface measured against (None before the first view)."""
+        return self._coverage
+
+    def check_geometry(self, geometry: GridGeometry) -> None:
+        """Raises ValueError, naming both placements, unless a grid of ``geometry`` lies cell for
+        cell on the ground truth (same shape, origin and cell size within
+        :data:`GEOMETRY_TOLERANCE_M`)."""
+        same = (
+            tuple(geometry.shape) == tuple(self.geometry.shape)
+            and abs(geometry.resolution - self.geometry.resolution) <= GEOMETRY_TOLERANCE_M
+            and np.allclose(geometry.origin, self.geometry.origin, rtol=0.0, atol=GEOMETRY_TOLERANCE_M)
+        )
+        if not same:
+            raise ValueError(
+                f"grid: shape {tuple(geometry.shape)}, origin {tuple(geometry.origin)} m, cell "
+                f"{geometry.resolution} m does not lie on the world's ground truth (shape "
+                f"{tuple(self.geometry.shape)}, origin {tuple(self.geometry.origin)} m, "
+                f"cell {self.geometry.resolution} m)"
+            )
+
+    def __call__(self, state: np.ndarray, geometry: GridGeometry, camera_position_m: np.ndarray) -> float:
+        """The coverage of ``state`` (ternary, placed by ``geometry``: the grid after a view taken
+        from ``camera_position_m``, metres in the grid's frame; only the first call's position is used).
+
+        Raises:
+            ValueError: ``geometry`` does not lie on the ground truth, or ``state`` has another shape.
+        """
+        self.check_geometry(geometry)
+        if self._coverage is None:
+            cell, inside = self.geometry.containing_cell(np.asarray(camera_position_m, dtype=np.float64))
+            if inside:
+                self._coverage = SurfaceCoverage.seen_from(self.ground_truth, cell)
+            else:
+                self._coverage = SurfaceCoverage(self.ground_truth)
+        return self._coverage(state)
