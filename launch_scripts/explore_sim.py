@@ -21,7 +21,8 @@ path to the controller (``move_mode:=trajectory``). ``--move-mode arm`` uses our
 Every process gets localhost discovery, its own ROS_DOMAIN_ID and the Fast DDS shared-memory
 profile. Ctrl-C cancels the exploration and stops every process (no orphans), then removes the
 shared-memory files the graph left behind. When a node exits, the launcher prints its last error
-line and its log and stops the rest. Outputs: <out>/views.csv, <out>/explored.png,
+line and its log and stops the rest. Outputs: <out>/views.csv (with each view's surface coverage
+of the world), <out>/explored.png,
 <out>/grid.npz and one log per node in <out>/logs/.
 
 Exit status: 0 explored, 1 the exploration failed, 2 a bad argument, 4 a node exited,
@@ -138,6 +139,7 @@ def main(argv=None) -> int:
         "--title", f"{args.dataset} seed {args.seed}, {args.method}" + (", arm" if arm else ", free-flying camera")
         + (f", {args.noise}" if args.noise else ""),
         "--timeout", str(args.timeout),
+        "--world-dataset", args.dataset, "--world-seed", str(args.seed),  # each view's surface coverage
     ]  # fmt: skip
     env = ros_environment(args.domain_id)
     return run_graph(start_nodes, client, env, out / "logs", "explore_sim", timeout_s=args.timeout)

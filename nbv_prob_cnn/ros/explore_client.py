@@ -2,7 +2,14 @@
 writes the per-view CSV, a PNG of the explored grid and ``graph.json`` (every node's topics and
 services at the end) (run by the launch scripts as its own
 process: ``python -m nbv_prob_cnn.ros.explore_client --views 10 --out DIR``). Ctrl-C (SIGINT)
-or SIGTERM cancels the running exploration and waits for its CANCELED result before exiting."""
+or SIGTERM cancels the running exploration and waits for its CANCELED result before exiting.
+
+In a simulated world (``--world-dataset``/``--world-seed``: the graph's grid lies on its ground
+truth) each view's surface coverage is measured on the grid the client holds when the view's
+feedback arrives (the integrator's grid after the view, which the planner waited for before it
+sent the feedback, or a newer one from the same pose), printed and kept in ``views.csv``
+(:class:`~nbv_prob_cnn.exploration.run_coverage.RunCoverage`); without a world (a real robot)
+that column is empty."""
 
 from __future__ import annotations
 
@@ -25,6 +32,7 @@ from rclpy.executors import SingleThreadedExecutor
 from rclpy.signals import SignalHandlerOptions
 
 from nbv_prob_cnn.basics.grid import unknown_fraction_all
+from nbv_prob_cnn.exploration.run_coverage import RunCoverage
 from nbv_prob_cnn.ros import names
 from nbv_prob_cnn.ros.action_client import LockedActionClient
 from nbv_prob_cnn.ros.conversions import msg_to_grid, pose_to_arrays
@@ -53,6 +61,8 @@ class ExploreClient:
         self.feedback: list[tuple[float, Explore.Feedback]] = []
         self.status = ""  # of the last exploration: succeeded, canceled or aborted
         self.stop_requested = threading.Event()  # set by SIGINT / SIGTERM (see main)
+        self.coverage: RunCoverage | None = None  # the world's, when known: set before explore
+        self.surface_coverage: dict[int, float] = {}  # view_index -> coverage, of the views taken
         self._executor = SingleThreadedExecutor()
         self._executor.add_node(self.node)
 
@@ -121,6 +131,8 @@ class ExploreClient:
 
         def feedback_cb(message) -> None:
             self.feedback.append((time.monotonic() - start, message.feedback))
+            if message.feedback.executed:
+                self._measure_coverage(message.feedback)
             if on_feedback:
                 on_feedback(message.feedback, time.monotonic() - start)
 
@@ -146,6 +158,20 @@ class ExploreClient:
             self._executor.spin_once(timeout_sec=0.1)
         self.status = STATUS_NAMES.get(result.result().status, str(result.result().status))
         return result.result().result
+
+    def _measure_coverage(self, feedback: Explore.Feedback) -> None:
+        """The surface coverage of the view of ``feedback`` on the latest grid, when the world is
+        known; a grid that does not lie on the world's ground truth turns the measure off (said once)."""
+        grid = self.latest_grid()
+        if self.coverage is None or grid is None:
+            return
+        try:
+            state, geometry = msg_to_grid(grid)
+            position, _ = pose_to_arrays(feedback.pose.pose)
+            self.surface_coverage[feedback.view_index] = self.coverage(state, geometry, position)
+        except ValueError as exc:
+            self.coverage = None
+            print(f"[explore] surface coverage off for the rest of the run: {exc}", file=sys.stderr, flush=True)
 
     def cancel(self, timeout_s: float = 5.0) -> str:
         """Cancel the running exploration and wait for its result; returns its status name
@@ -207,9 +233,10 @@ def merge_stream_nodes(report: dict[str, dict[str, list[list[str]]]]) -> dict[st
 def write_outputs(client: ExploreClient, result: Explore.Result, out_dir: Path, title: str) -> list[Path]:
     """Per-view CSV and a PNG of the last grid with the chosen views; when the planner drove the
     arm (feedback with joint goals) the CSV adds the joint travel and goal of each view and the
-    PNG the arm at each view (default robot description). Moves that failed (``executed`` false)
-    are not views: they are counted in the result's ``failed_executions``. Views count from 1, as the
-    console does."""
+    PNG the arm at each view (default robot description). ``surface_coverage`` is the client's
+    per-view coverage (empty where none was measured: no world known). Moves that failed
+    (``executed`` false) are not views: they are counted in the result's ``failed_executions``.
+    Views count from 1, as the console does."""
     from nbv_prob_cnn.viz.exploration import plot_views
 
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -218,15 +245,18 @@ def write_outputs(client: ExploreClient, result: Explore.Result, out_dir: Path, 
     joint_names = next((list(fb.joint_goal.name) for _, fb in taken if fb.joint_goal.name), [])
     with open(csv_path, "w", newline="") as handle:
         writer = csv.writer(handle)
-        header = ["view", "elapsed_s", "gain", "unknown_fraction", "x_m", "y_m", "z_m", "qx", "qy", "qz", "qw"]
+        header = ["view", "elapsed_s", "gain", "unknown_fraction", "surface_coverage", "x_m", "y_m", "z_m"]
+        header += ["qx", "qy", "qz", "qw"]
         header.append("fallback")  # 1: the planner found no feasible ranked view and took one near the camera
         writer.writerow(header + (["joint_travel", *joint_names] if joint_names else []))
         for elapsed, fb in taken:
             position, quat = pose_to_arrays(fb.pose.pose)
             arm = [f"{fb.joint_travel:.6f}", *(f"{v:.6f}" for v in fb.joint_goal.position)] if joint_names else []
+            surface = client.surface_coverage.get(fb.view_index)
             writer.writerow(
                 [fb.view_index + 1, f"{elapsed:.3f}", f"{fb.gain:.6g}", f"{fb.unknown_fraction:.6f}",
-                 *(f"{v:.5f}" for v in position), *(f"{v:.6f}" for v in quat), int(fb.fallback), *arm]
+                 "" if surface is None else f"{surface:.6f}", *(f"{v:.5f}" for v in position),
+                 *(f"{v:.6f}" for v in quat), int(fb.fallback), *arm]
             )  # fmt: skip
     written = [csv_path]
     grid = client.latest_grid()
@@ -278,6 +308,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--stop-unknown", type=float, default=0.0)
     parser.add_argument("--out", default="out/explore")
     parser.add_argument("--title", default="exploration")
+    parser.add_argument(
+        "--world-dataset", choices=["3du", "3dt"],
+        help="the simulated world the graph explores (with --world-seed): each view's surface coverage is measured",
+    )  # fmt: skip
+    parser.add_argument("--world-seed", type=int, help="its seed")
     parser.add_argument("--timeout", type=float, default=1800.0)
     parser.add_argument(
         "--ready-timeout",
@@ -286,6 +321,10 @@ def main(argv: list[str] | None = None) -> int:
         help="seconds to wait for the Explore server, a first grid and the planner's set-up",
     )
     args = parser.parse_args(argv)
+    if (args.world_dataset is None) != (args.world_seed is None):
+        parser.error("--world-dataset and --world-seed go together")
+    if args.world_seed is not None and args.world_seed < 0:
+        parser.error(f"--world-seed: expected a seed >= 0, got {args.world_seed}")
     rclpy.init(signal_handler_options=SignalHandlerOptions.NO)
     client = ExploreClient()
     for signum in (signal.SIGINT, signal.SIGTERM):
@@ -298,6 +337,10 @@ def main(argv: list[str] | None = None) -> int:
                   file=sys.stderr, flush=True)  # fmt: skip
             return 1
         print(f"[explore] graph ready after {time.monotonic() - waited:.1f} s", flush=True)
+        if args.world_dataset is not None:  # the camera's world, cached by sim_camera by now
+            from nbv_prob_cnn.worlds import load_or_generate
+
+            client.coverage = RunCoverage.of_world(load_or_generate(args.world_dataset, args.world_seed))
         goal = Explore.Goal(method=args.method, max_views=args.views, stop_unknown_fraction=args.stop_unknown)
 
         def progress(fb, elapsed):
@@ -308,9 +351,12 @@ def main(argv: list[str] | None = None) -> int:
             rate = (fb.view_index + 1) / elapsed if elapsed > 0 else 0.0
             eta = (args.views - fb.view_index - 1) / rate if rate > 0 else float("nan")
             travel = f", joint travel {fb.joint_travel:.3f} rad" if fb.joint_goal.name else ""
+            surface = client.surface_coverage.get(fb.view_index)
+            covered = "" if surface is None else f", surface coverage {surface:.4f}"
             print(
                 f"[explore] view {fb.view_index + 1}/{args.views}: gain {fb.gain:.4f}, unknown "
-                f"{fb.unknown_fraction:.4f}{travel}, {elapsed:.1f} s elapsed, {rate:.2f} views/s, ETA {eta:.0f} s",
+                f"{fb.unknown_fraction:.4f}{covered}{travel}, {elapsed:.1f} s elapsed, {rate:.2f} views/s, "
+                f"ETA {eta:.0f} s",
                 flush=True,
             )
 
