@@ -89,7 +89,7 @@ def _render_camera_bag(args: argparse.Namespace) -> int:
             f"--bag {args.bag}: no return of its {count} depth frame(s) fell inside the box of `nbv integrate`'s "
             f"defaults ({DEFAULT_SHAPE} cells of {DEFAULT_VOXEL_M} m at {list(DEFAULT_ORIGIN_M)}); fuse it where it "
             f"lies: `nbv integrate --bag {args.bag} --bounds auto --voxel 0.04 --out grid.npz`, then "
-            "`nbv view --grid grid.npz`"
+            f"`nbv view --grid grid.npz --out {args.out}`"
         )
     print(
         f"{args.bag}: no planning topics; fused {count} depth frame(s) into the {DEFAULT_SHAPE} grid of `nbv integrate`"
