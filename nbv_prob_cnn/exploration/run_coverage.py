@@ -9,19 +9,29 @@ occupied within one cell of it. The first view is the first one measured: its ca
 fixes that free space (all the surface when the position lies outside the grid or in a cell the
 ground truth holds occupied). The surface is found once, at that first view; each view then costs
 one gather over the surface cells' neighbourhoods (no ROS here: callers convert their grid
-messages with :func:`~nbv_prob_cnn.ros.conversions.msg_to_grid`).
+messages with :func:`~nbv_prob_cnn.ros.conversions.msg_to_grid`). :class:`ViewsAwaitingGrids`
+holds a run's per-view reports until each view's own grid has come.
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Generic, TypeVar
+
 import numpy as np
 
 from nbv_prob_cnn.basics.geometry import GridGeometry
+from nbv_prob_cnn.basics.grid import unknown_fraction_all
 from nbv_prob_cnn.exploration.surface_metrics import SurfaceCoverage
 from nbv_prob_cnn.worlds.world import World
 
 #: Grid origins and cell sizes within this many metres are the same placement.
 GEOMETRY_TOLERANCE_M = 1e-6
+
+T = TypeVar("T")
+#: The grid at hand and its placement (None before any): called only when a view waits for one.
+GridSource = Callable[[], "tuple[np.ndarray, GridGeometry] | None"]
 
 
 class RunCoverage:
@@ -76,3 +86,74 @@ class RunCoverage:
             else:
                 self._coverage = SurfaceCoverage(self.ground_truth)
         return self._coverage(state)
+
+
+@dataclass
+class _Waiting(Generic[T]):
+    item: T
+    view: tuple[float, np.ndarray] | None  # a taken view's unknown fraction and camera position; None: no grid
+
+
+class ViewsAwaitingGrids(Generic[T]):
+    """A run's per-view reports (``item``), each taken view's held until its own grid has come, then
+    released in arrival order with its coverage (``release(item, coverage)``; None for a report of no
+    view or one whose grid never came).
+
+    A view's grid is identified by the unknown fraction its report carries (``float32``, as in an
+    Explore feedback): the grid the planner waited for after the move. A process that hears the
+    reports and the grids on separate channels may get a report before its grid (the main job's
+    client did, for 2 of 5 views of one run); measuring on the grid at hand would then give the
+    view before's coverage. A view still waiting when the next view's report comes, or at
+    :meth:`give_up`, is released without a coverage and counted in ``missed``.
+    """
+
+    def __init__(self, coverage: RunCoverage, release: Callable[[T, float | None], None]) -> None:
+        self.coverage, self.release = coverage, release
+        self.missed = 0
+        self.off = ""  # why the coverage was turned off (a grid off the world's placement), "" while on
+        self._queue: list[_Waiting[T]] = []
+
+    @property
+    def waiting(self) -> bool:
+        return bool(self._queue)
+
+    def add(self, item: T, view: tuple[float, np.ndarray] | None, grid: GridSource) -> None:
+        """A report: of a taken view (``view`` = its reported unknown fraction and camera position,
+        metres) or of no view (None); ``grid()`` gives the grid at hand (None before any)."""
+        if view is not None and not self.off:
+            self._release_waiting_views()
+        self._queue.append(_Waiting(item, None if self.off else view))
+        self.offer(grid)
+
+    def offer(self, grid: GridSource) -> None:
+        """A grid may have come: release the reports in order up to the first view whose grid
+        ``grid()`` is not."""
+        loaded: tuple[np.ndarray, GridGeometry] | None = None
+        while self._queue:
+            head = self._queue[0]
+            if head.view is None:
+                self.release(self._queue.pop(0).item, None)
+                continue
+            loaded = loaded or grid()
+            if loaded is None:
+                return
+            state, geometry = loaded
+            if np.float32(unknown_fraction_all(state)) != np.float32(head.view[0]):
+                return
+            try:
+                value = self.coverage(state, geometry, head.view[1])
+            except ValueError as exc:
+                self.off = str(exc)
+                self._release_waiting_views(count=False)
+                return
+            self.release(self._queue.pop(0).item, value)
+
+    def give_up(self) -> None:
+        """The run ended: release what still waits, views without a coverage (counted)."""
+        self._release_waiting_views()
+
+    def _release_waiting_views(self, count: bool = True) -> None:
+        for waiting in self._queue:
+            self.missed += int(count and waiting.view is not None)
+            self.release(waiting.item, None)
+        self._queue.clear()

@@ -5,11 +5,10 @@ process: ``python -m nbv_prob_cnn.ros.explore_client --views 10 --out DIR``). Ct
 or SIGTERM cancels the running exploration and waits for its CANCELED result before exiting.
 
 In a simulated world (``--world-dataset``/``--world-seed``: the graph's grid lies on its ground
-truth) each view's surface coverage is measured on the grid the client holds when the view's
-feedback arrives (the integrator's grid after the view, which the planner waited for before it
-sent the feedback, or a newer one from the same pose), printed and kept in ``views.csv``
-(:class:`~nbv_prob_cnn.exploration.run_coverage.RunCoverage`); without a world (a real robot)
-that column is empty."""
+truth) each view's surface coverage is measured on the view's own grid (the integrator's grid the
+planner waited for after the move: the one with the unknown fraction of the feedback; a view's
+line waits for it, :class:`~nbv_prob_cnn.exploration.run_coverage.ViewsAwaitingGrids`), printed and
+kept in ``views.csv``; without a world (a real robot) that column is empty."""
 
 from __future__ import annotations
 
@@ -32,7 +31,7 @@ from rclpy.executors import SingleThreadedExecutor
 from rclpy.signals import SignalHandlerOptions
 
 from nbv_prob_cnn.basics.grid import unknown_fraction_all
-from nbv_prob_cnn.exploration.run_coverage import RunCoverage
+from nbv_prob_cnn.exploration.run_coverage import RunCoverage, ViewsAwaitingGrids
 from nbv_prob_cnn.ros import names
 from nbv_prob_cnn.ros.action_client import LockedActionClient
 from nbv_prob_cnn.ros.conversions import msg_to_grid, pose_to_arrays
@@ -63,6 +62,8 @@ class ExploreClient:
         self.stop_requested = threading.Event()  # set by SIGINT / SIGTERM (see main)
         self.coverage: RunCoverage | None = None  # the world's, when known: set before explore
         self.surface_coverage: dict[int, float] = {}  # view_index -> coverage, of the views taken
+        self._awaiting: ViewsAwaitingGrids[tuple[Explore.Feedback, float]] | None = None
+        self._on_feedback = None
         self._executor = SingleThreadedExecutor()
         self._executor.add_node(self.node)
 
@@ -86,6 +87,12 @@ class ExploreClient:
     def _on_grid(self, msg: VoxelGrid) -> None:
         with self._grid_lock:
             self._grid = msg
+        if self._awaiting is not None and self._awaiting.waiting:  # a view's grid may be this one
+            self._awaiting.offer(self._grid_array)
+
+    def _grid_array(self):
+        grid = self.latest_grid()
+        return None if grid is None else msg_to_grid(grid)
 
     def latest_grid(self) -> VoxelGrid | None:
         with self._grid_lock:
@@ -128,13 +135,18 @@ class ExploreClient:
             RuntimeError: goal rejected; TimeoutError: no result in time.
         """
         start = time.monotonic()
+        self._on_feedback = on_feedback
+        if self.coverage is not None:
+            self._awaiting = ViewsAwaitingGrids(self.coverage, self._release_feedback)
 
         def feedback_cb(message) -> None:
-            self.feedback.append((time.monotonic() - start, message.feedback))
-            if message.feedback.executed:
-                self._measure_coverage(message.feedback)
-            if on_feedback:
-                on_feedback(message.feedback, time.monotonic() - start)
+            fb, elapsed = message.feedback, time.monotonic() - start
+            self.feedback.append((elapsed, fb))
+            if self._awaiting is None:
+                self._release_feedback((fb, elapsed), None)
+                return
+            view = (fb.unknown_fraction, pose_to_arrays(fb.pose.pose)[0]) if fb.executed else None
+            self._awaiting.add((fb, elapsed), view, self._grid_array)
 
         try:  # the same goal sent again while no answer comes (a first request can be lost, see graph)
             handle = send_goal_with_resend(
@@ -156,22 +168,23 @@ class ExploreClient:
         end = time.monotonic() + 1.0
         while time.monotonic() < end:
             self._executor.spin_once(timeout_sec=0.1)
+        if self._awaiting is not None:
+            self._awaiting.give_up()
+            if self._awaiting.off:
+                print(f"[explore] surface coverage off: {self._awaiting.off}", file=sys.stderr, flush=True)
+            if self._awaiting.missed:
+                print(f"[explore] surface coverage: the grids of {self._awaiting.missed} views did not reach the "
+                      "client (left empty)", file=sys.stderr, flush=True)  # fmt: skip
         self.status = STATUS_NAMES.get(result.result().status, str(result.result().status))
         return result.result().result
 
-    def _measure_coverage(self, feedback: Explore.Feedback) -> None:
-        """The surface coverage of the view of ``feedback`` on the latest grid, when the world is
-        known; a grid that does not lie on the world's ground truth turns the measure off (said once)."""
-        grid = self.latest_grid()
-        if self.coverage is None or grid is None:
-            return
-        try:
-            state, geometry = msg_to_grid(grid)
-            position, _ = pose_to_arrays(feedback.pose.pose)
-            self.surface_coverage[feedback.view_index] = self.coverage(state, geometry, position)
-        except ValueError as exc:
-            self.coverage = None
-            print(f"[explore] surface coverage off for the rest of the run: {exc}", file=sys.stderr, flush=True)
+    def _release_feedback(self, item: tuple[Explore.Feedback, float], coverage: float | None) -> None:
+        """A feedback whose view's coverage is known (or none is measured): kept, then shown."""
+        fb, elapsed = item
+        if coverage is not None:
+            self.surface_coverage[fb.view_index] = coverage
+        if self._on_feedback:
+            self._on_feedback(fb, elapsed)
 
     def cancel(self, timeout_s: float = 5.0) -> str:
         """Cancel the running exploration and wait for its result; returns its status name
