@@ -22,7 +22,9 @@ pytest.importorskip("nbv_prob_cnn_msgs")
 from launch_runs import descendants, run_launch_script  # noqa: E402
 
 from nbv_prob_cnn.basics.geometry import GridGeometry  # noqa: E402
+from nbv_prob_cnn.exploration.run_coverage import RunCoverage  # noqa: E402
 from nbv_prob_cnn.ros.graph import leaked_segments, mapped_shm, shm_segments  # noqa: E402
+from nbv_prob_cnn.worlds import load_or_generate  # noqa: E402
 
 pytestmark = pytest.mark.slow  # multi-process ROS graphs
 
@@ -50,6 +52,17 @@ def test_simulated_graph_explores_a_small_scene(tmp_path, ros_domain):
     with np.load(out / "grid.npz") as data:
         grid, origin, resolution = data["grid"], data["origin"], float(data["resolution"])
     geometry = GridGeometry(tuple(origin), resolution, grid.shape)
+    # each view's surface coverage of the world (issue 45): printed, kept, growing with the views, and the
+    # last one that of the final grid recomputed here against the world's ground truth (the same grid when
+    # no frame changed it after the last view, as the unknown fractions tell)
+    coverage = [float(r["surface_coverage"]) for r in rows]
+    assert all(b >= a for a, b in zip(coverage, coverage[1:], strict=False)) and 0 < coverage[0] < coverage[-1] <= 1
+    assert f"surface coverage {coverage[0]:.4f}" in run.stdout
+    world = load_or_generate("3du", 1001)
+    first = np.array([float(rows[0][k]) for k in ("x_m", "y_m", "z_m")])
+    same = abs(np.float32(np.mean(grid == -1)) - float(rows[-1]["unknown_fraction"])) < 1e-6
+    final = RunCoverage.of_world(world)(grid, geometry, first)
+    assert final == pytest.approx(coverage[-1], abs=1e-6 if same else 0.02), (final, same)
     for r in rows:
         cell, inside = geometry.containing_cell(np.array([float(r["x_m"]), float(r["y_m"]), float(r["z_m"])]))
         assert inside and grid[tuple(cell)] == 0, f"view pose {r} is not in known empty space"
