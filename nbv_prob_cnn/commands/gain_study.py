@@ -14,7 +14,9 @@ HELP = (
     "Rank the gains /nbv/evaluate_views predicts for recorded camera poses against the cells each frame then "
     "revealed (Spearman rho per anchor and pooled, bootstrap intervals; CSV and PNG)."
 )
-TABLE_HEADER = "| variant | method | pooled rho [95 %] | within-anchor rho [95 %] | anchors | rays in frustum |"
+TABLE_HEADER = (
+    "| against | variant | method | pooled rho [95 %] | within-anchor rho [95 %] | anchors | rays in frustum |"
+)
 #: The default variants: sensor model and sampling, crossed, on the service's rays (across each pose's image;
 #: n_rays is read only with rays_across=0, e.g. --vary rays_across=0,32 --vary n_rays=4,8,16).
 DEFAULT_VARY = ("sensor=paper,returns", "sampling=rounded,exact")
@@ -74,11 +76,15 @@ def run(args: argparse.Namespace) -> int:
     args.out.mkdir(parents=True, exist_ok=True)
     write_csv(args.out / "poses.csv", study.rows)
     write_csv(args.out / "rho.csv", summary)
-    plot_gain_study(study, summary, default.label, args.out / "rho.png")
+    revealed = [r for r in summary if r.target == "revealed"]  # the picture: the cells revealed
+    plot_gain_study(study, revealed, default.label, args.out / "rho.png")
     command = "nbv gain-study " + " ".join(shlex.quote(a) for a in sys.argv[2:])
     lines = _report(study, summary, default.label, command)
     (args.out / "summary.md").write_text("\n".join(lines) + "\n")
     print("\n".join(lines[lines.index(TABLE_HEADER) :]))
+    print(rho_line(summary, BASELINE[1], "within", "surface"))
+    print(rho_line(summary, default.label, "within", "surface"))
+    print(rho_line(summary, default.label, "pooled", "surface"))
     print(rho_line(summary, BASELINE[1], "within"))
     print(rho_line(summary, BASELINE[1], "pooled"))
     print(rho_line(summary, default.label, "within"))
@@ -97,13 +103,14 @@ def _report(study, summary, default_label: str, command: str) -> list[str]:
         + ", ".join(f"{a}: {study.unknown_share[a]:.0%}" for a in study.anchors),
         f"- the service's defaults: {default_label}", "",
         TABLE_HEADER,
-        "|---|---|---|---|---|---|",
+        "|---|---|---|---|---|---|---|",
     ]  # fmt: skip
-    by_key = {(r.method, r.variant, r.scope): r for r in summary if r.scope != "anchor"}
-    for (method, variant, scope), row in by_key.items():
+    by_key = {(r.target, r.method, r.variant, r.scope): r for r in summary if r.scope != "anchor"}
+    for (target, method, variant, scope), row in by_key.items():
         if scope != "pooled":
             continue
-        within = by_key[(method, variant, "within")]
-        cells = (variant, method, row.text(), within.text(), row.anchors, f"{row.mean_rays_in_frustum:.1f}")
+        within = by_key[(target, method, variant, "within")]
+        against = "cells revealed" if target == "revealed" else "surface seen"
+        cells = (against, variant, method, row.text(), within.text(), row.anchors, f"{row.mean_rays_in_frustum:.1f}")
         lines.append("| " + " | ".join(map(str, cells)) + " |")
     return lines

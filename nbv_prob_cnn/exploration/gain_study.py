@@ -9,7 +9,8 @@ far is taken; each of the next ``M`` recorded camera poses is then
   :func:`~nbv_prob_cnn.planners.pose_scoring.score_poses` with the service's planning context;
   ``context_for`` builds it), and
 * **realized**: the number of cells unknown at the anchor that the pose's own frame observes, fused
-  alone with the same settings on the same box (:mod:`~nbv_prob_cnn.perception.realized_gain`).
+  alone with the same settings on the same box (:mod:`~nbv_prob_cnn.perception.realized_gain`), and
+  the **realized surface**: those of them the frame sees occupied (the new surface it gave).
 
 The camera was at each recorded pose, so its cell is free even where the anchor grid has not seen
 it: poses in unknown cells are scored (``score_unknown_cells``), and their count is kept.
@@ -34,7 +35,13 @@ from nbv_prob_cnn.exploration.scoring_variants import ScoringVariant
 from nbv_prob_cnn.gain.frustum_rays import frustum_rays
 from nbv_prob_cnn.perception.bags import read_frames
 from nbv_prob_cnn.perception.depth_camera import Intrinsics
-from nbv_prob_cnn.perception.realized_gain import Fusion, SingleFrameObserver, realized_gain, recording_box
+from nbv_prob_cnn.perception.realized_gain import (
+    Fusion,
+    SingleFrameObserver,
+    realized_gain,
+    realized_surface,
+    recording_box,
+)
 from nbv_prob_cnn.planners.base import PlanningContext
 from nbv_prob_cnn.planners.methods import GainMethod, probability_map
 from nbv_prob_cnn.planners.pose_scoring import IN_UNKNOWN_CELL, VALID, classify_poses, score_poses
@@ -58,6 +65,7 @@ class PoseRow:
     realized: int
     in_unknown_cell: bool  # the camera's cell was unknown at the anchor (scored all the same)
     rays_in_frustum: int
+    realized_surface: int = 0  # of the realized cells, those the frame saw occupied
 
 
 @dataclass
@@ -170,10 +178,11 @@ def run_gain_study(
         fusion.fuse(grid, frame)
         waiting = [a for a in pending if a < index <= a + next_poses]
         if waiting:
-            observed = observer.observed(frame)
+            labels = observer.labels(frame)
+            observed = labels != UNKNOWN
             for anchor in waiting:
                 state, predictions = pending[anchor]
-                gained = realized_gain(state, observed)
+                gained = (realized_gain(state, observed), realized_surface(state, labels))
                 study.rows += _rows(anchor, index, gained, predictions, index - anchor - 1)
         for anchor in [a for a in pending if a + next_poses <= index]:
             del pending[anchor]
@@ -188,10 +197,12 @@ def run_gain_study(
     return study
 
 
-def _rows(anchor: int, frame: int, gained: int, predictions: dict, k: int) -> list[PoseRow]:
-    """The rows of the ``k``-th next pose of an anchor, the baseline's last."""
+def _rows(anchor: int, frame: int, gained: tuple[int, int], predictions: dict, k: int) -> list[PoseRow]:
+    """The rows of the ``k``-th next pose of an anchor (``gained``: its realized cells and surface),
+    the baseline's last."""
     in_unknown = bool(predictions["in_unknown"][k])
+    cells, surface = gained
     return [
-        PoseRow(anchor, frame, method, variant, float(gains[k]), gained, in_unknown, int(rays[k]))
+        PoseRow(anchor, frame, method, variant, float(gains[k]), cells, in_unknown, int(rays[k]), surface)
         for (method, variant), (gains, rays) in predictions["scores"].items()
-    ] + [PoseRow(anchor, frame, *BASELINE, float(k + 1), gained, in_unknown, 0)]
+    ] + [PoseRow(anchor, frame, *BASELINE, float(k + 1), cells, in_unknown, 0, surface)]

@@ -1,6 +1,7 @@
 """The rank agreement of ``nbv gain-study`` (:mod:`~nbv_prob_cnn.exploration.gain_study`) and its files.
 
-Per method and scoring variant:
+Per method and scoring variant, and per realized target (``revealed``: the cells unknown at the anchor
+that a pose's frame labels; ``surface``: those it sees occupied, :data:`TARGETS`):
 
 * **per anchor**: Spearman ρ between the predicted and the realized gains of the anchor's next poses
   (0 when the prediction is constant and the realized gains are not: it ranks nothing; undefined
@@ -31,6 +32,8 @@ from nbv_prob_cnn.basics.rank_stats import Group, bootstrap_interval, finite_mea
 from nbv_prob_cnn.exploration.gain_study import BASELINE, GainStudy, PoseRow
 
 SCOPES = ("anchor", "pooled", "within")
+#: What the predictions are ranked against: the cells a frame revealed, or the surface it saw.
+TARGETS = ("revealed", "surface")
 
 
 @dataclass(frozen=True)
@@ -48,6 +51,7 @@ class RhoRow:
     poses: int
     mean_rays_in_frustum: float
     constant_gain: bool = False  # the predicted gain is one value (per anchor; pooled/within: at every anchor)
+    target: str = "revealed"  # what the realized side counts (TARGETS)
 
     def text(self) -> str:
         """``0.86 [0.71, 0.93]``, or why ρ is undefined (a constant prediction; realized gains all equal)."""
@@ -58,23 +62,26 @@ class RhoRow:
         return f"{self.rho:.2f} [{self.low:.2f}, {self.high:.2f}]"
 
 
-def anchor_groups(rows: Sequence[PoseRow], method: str, variant: str) -> dict[int, Group]:
-    """Per anchor: (predicted, realized) gains of one method and variant, in pose order."""
+def anchor_groups(rows: Sequence[PoseRow], method: str, variant: str, target: str = "revealed") -> dict[int, Group]:
+    """Per anchor: (predicted, realized) gains of one method and variant, in pose order; ``target``:
+    the realized cells (``revealed``) or the realized surface (``surface``)."""
+    if target not in TARGETS:
+        raise ValueError(f"target: expected one of {TARGETS}, got {target!r}")
     groups: dict[int, tuple[list[float], list[float]]] = {}
     for row in rows:
         if row.method == method and row.variant == variant:
             predicted, realized = groups.setdefault(row.anchor, ([], []))
             predicted.append(row.predicted)
-            realized.append(row.realized)
+            realized.append(row.realized if target == "revealed" else row.realized_surface)
     return {a: (np.array(p, dtype=np.float64), np.array(r, dtype=np.float64)) for a, (p, r) in groups.items()}
 
 
 def summarise(study: GainStudy, n_resamples: int = 2000, level: float = 0.95, seed: int = 0) -> list[RhoRow]:
-    """Every ρ of the study: per (method, variant) the anchors', the pooled one and the within one."""
+    """Every ρ of the study: per target, (method, variant) the anchors', the pooled one and the within one."""
     pairs = list(dict.fromkeys((r.method, r.variant) for r in study.rows))
     out = []
-    for method, variant in pairs:
-        groups = anchor_groups(study.rows, method, variant)
+    for target, (method, variant) in ((t, p) for t in TARGETS for p in pairs):
+        groups = anchor_groups(study.rows, method, variant, target)
         rays = [r.rays_in_frustum for r in study.rows if r.method == method and r.variant == variant]
         mean_rays = float(np.mean(rays))
         rhos = {anchor: ranking_rho(*group) for anchor, group in groups.items()}
@@ -83,20 +90,21 @@ def summarise(study: GainStudy, n_resamples: int = 2000, level: float = 0.95, se
         constant = {anchor: bool(np.all(g[0] == g[0][0])) for anchor, g in groups.items()}
         for anchor, rho in rhos.items():
             out.append(RhoRow(method, variant, "anchor", anchor, rho, rho, rho, int(np.isfinite(rho)),
-                              len(groups[anchor][0]), mean_rays, constant[anchor]))  # fmt: skip
+                              len(groups[anchor][0]), mean_rays, constant[anchor], target))  # fmt: skip
         all_groups = list(groups.values())
         predicted = np.concatenate([g[0] for g in all_groups])
         if np.all(predicted == predicted[0]):  # no ranking at all: rho is undefined, not 0
             nan = float("nan")
             for scope in ("pooled", "within"):
-                out.append(RhoRow(method, variant, scope, -1, nan, nan, nan, counting, n_poses, mean_rays, True))
+                out.append(RhoRow(method, variant, scope, -1, nan, nan, nan, counting, n_poses, mean_rays, True,
+                                  target))  # fmt: skip
             continue
         low, high = bootstrap_interval(all_groups, pooled_rho, n_resamples, level, seed)
         out.append(RhoRow(method, variant, "pooled", -1, pooled_rho(all_groups), low, high, counting, n_poses,
-                          mean_rays))  # fmt: skip
+                          mean_rays, False, target))  # fmt: skip
         low, high = bootstrap_interval(list(rhos.values()), finite_mean, n_resamples, level, seed)
         out.append(RhoRow(method, variant, "within", -1, finite_mean(list(rhos.values())), low, high, counting,
-                          n_poses, mean_rays, all(constant.values())))  # fmt: skip
+                          n_poses, mean_rays, all(constant.values()), target))  # fmt: skip
     return out
 
 
@@ -113,12 +121,14 @@ def write_csv(path: Path, rows: Sequence[PoseRow] | Sequence[RhoRow]) -> None:
             writer.writerow([f"{v:.6g}" if isinstance(v, float) else v for v in (values[n] for n in names)])
 
 
-def rho_line(summary: Sequence[RhoRow], variant: str, scope: str = "pooled") -> str:
-    """``rho: METHOD X [lo, hi], ... (K anchors)`` of one variant and scope, methods in study order."""
-    chosen = [r for r in summary if r.variant == variant and r.scope == scope]
+def rho_line(summary: Sequence[RhoRow], variant: str, scope: str = "pooled", target: str = "revealed") -> str:
+    """``rho: METHOD X [lo, hi], ... (K anchors)`` of one variant, scope and target, methods in study order
+    (the surface target's line says so)."""
+    chosen = [r for r in summary if r.variant == variant and r.scope == scope and r.target == target]
     if not chosen:
         raise ValueError(f"variant: no {scope} rho for {variant!r}")
     parts = [f"{r.method} {r.text()}" for r in chosen]
     anchors = max(r.anchors for r in chosen)
     label = ("rho" if scope == "pooled" else f"rho {scope} anchors") + (" (baseline)" if variant == BASELINE[1] else "")
+    label += " against the surface seen" if target == "surface" else ""
     return f"{label}: {', '.join(parts)} ({anchors} anchors)"

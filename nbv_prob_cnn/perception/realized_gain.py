@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from nbv_prob_cnn.basics.geometry import GridGeometry
-from nbv_prob_cnn.basics.grid import UNKNOWN
+from nbv_prob_cnn.basics.grid import OCCUPIED, UNKNOWN
 from nbv_prob_cnn.perception.bags import Frame
 from nbv_prob_cnn.perception.tsdf import DEFAULT_EMPTY_MARGIN_VOXELS, DEFAULT_TRUNC_VOXELS, TsdfIntegrator
 
@@ -86,9 +86,25 @@ class SingleFrameObserver:
 
     def observed(self, frame: Frame) -> np.ndarray:
         """``bool`` grid: the cells that ``frame`` alone labels (not unknown)."""
+        return self.labels(frame) != UNKNOWN
+
+    def labels(self, frame: Frame) -> np.ndarray:
+        """The ternary grid of ``frame`` fused alone (``int8``: unknown, empty, occupied)."""
         self._integrator.reset()
         self._fusion.fuse(self._integrator, frame)
-        return self._integrator.ternary() != UNKNOWN
+        return self._integrator.ternary()
+
+
+def realized_surface(anchor_state: np.ndarray, labels: np.ndarray) -> int:
+    """How many cells unknown in ``anchor_state`` the frame saw occupied (``labels`` from
+    :meth:`SingleFrameObserver.labels`, same shape): the new surface it gave.
+
+    Raises:
+        ValueError: the two grids differ in shape.
+    """
+    if anchor_state.shape != labels.shape:
+        raise ValueError(f"labels: shape {labels.shape} differs from the grid's {anchor_state.shape}")
+    return int(np.count_nonzero((anchor_state == UNKNOWN) & (labels == OCCUPIED)))
 
 
 def realized_gain(anchor_state: np.ndarray, observed: np.ndarray) -> int:

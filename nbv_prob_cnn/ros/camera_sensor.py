@@ -102,6 +102,9 @@ class PlanningParams(Protocol):
     @property
     def gain_variant(self) -> str: ...
 
+    @property
+    def surface_blend(self) -> float: ...
+
     def apply_sensor_model(self, context, resolution_m: float) -> None: ...
 
 
@@ -119,6 +122,7 @@ def node_planning_context(
         frustum.hfov_deg, frustum.vfov_deg, frustum.max_range_m, frustum.min_range_m,
     )  # fmt: skip
     context.gain_variant = params.gain_variant
+    context.surface_blend = float(params.surface_blend)
     params.apply_sensor_model(context, geometry.resolution)
     return context
 

@@ -5,6 +5,7 @@ declare, with one default and one set of allowed values; each node describes the
 from __future__ import annotations
 
 from nbv_prob_cnn.basics.modes import BACKEND_NAMES, Backend
+from nbv_prob_cnn.gain.settings import DEFAULT_SURFACE_BLEND
 from nbv_prob_cnn.gain.variant import GAIN_VARIANTS
 from nbv_prob_cnn.ros.parameters import param
 
@@ -22,3 +23,8 @@ def n_rays_param(description: str) -> int:
 def gain_variant_param(description: str) -> str:
     """``gain_variant``: one of :data:`~nbv_prob_cnn.gain.variant.GAIN_VARIANTS`, ``paper`` by default."""
     return param("paper", description, choices=GAIN_VARIANTS)
+
+
+def surface_blend_param(description: str) -> float:
+    """``surface_blend``: the surface methods' blend in [0, 1] (docs/method.md#surface-gain)."""
+    return param(DEFAULT_SURFACE_BLEND, description, min_value=0.0, max_value=1.0)

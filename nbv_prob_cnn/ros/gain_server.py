@@ -62,7 +62,7 @@ from nbv_prob_cnn.ros.conversions import (
     msg_to_grid,
     msg_to_probability,
 )
-from nbv_prob_cnn.ros.gain_params import backend_param, gain_variant_param, n_rays_param
+from nbv_prob_cnn.ros.gain_params import backend_param, gain_variant_param, n_rays_param, surface_blend_param
 from nbv_prob_cnn.ros.grid_holder import GridSourceParams, LatestGrid, grid_transport_param
 from nbv_prob_cnn.ros.joint_state_intake import JointStateIntake
 from nbv_prob_cnn.ros.parameters import declare_config, param, positive_seconds
@@ -87,6 +87,9 @@ class GainServerConfig(GridSourceParams, SensorParams, ArmViewParams):
     n_rays: int = n_rays_param("ray sub-cells per side (0 = data set default)")
     gain_variant: str = gain_variant_param(
         "gain: 'paper' (docs/method.md) or 'original' (the authors' host choices, docs/original_code.md)"
+    )
+    surface_blend: float = surface_blend_param(
+        "the surface methods' blend (cnn_surface, prob_surface): 0 the paper's gain, 1 the surface alone"
     )
     completion: str = param(
         "service", "CNN maps from the completion service or in this process", choices=("service", "in_process"),

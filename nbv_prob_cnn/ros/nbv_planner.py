@@ -85,7 +85,7 @@ from nbv_prob_cnn.ros import names
 from nbv_prob_cnn.ros.camera_sensor import CameraInfoSensor, SensorParams
 from nbv_prob_cnn.ros.conversions import arrays_to_pose_stamped, geometry_of, msg_to_grid
 from nbv_prob_cnn.ros.explore_parts import NO_POSITIVE_GAIN, ExploreGrids, GoalPlanner, cancel_requested
-from nbv_prob_cnn.ros.gain_params import backend_param, gain_variant_param, n_rays_param
+from nbv_prob_cnn.ros.gain_params import backend_param, gain_variant_param, n_rays_param, surface_blend_param
 from nbv_prob_cnn.ros.grid_holder import GridSourceParams, LatestGrid, grid_transport_param
 from nbv_prob_cnn.ros.joint_state_intake import JointStateIntake
 from nbv_prob_cnn.ros.markers import planning_markers
@@ -127,6 +127,9 @@ class PlannerConfig(GridSourceParams, SensorParams, ArmViewParams, MoveItParams)
     n_rays: int = n_rays_param("ray sub-cells per side (0 = default)")
     gain_variant: str = gain_variant_param(
         "gain in-process ('paper' or 'original', docs/original_code.md; else gain_server's)"
+    )
+    surface_blend: float = surface_blend_param(
+        "the surface methods' blend in-process (0 the paper's gain, 1 the surface alone; else gain_server's)"
     )
     frame_id: str = param("world", "frame of grids that carry none")
     grid_transport: str = grid_transport_param()
@@ -345,6 +348,7 @@ class NbvPlanner(Node):
                 frustum.hfov_deg, frustum.vfov_deg, frustum.max_range_m, frustum.min_range_m,
             )  # fmt: skip
             context.gain_variant = cfg.gain_variant
+            context.surface_blend = float(cfg.surface_blend)
             context.cnn_window = None if cfg.cnn_window < 0 else cfg.cnn_window
             context.cnn_precision = cfg.cnn_precision
             cfg.apply_sensor_model(context, geometry.resolution)

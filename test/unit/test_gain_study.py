@@ -16,7 +16,7 @@ import pytest
 pytest.importorskip("open3d")
 
 from nbv_prob_cnn.basics.camera import look_rotation, quaternion_from_matrix  # noqa: E402
-from nbv_prob_cnn.basics.grid import UNKNOWN, probability_with_constant  # noqa: E402
+from nbv_prob_cnn.basics.grid import OCCUPIED, UNKNOWN, probability_with_constant  # noqa: E402
 from nbv_prob_cnn.cli import main  # noqa: E402
 from nbv_prob_cnn.exploration.gain_study import anchor_frames  # noqa: E402
 from nbv_prob_cnn.exploration.scoring_variants import ScoringVariant, cross_variants, parse_vary  # noqa: E402
@@ -97,8 +97,10 @@ def test_the_study_ranks_the_services_scores_against_what_each_frame_revealed(ro
             alone = TsdfIntegrator(np.array(geometry.origin), geometry.shape, VOXEL)
             alone.integrate(frame.depth_m, frame.intrinsics, frame.pose_4x4, depth_max=3.0)
             revealed = int(np.count_nonzero((alone.ternary() != UNKNOWN) & (state == UNKNOWN)))
+            surface = int(np.count_nonzero((alone.ternary() == OCCUPIED) & (state == UNKNOWN)))
             mine = [r for r in rows if int(r["anchor"]) == anchor and int(r["frame"]) == anchor + 1 + k]
             assert {int(r["realized"]) for r in mine} == {revealed}
+            assert {int(r["realized_surface"]) for r in mine} == {surface}
         # the service's scoring: 3DT data set defaults, the camera's fields of view, prob_ig's P0 0.15
         hfov, vfov = frames[anchor].intrinsics.fov_deg
         context = planning_context("3dt", geometry, "auto", 0, np.random.default_rng(0), hfov, vfov)
@@ -117,7 +119,8 @@ def test_the_study_ranks_the_services_scores_against_what_each_frame_revealed(ro
     assert {r["scope"] for r in summary} == {"anchor", "pooled", "within"}
     assert any(r["variant"] == "baseline" and r["scope"] == "within" for r in summary)
     pooled = [r for r in summary if r["scope"] == "pooled" and r["method"] == "prob_ig"]
-    assert len(pooled) == 3 and all(-1.0 <= float(r["rho"]) <= 1.0 for r in pooled)
+    assert len(pooled) == 6 and {r["target"] for r in pooled} == {"revealed", "surface"}
+    assert all(-1.0 <= float(r["rho"]) <= 1.0 for r in pooled if r["target"] == "revealed")
 
 
 def test_bad_arguments_name_the_option(room_bag, tmp_path, capsys):
@@ -209,3 +212,19 @@ def test_rho_of_a_constant_gain_is_undefined_not_zero():
     line = rho_line(summary, "v", "pooled")
     assert "ig undefined (constant predicted gain" in line and "prob_ig 1.00 [1.00, 1.00]" in line
     assert "0.00" not in line
+
+
+def test_the_surface_target_ranks_against_the_surface_each_frame_saw():
+    from nbv_prob_cnn.basics.geometry import GridGeometry
+    from nbv_prob_cnn.exploration.gain_study import GainStudy, PoseRow
+    from nbv_prob_cnn.exploration.gain_study_summary import rho_line, summarise
+
+    study = GainStudy(GridGeometry((0.0, 0.0, 0.0), 0.1, (4, 4, 4)), [0, 5])
+    for anchor in (0, 5):
+        # the cells revealed grow with the prediction, the surface seen shrinks with it
+        for i, (cells, surface) in enumerate([(1, 9), (4, 6), (8, 2)]):
+            study.rows.append(PoseRow(anchor, anchor + i + 1, "cnn_surface", "v", float(i), cells, False, 10, surface))
+    summary = summarise(study, n_resamples=50)
+    within = {r.target: r.rho for r in summary if r.scope == "within"}
+    assert within == {"revealed": 1.0, "surface": -1.0}
+    assert rho_line(summary, "v", "within", "surface").startswith("rho within anchors against the surface seen:")

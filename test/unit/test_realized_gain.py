@@ -23,6 +23,7 @@ from nbv_prob_cnn.perception.realized_gain import (  # noqa: E402
     Fusion,
     SingleFrameObserver,
     realized_gain,
+    realized_surface,
     recording_box,
 )
 
@@ -61,6 +62,18 @@ def test_the_realized_gain_counts_the_observed_cells_the_anchor_did_not_know():
     assert realized_gain(anchor, observer.observed(wall_frame())) == 7
     with pytest.raises(ValueError, match="observed"):
         realized_gain(anchor, np.zeros((4, 4, 19), dtype=bool))
+
+
+def test_the_realized_surface_counts_the_cells_seen_occupied_the_anchor_did_not_know():
+    observer = SingleFrameObserver(BOX, FUSION)
+    anchor = np.full(BOX.shape, UNKNOWN, dtype=np.int8)
+    anchor[2, 2, 0:5] = EMPTY
+    anchor[2, 2, 9] = OCCUPIED  # a surface cell seen before
+    # the frame sees k = 8..12 occupied; unknown at the anchor among them: 8, 10, 11, 12
+    assert realized_surface(anchor, observer.labels(wall_frame())) == 4
+    assert realized_surface(anchor, observer.labels(wall_frame(depth=0.0))) == 0
+    with pytest.raises(ValueError, match="labels"):
+        realized_surface(anchor, np.zeros((4, 4, 19), dtype=np.int8))
 
 
 def test_the_recording_box_holds_what_is_observed_and_every_camera():
