@@ -15,7 +15,7 @@ from nbv_prob_cnn.gain.variant import check_variant
 GAIN_MODES = ("prob", "ig")
 #: The surface methods' blend ``beta`` (``cnn_surface``, ``prob_surface``, ``omniscient_surface``;
 #: docs/method.md#surface-gain): chosen by ``nbv study surface_blend`` (docs/evaluation.md#the-surface-gain).
-DEFAULT_SURFACE_BLEND = 1.0
+DEFAULT_SURFACE_BLEND = 0.9
 
 
 @dataclass(frozen=True)
