@@ -88,6 +88,7 @@ def write_summary(rows: list[dict], out: Path, views: int) -> None:
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from matplotlib.ticker import MaxNLocator
 
     betas = sorted({float(r["beta"]) for r in rows})
     after = [v for v in (5, 10, 15, 20, 30) if v <= views]
@@ -120,7 +121,7 @@ def write_summary(rows: list[dict], out: Path, views: int) -> None:
         mean = cov.mean(axis=0) * 100
         ax.plot(np.arange(1, views + 1), mean, label=f"beta {beta:g}" + (" (cnn_prob)" if beta == 0 else ""))
     ax.set_xlabel("views taken (the random first one included)")
-    ax.xaxis.get_major_locator().set_params(integer=True)
+    ax.xaxis.set_major_locator(MaxNLocator(integer=True))
     fig.text(0.01, 0.01, "2-core CPU shared with other jobs: the summary's planning seconds compare nothing",
              fontsize=7, color="0.4")  # fmt: skip
     ax.set_ylabel("surface coverage (%), mean over the runs")

@@ -1,0 +1,118 @@
+"""What the surface stop rule saves and loses (issue #45): views saved against coverage lost, from runs.
+
+Every run CSV logs, per view, the surface the planned view was expected to add
+(``new_surface_cells``, :func:`~nbv_prob_cnn.planners.surface_stop.predicted_new_surface`). The stop
+rule with a threshold of ``T`` cells ends a run before the first view whose estimate is below ``T``
+(:class:`~nbv_prob_cnn.planners.surface_stop.SurfaceStop`; the views before are the same as without
+the rule, so a run to the full budget shows where each threshold would have stopped it). Per
+threshold: the runs it stops, the mean views taken, the views saved against the budget and the
+surface coverage lost (coverage after the budget minus coverage at the stop), mean and worst.
+
+Run: ``nbv study surface_stop --runs out/evaluation/3dt/runs --method cnn_surface --views 30
+--out studies/results/surface_stop/3dt``
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+
+from studies._command import run_command
+
+HELP = "What the surface stop rule saves and loses: views saved against coverage lost, from runs to the budget."
+
+
+@dataclass(frozen=True)
+class StopRow:
+    """One threshold over the runs (see the module doc)."""
+
+    threshold_cells: float
+    runs: int
+    stopped: int
+    mean_views: float
+    views_saved: float
+    coverage_lost_mean: float
+    coverage_lost_max: float
+    coverage_at_stop: float
+
+
+def stop_view(estimates: list[float], threshold: float) -> int | None:
+    """Views taken when the rule stops (``estimates`` per view, NaN where none: never stops there);
+    None when it never stops within the run."""
+    for view, estimate in enumerate(estimates):
+        if np.isfinite(estimate) and estimate < threshold:
+            return view
+    return None
+
+
+def analyse(runs: list[tuple[list[float], list[float]]], thresholds: list[float]) -> list[StopRow]:
+    """Per threshold a :class:`StopRow` of ``runs``, each ``(estimates, coverage)`` per view."""
+    out = []
+    for threshold in thresholds:
+        views, lost, at_stop, stopped = [], [], [], 0
+        for estimates, coverage in runs:
+            stop = stop_view(estimates, threshold)
+            taken = len(coverage) if stop is None else max(stop, 1)
+            stopped += stop is not None
+            views.append(taken)
+            at_stop.append(coverage[taken - 1])
+            lost.append(coverage[-1] - coverage[taken - 1])
+        budget = len(runs[0][1])
+        out.append(StopRow(threshold, len(runs), stopped, float(np.mean(views)), budget - float(np.mean(views)),
+                           float(np.mean(lost)), float(np.max(lost)), float(np.mean(at_stop))))  # fmt: skip
+    return out
+
+
+def read_runs(folder: Path, method: str, views: int) -> list[tuple[list[float], list[float]]]:
+    """``(estimates, coverage)`` of every run CSV of ``method`` in ``folder`` with at least ``views`` views."""
+    found = []
+    for path in sorted(folder.glob(f"*_{method}_seed*.csv")):
+        with open(path, newline="") as handle:
+            rows = list(csv.DictReader(handle))[:views]
+        if len(rows) < views or "new_surface_cells" not in rows[0]:
+            continue
+        estimates = [float(r["new_surface_cells"]) if r["new_surface_cells"] else float("nan") for r in rows]
+        found.append((estimates, [float(r["surface_coverage"]) for r in rows]))
+    if not found:
+        raise ValueError(f"--runs {folder}: no run of {method} with {views} views and a new_surface_cells column")
+    return found
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--runs", type=Path, required=True, help="folder of run CSVs (nbv evaluate's <out>/<dataset>/runs)"
+    )
+    parser.add_argument("--method", default="cnn_surface")
+    parser.add_argument("--views", type=int, default=30, help="the budget the runs went to")
+    parser.add_argument("--thresholds", type=float, nargs="+", default=[5, 10, 20, 50, 100, 200])
+    parser.add_argument("--out", type=Path, required=True)
+
+
+def run(args: argparse.Namespace) -> int:
+    rows = analyse(read_runs(args.runs, args.method, args.views), args.thresholds)
+    args.out.mkdir(parents=True, exist_ok=True)
+    with open(args.out / "stop.csv", "w", newline="") as handle:
+        writer = csv.DictWriter(handle, fieldnames=list(asdict(rows[0])))
+        writer.writeheader()
+        writer.writerows(asdict(r) for r in rows)
+    lines = [
+        f"{args.method}, {rows[0].runs} runs to {args.views} views ({args.runs})", "",
+        ("| stop below (cells) | runs stopped | views taken | views saved | coverage at the stop "
+        "| coverage lost, mean / worst |"),
+        "|---|---|---|---|---|---|",
+    ]  # fmt: skip
+    for r in rows:
+        lines.append(f"| {r.threshold_cells:g} | {r.stopped}/{r.runs} | {r.mean_views:.1f} | {r.views_saved:.1f} "
+                     f"| {100 * r.coverage_at_stop:.2f} % | {100 * r.coverage_lost_mean:.2f} / "
+                     f"{100 * r.coverage_lost_max:.2f} points |")  # fmt: skip
+    (args.out / "stop.md").write_text("\n".join(lines) + "\n")
+    print("\n".join(lines))
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    return run_command("surface_stop", HELP, add_arguments, run, argv)
