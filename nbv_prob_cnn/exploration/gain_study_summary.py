@@ -56,7 +56,7 @@ class RhoRow:
     def text(self) -> str:
         """``0.86 [0.71, 0.93]``, or why ρ is undefined (a constant prediction; realized gains all equal)."""
         if self.constant_gain:
-            return "undefined (constant predicted gain: it ranks nothing)"
+            return "undefined (constant predicted gain: it ranks nothing; a probabilistic method such as prob_ig ranks)"
         if not np.isfinite(self.rho):
             return "undefined (the realized gains are all equal)"
         return f"{self.rho:.2f} [{self.low:.2f}, {self.high:.2f}]"
