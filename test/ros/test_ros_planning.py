@@ -20,6 +20,7 @@ from nbv_prob_cnn_msgs.srv import EvaluateViews, PlanNextBestView, RankViews  # 
 from nbv_prob_cnn.basics.camera import dataset_defaults  # noqa: E402
 from nbv_prob_cnn.basics.geometry import GridGeometry  # noqa: E402
 from nbv_prob_cnn.basics.grid import probability_with_constant  # noqa: E402
+from nbv_prob_cnn.gain.settings import DEFAULT_SURFACE_BLEND  # noqa: E402
 from nbv_prob_cnn.planners import GainPlanner, PlanningContext  # noqa: E402
 from nbv_prob_cnn.planners.methods import GAIN_METHODS  # noqa: E402
 from nbv_prob_cnn.planners.pose_scoring import EVALUATE_RAYS_ACROSS, INVALID_POSE, VALID, score_poses  # noqa: E402
@@ -131,6 +132,14 @@ def test_evaluate_views_matches_core_and_survives_bad_requests(ros):
     # steradians (the frustum's own rays): the best pose's ray gains weigh at least 6 % of its 0.79 sr frustum
     assert np.asarray(reply.gains).max() > 0.05
     np.testing.assert_allclose(np.asarray(reply.gains), expected.gains, rtol=1e-6, atol=1e-7)
+    # the surface gain on the constant map: every unknown sample counts (1 - beta) + beta P0 times the
+    # paper's term, so each pose scores exactly that factor times prob_ig's score
+    request.method = "prob_surface"
+    surface = call(node, context, EvaluateViews, "/nbv/evaluate_views", request)
+    factor = (1 - DEFAULT_SURFACE_BLEND) + DEFAULT_SURFACE_BLEND * 0.15
+    assert surface.success
+    np.testing.assert_allclose(np.asarray(surface.gains), factor * expected.gains, rtol=1e-5, atol=1e-7)
+    request.method = "prob_ig"
 
     # bad poses are flagged one by one, with reasons; the rest is still scored
     bad = EvaluateViews.Request(
@@ -193,6 +202,13 @@ def test_planner_plans_through_the_servers(ros):
     cell, inside = GEOMETRY.containing_cell(best)
     assert inside and state[tuple(cell)] == 0
     np.testing.assert_allclose(best, GEOMETRY.cell_centre(core[0].cell), atol=1e-6)
+    # a surface method through the servers: prob_surface ranks as prob_ig, each gain the blend's factor times it
+    surface = call(
+        node, context, PlanNextBestView, "/nbv/plan", PlanNextBestView.Request(top_k=5, method="prob_surface")
+    )
+    factor = (1 - DEFAULT_SURFACE_BLEND) + DEFAULT_SURFACE_BLEND * 0.15
+    assert surface.success, surface.message
+    np.testing.assert_allclose([v.gain for v in surface.ranked], [factor * c.gain for c in core], rtol=1e-5)
 
     # a reachable box: every ranked view is inside it
     boxed = PlanNextBestView.Request(top_k=5, use_workspace=True)
