@@ -1,13 +1,16 @@
 """When to stop looking: the surface a planned view is expected to add, in cells, and the stop rule
 on it (docs/method.md#stopping-when-the-surface-is-finished).
 
-The surface term of a ray (:attr:`~nbv_prob_cnn.gain.settings.GainSettings.surface` 1) is
-``S_r = Σ_t u_t w_t Pr(r_t) p_t / Σ_t w_t``: the expected weight of the unknown cell where its
-return lands. A ray of solid angle ``Ω_r`` (radians in 2D) meets at distance ``t`` cells a patch of
-about ``Ω_r t^nu`` cells (``w_t = t^nu``: ``t`` in 2D, ``t²`` in 3D), so the view's expected new
-surface is about ``Σ_r Ω_r S_r Σ_t w_t`` cells, with ``Ω_r`` the view's angle (2D: its field of view;
-3D: the solid angle of its frustum) shared equally by its rays. An estimate: the rays are not
-spread exactly evenly, and a surface seen obliquely holds more cells than its patch across the ray.
+The surface term of a ray (:attr:`~nbv_prob_cnn.gain.settings.GainSettings.surface` 1) is the
+expected weight of the unknown cell where its return lands. A ray of solid angle ``Ω_r`` (radians in
+2D) meets at distance ``t`` cells a patch of about ``Ω_r t^nu`` cells (``w_t = t^nu``: ``t`` in 2D,
+``t²`` in 3D), so the view's expected new surface is about ``Σ_r Ω_r S_r Σ_t w_t`` cells. The rays are
+not the view search's few (56 on 3DT: 2-6 in a view, each a quarter of the image) but
+:data:`SURFACE_RAYS_ACROSS` across the view's own image, each weighted by its pixel's solid angle
+(:func:`~nbv_prob_cnn.gain.frustum_rays.frustum_rays`), and they march the exact voxel traversal,
+which no diagonal corner between two occupied cells lets through (the rounded samples of the search
+do, into unknown space no camera reaches). An estimate still: a surface seen obliquely holds more
+cells than the patch across the ray.
 """
 
 from __future__ import annotations
@@ -18,34 +21,40 @@ from dataclasses import dataclass
 import numpy as np
 
 from nbv_prob_cnn.gain import ray_gains
-from nbv_prob_cnn.gain.directions import distance_weights
+from nbv_prob_cnn.gain.frustum_rays import frustum_rays
+from nbv_prob_cnn.gain.sampling import traversal_table
 from nbv_prob_cnn.gain.settings import GainSettings
+from nbv_prob_cnn.planners.pose_scoring import camera_rotation
+
+#: Rays across the view's image for the estimate (as ``/nbv/evaluate_views``' default).
+SURFACE_RAYS_ACROSS = 32
 
 
-def predicted_new_surface(state: np.ndarray, prob: np.ndarray, cell: np.ndarray, view_index: int, context) -> float:
+def predicted_new_surface(
+    state: np.ndarray,
+    prob: np.ndarray,
+    cell: np.ndarray,
+    view_index: int,
+    context,
+    rays_across: int = SURFACE_RAYS_ACROSS,
+) -> float:
     """The expected number of surface cells, unknown now, that the view ``(cell, view_index)`` of
     ``context`` (a :class:`~nbv_prob_cnn.planners.base.PlanningContext`) sees: the module's estimate
-    on the occupancy map ``prob`` (read in unknown cells). One origin on the numpy reference."""
+    on the occupancy map ``prob`` (read in unknown cells), one origin on the numpy reference."""
     sensor = context.active_sensor
-    settings = GainSettings("prob", 0.0, sensor.min_range, sensor=context.returns_sensor, sampling=context.sampling,
+    dims = state.ndim
+    settings = GainSettings("prob", 0.0, sensor.min_range, sensor=context.returns_sensor, sampling="exact",
                             surface=1.0)  # fmt: skip
+    directions, solid_angles = frustum_rays(dims, rays_across, sensor.hfov_deg, sensor.vfov_deg if dims == 3 else None)
+    directions = directions @ camera_rotation(context.orientations[view_index]).T
     origin = np.asarray(cell, dtype=np.int64).reshape(1, -1)
-    rays = ray_gains(state, prob, context.directions, sensor.r_max, origin, "numpy", settings=settings)[0]
-    inside = np.asarray(context.membership)[:, view_index] != 0
-    if not np.any(inside):
-        return 0.0
-    per_ray = view_solid_angle(sensor.hfov_deg, sensor.vfov_deg if state.ndim == 3 else None) / np.count_nonzero(inside)
-    total_weight = distance_weights(sensor.r_max, state.ndim).sum()
-    return float(rays[inside].astype(np.float64).sum() * per_ray * total_weight)
-
-
-def view_solid_angle(hfov_deg: float, vfov_deg: float | None) -> float:
-    """The angle of a view: ``hfov`` in radians (2D, ``vfov_deg`` None), else the solid angle of the
-    rectangular frustum, ``4 asin(sin(h / 2) sin(v / 2))`` steradians."""
-    h = math.radians(hfov_deg)
-    if vfov_deg is None:
-        return h
-    return 4.0 * math.asin(math.sin(h / 2.0) * math.sin(math.radians(vfov_deg) / 2.0))
+    rays = ray_gains(state, prob, directions, sensor.r_max, origin, "numpy", settings=settings)[0]
+    # the exact traversal's weights are d^nu over the ray's own sum of d^nu: times that sum, each ray
+    # gives the expected d^nu of where its return lands on unknown surface
+    _, distance, counts = traversal_table(directions, sensor.r_max)
+    inside = (np.arange(distance.shape[1])[None, :] < counts[:, None]) & (distance <= sensor.r_max)
+    sums = np.where(inside, distance ** (dims - 1), 0.0).sum(axis=1)
+    return float(np.sum(rays.astype(np.float64) * sums * solid_angles))
 
 
 @dataclass(frozen=True)
