@@ -67,19 +67,54 @@ def analyse(runs: list[tuple[list[float], list[float]]], thresholds: list[float]
     return out
 
 
-def read_runs(folder: Path, method: str, views: int) -> list[tuple[list[float], list[float]]]:
-    """``(estimates, coverage)`` of every run CSV of ``method`` in ``folder`` with at least ``views`` views."""
+def read_runs(
+    folder: Path, method: str, views: int, require_estimates: bool = True
+) -> list[tuple[list[float], list[float]]]:
+    """``(estimates, coverage)`` of every run CSV of ``method`` in ``folder`` (all of them, in name
+    order: each must hold ``views`` views and, with ``require_estimates``, the estimates)."""
     found = []
     for path in sorted(folder.glob(f"*_{method}_seed*.csv")):
         with open(path, newline="") as handle:
             rows = list(csv.DictReader(handle))[:views]
-        if len(rows) < views or "new_surface_cells" not in rows[0]:
-            continue
-        estimates = [float(r["new_surface_cells"]) if r["new_surface_cells"] else float("nan") for r in rows]
+        if len(rows) < views or (require_estimates and "new_surface_cells" not in rows[0]):
+            raise ValueError(f"{path}: fewer than {views} views, or no new_surface_cells column")
+        logged = [r.get("new_surface_cells", "") for r in rows]
+        estimates = [float(v) if v else float("nan") for v in logged]
         found.append((estimates, [float(r["surface_coverage"]) for r in rows]))
     if not found:
         raise ValueError(f"--runs {folder}: no run of {method} with {views} views and a new_surface_cells column")
     return found
+
+
+def replayed_estimates(path: Path, dataset: str, method: str, views: int) -> list[float]:
+    """The estimates of a stored run's views made again with today's estimator: its views taken again
+    on the world (as ``nbv evaluate --replay``), before each one the method's map of the grid so far
+    and the view's :func:`~nbv_prob_cnn.planners.surface_stop.predicted_new_surface` (NaN for the
+    random first view)."""
+    from nbv_prob_cnn.exploration.replay import POSE_COLUMNS, read_rows, view_of_row
+    from nbv_prob_cnn.planners import PlanningContext
+    from nbv_prob_cnn.planners.methods import GAIN_METHODS, probability_map
+    from nbv_prob_cnn.planners.surface_stop import predicted_new_surface
+    from nbv_prob_cnn.sensing.observe import observe
+    from nbv_prob_cnn.worlds import load_or_generate
+
+    seed = int(path.stem.rsplit("seed", 1)[1])
+    world = load_or_generate(dataset, seed)
+    context = PlanningContext.for_dataset(dataset, rng=np.random.default_rng(seed), ground_truth=world.ground_truth)
+    header, rows = read_rows(path, views)
+    state = np.full(world.shape, -1, dtype=np.int8)
+    estimates = []
+    for number, values in enumerate(rows):
+        row = dict(zip(header, values, strict=True))
+        cell, view = view_of_row([row[k] for k in POSE_COLUMNS], world, context)
+        if number == 0:
+            estimates.append(float("nan"))
+        else:
+            prob = probability_map(GAIN_METHODS[method], state, context)
+            assert prob is not None  # a probabilistic method's map
+            estimates.append(predicted_new_surface(state, prob, cell, view, context))
+        observe(state, world.ground_truth, cell, context.orientations[view], context.active_sensor)
+    return estimates
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -90,10 +125,20 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--views", type=int, default=30, help="the budget the runs went to")
     parser.add_argument("--thresholds", type=float, nargs="+", default=[5, 10, 20, 50, 100, 200])
     parser.add_argument("--out", type=Path, required=True)
+    parser.add_argument("--replay", metavar="DATASET", help="make each view's estimate again with today's estimator "
+                        "on the runs' worlds (the runs of DATASET), instead of reading new_surface_cells")  # fmt: skip
 
 
 def run(args: argparse.Namespace) -> int:
-    rows = analyse(read_runs(args.runs, args.method, args.views), args.thresholds)
+    from tqdm import tqdm
+
+    runs = read_runs(args.runs, args.method, args.views, require_estimates=args.replay is None)
+    if args.replay is not None:
+        paths = sorted(args.runs.glob(f"*_{args.method}_seed*.csv"))
+        pairs = tqdm(list(zip(paths, runs, strict=True)), desc="replay", unit="run")
+        runs = [(replayed_estimates(path, args.replay, args.method, args.views), coverage)
+                for path, (_, coverage) in pairs]  # fmt: skip
+    rows = analyse(runs, args.thresholds)
     args.out.mkdir(parents=True, exist_ok=True)
     with open(args.out / "stop.csv", "w", newline="") as handle:
         writer = csv.DictWriter(handle, fieldnames=list(asdict(rows[0])))

@@ -3,7 +3,7 @@
 (:mod:`nbv_prob_cnn.gain.volumetric`), on OctoMap's probabilities of the ternary grid (the prior in
 unknown cells, as the OctoMap implementations they come from), from a random subset of the
 candidate origins of the downsampled method's size (the numpy ray march of every empty cell would
-cost minutes a view). ``rear_side_voxel`` and ``proximity_count`` score nothing while no surface is
+cost minutes a view). ``rear_side_voxel``, ``proximity_count`` and ``average_entropy`` score nothing while no surface is
 known (a first view that saw none): then, and only then, ``unobserved_voxel`` ranks the views, and
 the choice's gain is that one's (never a silent stop after one view)."""
 
@@ -19,7 +19,7 @@ from nbv_prob_cnn.planners.candidates import near_unknown_origins, ray_reach
 from nbv_prob_cnn.planners.methods import GainMethod, method_origins
 
 #: The formulations that score nothing while no surface is known.
-NEEDS_A_SURFACE = ("rear_side_voxel", "proximity_count")
+NEEDS_A_SURFACE = ("rear_side_voxel", "proximity_count", "average_entropy")
 
 
 def _view_gains(state: np.ndarray, context: PlanningContext, origins: np.ndarray, formulation: str) -> np.ndarray:

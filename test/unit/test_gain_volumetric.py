@@ -111,13 +111,14 @@ def test_the_planner_ranks_as_a_brute_force_search(formulation):
     )
 
 
-def test_without_a_known_surface_the_rear_side_count_falls_back_to_unobserved_voxel():
+@pytest.mark.parametrize("formulation", ["rear_side_voxel", "proximity_count", "average_entropy"])
+def test_without_a_known_surface_the_surface_formulations_fall_back_to_unobserved_voxel(formulation):
     from nbv_prob_cnn.planners import PlanningContext, make_planner
 
     state = np.full((12, 11, 10), U, dtype=np.int8)
     state[3:8, 3:8, 3:8] = E  # a first view that saw empty space and no surface
     context = PlanningContext.for_dataset("3dt", rng=np.random.default_rng(0), backend="numpy")
-    rear = make_planner("rear_side_voxel").rank(state, context, top_k=2)
+    rear = make_planner(formulation).rank(state, context, top_k=2)
     unobserved = make_planner("unobserved_voxel").rank(state, PlanningContext.for_dataset(
         "3dt", rng=np.random.default_rng(0), backend="numpy"), top_k=2)  # fmt: skip
     assert rear and [(tuple(c.cell), c.view_index, c.gain) for c in rear] == [
