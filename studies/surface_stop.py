@@ -1,8 +1,9 @@
 """What the surface stop rule saves and loses (issue #45): views saved against coverage lost, from runs.
 
-Every run CSV logs, per view, the surface the planned view was expected to add
-(``new_surface_cells``, :func:`~nbv_prob_cnn.planners.surface_stop.predicted_new_surface`). The stop
-rule with a threshold of ``T`` cells ends a run before the first view whose estimate is below ``T``
+A run CSV made with a stop rule logs, per view, the most new surface a view could add
+(``new_surface_cells``, :func:`~nbv_prob_cnn.planners.surface_stop.best_new_surface`); ``--replay``
+makes it again for runs without it. The stop rule with a threshold of ``T`` cells ends a run before
+the first view whose estimate is below ``T``
 (:class:`~nbv_prob_cnn.planners.surface_stop.SurfaceStop`; the views before are the same as without
 the rule, so a run to the full budget shows where each threshold would have stopped it). Per
 threshold: the runs it stops, the mean views taken, the views saved against the budget and the
@@ -90,11 +91,12 @@ def replayed_estimates(path: Path, dataset: str, method: str, views: int) -> lis
     """The estimates of a stored run's views made again with today's estimator: its views taken again
     on the world (as ``nbv evaluate --replay``), before each one the method's map of the grid so far
     and the view's :func:`~nbv_prob_cnn.planners.surface_stop.predicted_new_surface` (NaN for the
-    random first view)."""
+    random first view; the stored view itself is not needed: the estimate is the most surface any
+    candidate view could add, :func:`~nbv_prob_cnn.planners.surface_stop.best_new_surface`)."""
     from nbv_prob_cnn.exploration.replay import POSE_COLUMNS, read_rows, view_of_row
     from nbv_prob_cnn.planners import PlanningContext
-    from nbv_prob_cnn.planners.methods import GAIN_METHODS, probability_map
-    from nbv_prob_cnn.planners.surface_stop import predicted_new_surface
+    from nbv_prob_cnn.planners.methods import GAIN_METHODS, GainPlanner, probability_map
+    from nbv_prob_cnn.planners.surface_stop import best_new_surface
     from nbv_prob_cnn.sensing.observe import observe
     from nbv_prob_cnn.worlds import load_or_generate
 
@@ -112,7 +114,8 @@ def replayed_estimates(path: Path, dataset: str, method: str, views: int) -> lis
         else:
             prob = probability_map(GAIN_METHODS[method], state, context)
             assert prob is not None  # a probabilistic method's map
-            estimates.append(predicted_new_surface(state, prob, cell, view, context))
+            origins = GainPlanner(GAIN_METHODS[method]).candidates(state, context)
+            estimates.append(best_new_surface(state, prob, origins, context))
         observe(state, world.ground_truth, cell, context.orientations[view], context.active_sensor)
     return estimates
 

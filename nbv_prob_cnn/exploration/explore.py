@@ -37,9 +37,9 @@ CSV_COLUMNS = [
 #: (``ruled_out_views``: poses the view guard has ruled out after this view; 0 without a guard);
 #: ``surface_coverage``: the share of the ground-truth surface seen so far, of the surface facing
 #: the first view's free space (:meth:`~nbv_prob_cnn.exploration.surface_metrics.SurfaceCoverage.seen_from`);
-#: ``new_surface_cells``: the surface the planned view was expected to add, in cells, on the
-#: method's map (:func:`~nbv_prob_cnn.planners.surface_stop.predicted_new_surface`; empty for a
-#: random view and for methods without a gain), what the stop rule compares.
+#: ``new_surface_cells``: the most new surface, in cells, a view could add before this one, on the
+#: method's map (:func:`~nbv_prob_cnn.planners.surface_stop.best_new_surface`), what the stop rule
+#: compares; logged only with a stop rule (a second view search per view), empty otherwise.
 
 
 @dataclass
@@ -179,7 +179,9 @@ def explore(
 
     session = ExplorationSession(
         simulated,
-        SimulatedPlanner(world, planner, context, first),
+        SimulatedPlanner(
+            world, planner, context, first, estimate_surface=stop_surface is not None and stop_surface.active
+        ),
         simulated,
         views,
         guard=guard,
@@ -222,8 +224,16 @@ class SimulatedPlanner:
     """The views of a simulated exploration: ``first`` (or a random one) first, a random one while
     no cell is known empty, else the planner's best (around the guard's ruled-out poses)."""
 
-    def __init__(self, world: World, planner: Planner, context: PlanningContext, first: ViewChoice | None) -> None:
+    def __init__(
+        self,
+        world: World,
+        planner: Planner,
+        context: PlanningContext,
+        first: ViewChoice | None,
+        estimate_surface: bool = False,
+    ) -> None:
         self.world, self.planner, self.context, self.first = world, planner, context, first
+        self.estimate_surface = estimate_surface  # the stop rule's estimate: a second view search per view
 
     def plan(
         self, grid: np.ndarray, views: int, guard: ViewGuard | None, interrupt: Interrupt
@@ -243,7 +253,7 @@ class SimulatedPlanner:
         seconds = time.perf_counter() - start
         if planned is None:
             return NoView("no view with positive gain (or none feasible)")
-        estimate = planned.surface_estimate
+        estimate = planned.surface_estimate if self.estimate_surface else None
         return PlannedView(planned, planned.gain, planned, seconds, estimate() if estimate is not None else None)
 
 

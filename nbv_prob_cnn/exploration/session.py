@@ -67,9 +67,9 @@ class PlannedView(Generic[TargetT]):
         gain: the view's gain (``stop_gain`` compares it).
         choice: its (cell, orientation), which the view guard records; None: not recorded.
         seconds: the planning time (0 for a view that needed no planning, e.g. a random first view).
-        new_surface: the surface the view is expected to add, in cells
-            (:func:`~nbv_prob_cnn.planners.surface_stop.predicted_new_surface`), which ``stop_surface``
-            compares; None: not known (a random view), never stops.
+        new_surface: the most new surface a view can add now, in cells
+            (:func:`~nbv_prob_cnn.planners.surface_stop.best_new_surface`), which ``stop_surface``
+            compares; None: not known (a random view, no stop rule), never stops.
     """
 
     target: TargetT

@@ -212,9 +212,9 @@ class PlanningContext:
 class ViewChoice:
     """A chosen view: ``cell`` (grid index of the camera cell), ``view_index`` into
     ``context.orientations``, its ``gain`` and the seconds spent per stage. ``surface_estimate``
-    (gain-based methods): computes the surface the view is expected to add, in cells, on the map it
-    was planned on (:func:`~nbv_prob_cnn.planners.surface_stop.predicted_new_surface`; on demand:
-    a ranking of many views pays only for those asked)."""
+    (gain-based methods): computes the most new surface, in cells, a view of the ranking's candidates
+    is expected to add on the map it was planned on (:func:`~nbv_prob_cnn.planners.surface_stop.best_new_surface`,
+    the stop rule's number; on demand: a second view search)."""
 
     cell: np.ndarray
     view_index: int

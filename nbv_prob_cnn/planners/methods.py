@@ -42,7 +42,7 @@ from nbv_prob_cnn.planners.base import (
     search_views,
 )
 from nbv_prob_cnn.planners.candidates import near_unknown_origins, ray_reach
-from nbv_prob_cnn.planners.surface_stop import predicted_new_surface
+from nbv_prob_cnn.planners.surface_stop import best_new_surface
 
 #: Origins evaluated by the downsampled method, per dimensionality (docs/method.md#candidate-views-and-view-gain).
 DOWNSAMPLED_ORIGINS = {2: 2000, 3: 500}
@@ -162,11 +162,17 @@ class GainPlanner(RankingPlanner):
                 probability=self.method.probability, surface=self.method.surface,
             )  # fmt: skip
         surface_map = prob if prob is not None else probability_with_constant(state, context.defaults.p0)
+        estimate = functools.partial(self._best_new_surface, state, surface_map, context, origin_filter, origins)
         for choice in found:
             choice.times["cnn"] = t_prob if uses_cnn else 0.0
-            choice.surface_estimate = functools.partial(predicted_new_surface, state, surface_map, choice.cell,
-                                                        choice.view_index, context)  # fmt: skip
+            choice.surface_estimate = estimate
         return found
+
+    def _best_new_surface(self, state, surface_map, context, origin_filter, origins) -> float:
+        """:func:`~nbv_prob_cnn.planners.surface_stop.best_new_surface` over this ranking's candidates."""
+        if origins is None:
+            origins = self.candidates(state, context, origin_filter)
+        return best_new_surface(state, surface_map, origins, context)
 
     def candidates(
         self, state: np.ndarray, context: PlanningContext, origin_filter: OriginFilter | None = None

@@ -57,9 +57,24 @@ def predicted_new_surface(
     return float(np.sum(rays.astype(np.float64) * sums * solid_angles))
 
 
+def best_new_surface(state: np.ndarray, prob: np.ndarray, origins: np.ndarray, context) -> float:
+    """The most new surface, in cells, that any candidate view at ``origins`` is expected to add: the
+    best view of the surface term alone (the exact search with blend 1 on ``prob``), then its
+    :func:`predicted_new_surface`. 0 when no view sees unknown space. What the stop rule compares: the
+    view a blend chose may be one chosen for unknown space, and promise no surface while others do."""
+    from dataclasses import replace
+
+    from nbv_prob_cnn.planners.base import search_views
+
+    found = search_views(state, prob, origins, replace(context, surface_blend=1.0), "prob", 1, surface=True)
+    if not found:
+        return 0.0
+    return predicted_new_surface(state, prob, found[0].cell, found[0].view_index, context)
+
+
 @dataclass(frozen=True)
 class SurfaceStop:
-    """Stop exploring once the best view's predicted new surface (:func:`predicted_new_surface`) is
+    """Stop exploring once the most new surface a view can add (:func:`best_new_surface`) is
     below ``cells``, or below ``share`` times the surface seen so far (the cells known occupied);
     the larger of the two thresholds holds. 0 disables a threshold.
 

@@ -58,6 +58,8 @@ class GoalPlanner:
     ) -> None:
         self._plan, self._joints, self._joints_timeout_s = plan, joints, joints_timeout_s
         self.request = goal_plan_request(goal)
+        # the stop rule's estimate (a second view search per view) only when the goal has the rule
+        self.estimate_surface = bool(goal.stop_new_surface_cells > 0 or goal.stop_new_surface_share > 0)
 
     def plan(
         self, grid: np.ndarray, views: int, guard: ViewGuard | None, interrupt: Interrupt
@@ -67,8 +69,8 @@ class GoalPlanner:
         planned, chosen = self._plan(self.request, interrupt, guard)
         interrupt.check()  # a plan interrupted while it waited for a server answers an error
         if planned.success:
-            estimate = getattr(chosen, "surface_estimate", None)  # the stop rule's (docs/method.md)
-            new_surface = estimate() if estimate is not None else None
+            estimate = getattr(chosen, "surface_estimate", None) if self.estimate_surface else None
+            new_surface = estimate() if estimate is not None else None  # the stop rule's (docs/method.md)
             return PlannedResponse(planned, planned.best_gain, chosen, planned.time_total_s, new_surface)
         if planned.message.startswith(NO_POSITIVE_GAIN) or planned.message.startswith(NO_REACHABLE_VIEW):
             return NoView(planned.message)

@@ -132,9 +132,14 @@ def test_explore_goal_states_match_what_happened(explore_graph):
     assert done.status == GoalStatus.STATUS_SUCCEEDED, done.result.reason_stopped
     assert done.result.views == 2 and "reached 2 views" in done.result.reason_stopped
     assert camera.moves == 2
-    # every planned view says the surface it was expected to add (the stop rule's estimate)
-    assert len(feedback) == 2 and all(np.isfinite(f.feedback.new_surface_cells) for f in feedback)
-    assert all(f.feedback.new_surface_cells >= 0 for f in feedback)
+    # without a surface stop rule no estimate is made (NaN); with one, each view carries it
+    assert len(feedback) == 2 and all(np.isnan(f.feedback.new_surface_cells) for f in feedback)
+    handle = send(client, Explore.Goal(max_views=1, stop_new_surface_cells=1e-3), feedback := [])
+    done = wait(handle.get_result_async())
+    assert done.status == GoalStatus.STATUS_SUCCEEDED and done.result.views == 1, done.result.reason_stopped
+    assert len(feedback) == 1 and np.isfinite(feedback[0].feedback.new_surface_cells)
+    assert feedback[0].feedback.new_surface_cells >= 1e-3
+    moved = camera.moves
 
     # the surface stop rule: no view is expected to add 1e9 surface cells, so the first planned
     # view already ends the exploration, SUCCEEDED, with the reason
@@ -142,7 +147,7 @@ def test_explore_goal_states_match_what_happened(explore_graph):
     done = wait(handle.get_result_async())
     assert done.status == GoalStatus.STATUS_SUCCEEDED, done.result.reason_stopped
     assert done.result.views == 0 and done.result.reason_stopped.startswith("surface finished")
-    assert camera.moves == 2
+    assert camera.moves == moved
     assert not send(client, Explore.Goal(max_views=3, stop_new_surface_share=-1.0)).accepted
 
     # 0 views and non-finite thresholds are refused; a negative count cannot even be sent: the
