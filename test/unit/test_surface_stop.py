@@ -4,7 +4,6 @@ ray, and a wall whose cells inside the frustum are counted independently."""
 from __future__ import annotations
 
 import numpy as np
-import pytest
 
 from nbv_prob_cnn.basics.camera import in_frustum
 from nbv_prob_cnn.planners import PlanningContext
