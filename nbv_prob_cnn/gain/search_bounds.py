@@ -43,6 +43,12 @@ def _window(values: np.ndarray, dims: int, size: int, reduce: np.ufunc, fill) ->
     return out
 
 
+def _grown(padded: np.ndarray, dims: int, size: int) -> np.ndarray:
+    """``padded`` grown by ``size`` occupied cells (-1) on each side of every marched axis."""
+    pad = ((size, size), (size, size), (size, size) if dims == 3 else (0, 0))
+    return np.pad(padded, pad, constant_values=np.float32(-1.0))
+
+
 def bound_grid(padded: np.ndarray, dims: int, probabilistic: bool, size: int) -> np.ndarray:
     """The grid whose marched gain from a block corner ``c`` bounds, ray by ray, the gain of
     every cell of the block ``c - {0 .. size-1}^dims`` (see :meth:`OpenCLRayCaster.best_view`).
@@ -60,8 +66,7 @@ def bound_grid(padded: np.ndarray, dims: int, probabilistic: bool, size: int) ->
     Two window reductions: the largest of a key (occupied -inf, empty its code <= -2, unknown +1)
     tells the three cases apart and gives the empty code; the smallest ``p`` the second case.
     """
-    pad = ((size, size), (size, size), (size, size) if dims == 3 else (0, 0))
-    grid = np.pad(padded, pad, constant_values=np.float32(-1.0))
+    grid = _grown(padded, dims, size)
     unknown, occupied = grid >= 0.0, grid == -1.0
     key = grid.copy()  # empty codes stay
     np.copyto(key, np.float32(1.0), where=unknown)
@@ -110,7 +115,6 @@ def surface_bound_grid(padded: np.ndarray, dims: int, size: int) -> np.ndarray:
     ``c - {0 .. size-1}^dims`` (0 where the window holds none). A block's unknown sample at ``t``
     counts at most ``(1 - beta) + beta`` times that, while its visibility is bounded by the
     window's smallest ``p`` (:func:`bound_grid`)."""
-    pad = ((size, size), (size, size), (size, size) if dims == 3 else (0, 0))
-    grid = np.pad(padded, pad, constant_values=np.float32(-1.0))
+    grid = _grown(padded, dims, size)
     p = np.where(grid >= 0.0, grid, np.float32(0.0)).astype(np.float32)
     return np.ascontiguousarray(_window(p, dims, size, np.maximum, np.float32(0.0)), dtype=np.float32)

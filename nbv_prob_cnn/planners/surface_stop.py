@@ -95,18 +95,18 @@ class SurfaceStop:
     def active(self) -> bool:
         return self.cells > 0 or self.share > 0
 
-    def threshold(self, state: np.ndarray) -> float:
-        """Cells below which a view's predicted new surface ends the exploration on ``state``."""
-        seen = int(np.count_nonzero(np.asarray(state) == 1))
+    def threshold(self, seen: int) -> float:
+        """Cells below which a view's predicted new surface ends the exploration, with ``seen``
+        surface cells (known occupied) so far."""
         return max(float(self.cells), float(self.share) * seen)
 
     def reason(self, state: np.ndarray, new_surface: float) -> str | None:
         """Why to stop before a view of ``new_surface`` predicted cells, or None to go on."""
         if not self.active:
             return None
-        limit = self.threshold(state)
+        seen = int(np.count_nonzero(np.asarray(state) == 1))
+        limit = self.threshold(seen)
         if new_surface < limit:
-            seen = int(np.count_nonzero(np.asarray(state) == 1))
             return (f"surface finished: the best view's predicted new surface {new_surface:.1f} cells < "
                     f"{limit:.1f} (stop_new_surface_cells {self.cells:g}, share {self.share:g} of the "
                     f"{seen} surface cells seen)")  # fmt: skip

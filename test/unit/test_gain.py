@@ -10,24 +10,15 @@ from nbv_prob_cnn.gain.march import RayMarch
 from nbv_prob_cnn.gain.reference import ray_terms
 
 BACKENDS = ["numpy", "opencl"]
-E, O, U = 0, 1, -1  # noqa: E741
+from gain_grids import E, O, U, row_world  # noqa: E402
+
 IG = GainSettings(mode="ig")
-
-
-def _row_world(values, probs, height=3):
-    """A 2D grid whose middle row y=1 holds ``values``/``probs`` (other rows occupied)."""
-    state = np.full((len(values), height), O, dtype=np.int8)
-    prob = np.ones(state.shape, dtype=np.float32)
-    state[:, 1] = values
-    prob[:, 1] = probs
-    prob[state == E] = 0.0
-    return state, prob
 
 
 @pytest.mark.parametrize("backend", BACKENDS)
 def test_single_ray_through_empty_unknown_occupied_2d(backend):
     # x:      0  1    2  3    4  5
-    state, prob = _row_world([E, U, E, U, O, U, E, E], [0, 0.5, 0, 0.2, 1, 0.9, 0, 0])
+    state, prob = row_world([E, U, E, U, O, U, E, E], [0, 0.5, 0, 0.2, 1, 0.9, 0, 0])
     gains = ray_gains(state, prob, np.array([[1.0, 0.0]]), 5, origins=np.array([[0, 1]]), backend=backend)
     # weights t = 0..5, sum 15; H = 1*1 (t1) + 0.5*3 (t3, after p=0.5) ; occupied at t4 hides t5
     assert gains.shape == (1, 1) and gains.dtype == np.float32
@@ -36,7 +27,7 @@ def test_single_ray_through_empty_unknown_occupied_2d(backend):
 
 @pytest.mark.parametrize("backend", BACKENDS)
 def test_grid_border_counts_as_occupied(backend):
-    state, prob = _row_world([E, E, E, E, U, U], [0, 0, 0, 0, 0.15, 0.15])
+    state, prob = row_world([E, E, E, E, U, U], [0, 0, 0, 0, 0.15, 0.15])
     gains = ray_gains(state, prob, np.array([[1.0, 0.0]]), 5, origins=np.array([[3, 1]]), backend=backend)
     # t1: x4 (Pr 1), t2: x5 (Pr 0.85), t3..5 outside the grid -> nothing
     assert gains[0, 0] == pytest.approx((1 * 1 + 0.85 * 2) / 15, abs=1e-6)
@@ -70,13 +61,13 @@ def test_single_ray_3d_uses_squared_distance(backend):
 
 @pytest.mark.parametrize("backend", BACKENDS)
 def test_information_gain_stops_at_first_non_empty(backend):
-    state, _ = _row_world([E, E, U, U, E, E], [0] * 6)
+    state, _ = row_world([E, E, U, U, E, E], [0] * 6)
     gains = ray_gains(state, None, np.array([[1.0, 0.0]]), 5, np.array([[0, 1]]), backend, settings=IG)
     assert gains[0, 0] == pytest.approx(2 / 15, abs=1e-6)  # first non-empty: unknown at t=2
     beyond_3 = GainSettings(mode="ig", min_range=3)
     gains = ray_gains(state, None, np.array([[1.0, 0.0]]), 5, np.array([[0, 1]]), backend, settings=beyond_3)
     assert gains[0, 0] == 0.0  # the unknown cell is closer than the minimum range
-    occluded, _ = _row_world([E, O, U, U, U, U], [0] * 6)
+    occluded, _ = row_world([E, O, U, U, U, U], [0] * 6)
     assert ray_gains(occluded, None, np.array([[1.0, 0.0]]), 5, np.array([[0, 1]]), backend, settings=IG)[0, 0] == 0
 
 
@@ -228,7 +219,7 @@ def test_fused_view_gains_match_numpy_reference(rng, shape, n_rays, r_max, mode)
 
 def test_fused_view_gains_hand_worked_2d():
     # one ray to +x through (E, U 0.5, E, U 0.2, O): G_r = (1 + 0.5 * 3) / 15 with r_max 5
-    state, prob = _row_world([E, U, E, U, O, U, E, E], [0, 0.5, 0, 0.2, 1, 0.9, 0, 0])
+    state, prob = row_world([E, U, E, U, O, U, E, E], [0, 0.5, 0, 0.2, 1, 0.9, 0, 0])
     d = np.array([[1.0, 0.0], [-1.0, 0.0]])
     member = np.array([[1, 0, 1], [0, 1, 1]], dtype=np.float32)  # views: +x only, -x only, both
     got = origin_view_gains(state, prob, d, 5, member, np.array([[0, 1]]), "opencl")

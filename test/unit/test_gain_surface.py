@@ -18,17 +18,7 @@ from nbv_prob_cnn.gain import (
 from nbv_prob_cnn.gain.sampling import GainSensor
 
 BACKENDS = ["numpy", "opencl"]
-E, O, U = 0, 1, -1  # noqa: E741
-
-
-def _row_world(values, probs, height=3):
-    """A 2D grid whose middle row y=1 holds ``values``/``probs`` (other rows occupied)."""
-    state = np.full((len(values), height), O, dtype=np.int8)
-    prob = np.ones(state.shape, dtype=np.float32)
-    state[:, 1] = values
-    prob[:, 1] = probs
-    prob[state == E] = 0.0
-    return state, prob
+from gain_grids import E, O, U, row_world  # noqa: E402
 
 
 def _one_ray(state, prob, surface, backend, r_max=5):
@@ -39,7 +29,7 @@ def _one_ray(state, prob, surface, backend, r_max=5):
 @pytest.mark.parametrize("backend", BACKENDS)
 def test_single_ray_surface_counts_where_the_return_lands(backend):
     # x:      0  1    2  3    4  5
-    state, prob = _row_world([E, U, E, U, O, U, E, E], [0, 0.5, 0, 0.2, 1, 0.9, 0, 0])
+    state, prob = row_world([E, U, E, U, O, U, E, E], [0, 0.5, 0, 0.2, 1, 0.9, 0, 0])
     # weights t = 0..5, sum 15. Pr at t1 = 1, at t3 = 0.5 (after p = 0.5); the occupied cell at t4
     # hides t5. Surface: sum of w_t Pr_t p_t over unknown samples = 1*1*0.5 + 3*0.5*0.2 = 0.8.
     assert _one_ray(state, prob, 1.0, backend) == pytest.approx(0.8 / 15, abs=1e-6)
@@ -52,7 +42,7 @@ def test_single_ray_surface_counts_where_the_return_lands(backend):
 def test_known_surfaces_and_open_space_add_no_surface(backend):
     # unknown cells believed empty (p = 0) reveal space but no surface; the known occupied cell is
     # already seen and counts nothing
-    state, prob = _row_world([E, U, U, O, U, E], [0, 0.0, 0.0, 1, 1.0, 0])
+    state, prob = row_world([E, U, U, O, U, E], [0, 0.0, 0.0, 1, 1.0, 0])
     assert _one_ray(state, prob, 1.0, backend) == 0.0
     assert _one_ray(state, prob, 0.0, backend) == pytest.approx((1 + 2) / 15, abs=1e-6)
 
