@@ -53,9 +53,10 @@
 // the ray's return lands. With GAIN_SENSOR the surface term is sum_t u_t w_t q_t (the return
 // measured at t) and the blend mixes it with the sensor model's gain. beta = 0 multiplies by exactly
 // 1 (resp. adds exactly 0): the paper's gains, bit for bit.
-// SURFACE_BOUND = 1 (a build option, the coarse-to-fine bounds of a blend): an unknown sample's
-// factor reads the largest p of its window from the grid `surface_bound` (opencl.py: search_bounds)
-// instead of the window's smallest p, which the code holds for the visibility.
+// SURFACE_BOUND = 1 (a build option, the coarse-to-fine bounds of a blend): the code holds the
+// smallest p of each window and the grid `surface_bound` (opencl.py: search_bounds) the largest p
+// of its unknown cells; the bound is the ray's largest gain over every p in that range, found
+// backwards after the march (see the end of march_rays).
 #pragma OPENCL FP_CONTRACT OFF
 
 #define MODE_PROBABILISTIC 0
@@ -87,6 +88,8 @@
 #ifndef SURFACE_BOUND
 #define SURFACE_BOUND 0
 #endif
+// the bound of a blend by dynamic programming (march_rays), in the paper's variant without the sensor model
+#define SURFACE_DP (SURFACE_BOUND && !GAIN_ORIGINAL && !GAIN_SENSOR)
 #if GAIN_ORIGINAL && (GAIN_EXACT || GAIN_SENSOR)
 #error "GAIN_EXACT and GAIN_SENSOR are options of the paper's variant"
 #endif
@@ -203,6 +206,10 @@ inline void march_rays(__global const float *code, __global const int *origins, 
     __global const float *normal_y = normals + n_cells;
     __global const float *normal_z = normal_y + n_cells;
 #endif
+#if SURFACE_DP
+    intv end = (intv)(first_sample);  // per lane: one past the last sample it marched
+    int marched_end = first_sample;  // the largest of them
+#endif
     for (int t = first_sample; t < LOOP_END; ++t) {
         const intv cell = alive ? origin + off[t] : origin;
         const floatv c = GATHER(code, cell);
@@ -247,7 +254,12 @@ inline void march_rays(__global const float *code, __global const int *origins, 
             hit = (unknown & (intv)(AT_MIN_RANGE(t) ? -1 : 0)) ? (floatv)(weight) : hit;
             alive = alive & (c <= -2.0f);  // stops at the first non-empty sample
         } else {
+#if SURFACE_DP
+            end = alive ? (intv)(t + 1) : end;
+            marched_end = t + 1;
+#else
             hit = unknown ? hit + visible * weight * ((1.0f - surface) + surface * SURFACE_P(c, cell)) : hit;
+#endif
             visible = unknown ? visible * (1.0f - c) : visible;
             alive = alive & ((c <= -2.0f) | (unknown & (visible > eps)));  // occupied: Pr = 0 from here on
         }
@@ -256,6 +268,30 @@ inline void march_rays(__global const float *code, __global const int *origins, 
             break;
         }
     }
+#if SURFACE_DP
+    // The block's bound of a blend: the largest sum_t u_t w_t Pr(r_t) ((1 - beta) + beta p_t) over
+    // every choice of p_t in its window's range [lo_t, hi_t] (code: the smallest p, surface_bound:
+    // the largest p of an unknown cell), by dynamic programming from the last sample marched to the
+    // first: g_t = max over p in {lo_t, hi_t} of w_t ((1 - beta) + beta p) + (1 - p) g_{t+1} (linear
+    // in p, so an end of the range is best); empty windows pass g on, all-occupied ones stop it.
+    // Every block ray's p_t lies in the range (or its cell is empty: g_{t+1} <= the lo_t = 0 term,
+    // or occupied: 0), so g bounds its gain, and it is at most the sum with the smallest p for the
+    // visibility and the largest for the factor.
+    if (mode != MODE_INFORMATION_GAIN) {
+        floatv g = 0.0f;
+        for (int t = marched_end - 1; t >= first_sample; --t) {
+            const intv inside = (intv)(t) < end;
+            const intv cell = inside ? origin + off[t] : origin;
+            const floatv c = GATHER(code, cell);
+            const floatv hi = SURFACE_P(c, cell);
+            const float weight = WEIGHT(t);
+            const floatv at_lo = weight * ((1.0f - surface) + surface * c) + (1.0f - c) * g;
+            const floatv at_hi = weight * ((1.0f - surface) + surface * hi) + (1.0f - hi) * g;
+            g = (inside & (c >= 0.0f)) ? ((at_lo > at_hi) ? at_lo : at_hi) : ((inside & (c == -1.0f)) ? (floatv)(0.0f) : g);
+        }
+        hit = g;
+    }
+#endif
 #if GAIN_ORIGINAL
     *gains = hit;
     *totals = total;
