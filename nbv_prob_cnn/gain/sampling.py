@@ -19,6 +19,7 @@ paper's comparison is unchanged:
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
@@ -164,10 +165,19 @@ def _ray_samples(directions: np.ndarray, r_max: int, sampling: str, reach: int) 
 def traversal_table(directions: np.ndarray, limit: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Exact traversal of each ray from a cell centre, with the simulator's traversal
     (:func:`~nbv_prob_cnn.sensing.observe.trace_rays`): the cells it enters within ``limit``,
-    as ``(offsets (R, K, dims) int16, entry distance (R, K), counts (R,) int32)``."""
+    as ``(offsets (R, K, dims) int16, entry distance (R, K), counts (R,) int32)``, read-only. The
+    last few tables are kept (a view's surface estimate reads its rays' table twice: 0.12 s for
+    32 x 32 rays of range 128)."""
+    rays = np.ascontiguousarray(directions, dtype=np.float64)
+    return _traversal_table(rays.tobytes(), rays.shape[1], float(limit))
+
+
+@functools.lru_cache(maxsize=4)
+def _traversal_table(key: bytes, dims: int, limit: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`traversal_table` of the directions whose float64 bytes are ``key``."""
     from nbv_prob_cnn.sensing.observe import trace_rays
 
-    dims = directions.shape[1]
+    directions = np.frombuffer(key, dtype=np.float64).reshape(-1, dims)
     half = int(math.ceil(limit)) + 2
     shape = (2 * half + 1,) * dims
     trace = trace_rays(shape, np.full(dims, float(half)), directions, float(limit), None)
@@ -187,6 +197,8 @@ def traversal_table(directions: np.ndarray, limit: float) -> tuple[np.ndarray, n
     rows = np.nonzero(pad)[0]
     offsets[pad] = offsets[rows, last[rows]]
     distance[pad] = distance[rows, last[rows]]
+    for table in (offsets, distance, counts):
+        table.setflags(write=False)
     return offsets, distance, counts
 
 

@@ -153,6 +153,17 @@ def test_exact_traversal_visits_the_cells_of_a_slow_traversal(dims):
         assert np.all(steps.sum(axis=1) == 1)  # one cell along one axis per step
 
 
+def test_traversal_tables_are_kept_read_only_per_directions_and_limit():
+    directions = np.array([[0.6, 0.8, 0.0], [0.0, 0.0, 1.0]])
+    first = traversal_table(directions, 9.0)
+    assert traversal_table(directions.copy(), 9.0)[0] is first[0]  # the same rays: the kept table
+    assert all(not table.flags.writeable for table in first)
+    longer = traversal_table(directions, 12.0)
+    assert longer[2][1] == 13 and first[2][1] == 10  # straight up: the cells entered within the limit
+    other = traversal_table(directions[::-1], 9.0)
+    np.testing.assert_array_equal(other[0][0, : other[2][0]], np.array([[0, 0, k] for k in range(10)]))
+
+
 def _random_grid(rng, shape):
     state = rng.choice(np.array([-1, 0, 1], dtype=np.int8), size=shape, p=[0.45, 0.5, 0.05])
     state[tuple(slice(2, 9) for _ in shape)] = 0  # an empty block: origins whose first samples are skipped
