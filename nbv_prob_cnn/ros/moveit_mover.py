@@ -36,12 +36,11 @@ from nbv_prob_cnn.arm.moveit_goal import (
     moveit_error_text,
     pose_goal,
 )
-from nbv_prob_cnn.basics.interrupt import Interrupt, WaitInterruptedError
+from nbv_prob_cnn.basics.interrupt import Interrupt
 from nbv_prob_cnn.exploration.session import MoveError, PlannedView
 from nbv_prob_cnn.ros.action_client import LockedActionClient
 from nbv_prob_cnn.ros.conversions import pose_to_arrays
-from nbv_prob_cnn.ros.graph import send_goal_with_resend
-from nbv_prob_cnn.ros.movers import wait_future
+from nbv_prob_cnn.ros.movers import run_action_goal
 from nbv_prob_cnn.ros.parameters import param
 from nbv_prob_cnn.ros.robot_params import JointStateTracker
 
@@ -181,23 +180,10 @@ class MoveGroupMover:
             goal = move_group_msg(self.goal(planned.target))
         except ValueError as exc:
             raise MoveError(f"MoveGroup goal: {exc}") from exc
-        if not interrupt.wait_until(self._client.server_is_ready, min(params.move_timeout_s, 10.0)):
-            raise MoveError(f"action {action} is not available (is move_group running?)")
-        sent = self._node.get_clock().now().nanoseconds
-        try:
-            handle = send_goal_with_resend(
-                self._client, goal, params.move_timeout_s, wait=interrupt.wait_until, resend_s=5.0
-            )
-        except TimeoutError as exc:
-            raise MoveError(f"{action}: the MoveGroup goal got no answer ({exc})") from exc
-        if not handle.accepted:
-            raise MoveError(f"{action} rejected the MoveGroup goal (see move_group's log)")
-        try:
-            outcome = wait_future(handle.get_result_async(), self._settings.planning_time_s + params.move_timeout_s,
-                                  "MoveGroup result", interrupt)  # fmt: skip
-        except WaitInterruptedError:
-            handle.cancel_goal_async()  # MoveIt stops the arm too (the answer is not awaited)
-            raise
+        outcome, sent = run_action_goal(self._node, self._client, goal, action, params.move_timeout_s,
+                                        self._settings.planning_time_s + params.move_timeout_s, interrupt,
+                                        "MoveGroup", missing=" (is move_group running?)",
+                                        rejected=" (see move_group's log)")  # fmt: skip
         result = outcome.result
         code = int(result.error_code.val)
         if code != MOVEIT_SUCCESS or outcome.status != GoalStatus.STATUS_SUCCEEDED:

@@ -85,6 +85,36 @@ def wait_future(future: Any, timeout_s: float, what: str, interrupt: Interrupt) 
     return future.result()
 
 
+def run_action_goal(
+    node: Node, client: LockedActionClient, goal: Any, action: str, answer_timeout_s: float, result_timeout_s: float,
+    interrupt: Interrupt, kind: str, missing: str = "", rejected: str = "",
+) -> tuple[Any, int]:  # fmt: skip
+    """Send ``goal`` to ``action`` (once its server is up, within ``answer_timeout_s`` but at most
+    10 s) and wait for the result: ``(outcome, time sent in ns of node's clock)``. The same goal is
+    sent again while no answer comes (a first request can be lost, see graph); an interrupt while the
+    result is awaited cancels the goal (the arm stops too; the answer is not awaited). ``kind``
+    names the goal in errors (``"trajectory"``); ``missing`` and ``rejected`` add a hint to them.
+
+    Raises:
+        MoveError: no server, no answer, the goal rejected, or no result within ``result_timeout_s``.
+        WaitInterruptedError: ``interrupt`` was triggered.
+    """
+    if not interrupt.wait_until(client.server_is_ready, min(answer_timeout_s, 10.0)):
+        raise MoveError(f"action {action} is not available{missing}")
+    sent = node.get_clock().now().nanoseconds
+    try:
+        handle = send_goal_with_resend(client, goal, answer_timeout_s, wait=interrupt.wait_until, resend_s=5.0)
+    except TimeoutError as exc:
+        raise MoveError(f"{action}: the {kind} goal got no answer ({exc})") from exc
+    if not handle.accepted:
+        raise MoveError(f"{action} rejected the {kind} goal{rejected}")
+    try:
+        return wait_future(handle.get_result_async(), result_timeout_s, f"{kind} result", interrupt), sent
+    except WaitInterruptedError:
+        handle.cancel_goal_async()
+        raise
+
+
 class CameraPosition:
     """The camera's newest position: by TF (``camera_frame`` in the requested frame) or from the
     ``/camera/pose`` messages given to :meth:`receive`; :meth:`wait_until` wakes on each message
@@ -250,24 +280,9 @@ class TrajectoryMover:
         q_goal = self._arm.robot.joint_state_configuration(goal.name, goal.position)
         request, duration = self._goal(q_start, q_goal, view.waypoints)
         params, action = self._params, self._params.trajectory_action
-        if not interrupt.wait_until(self._client.server_is_ready, min(params.move_timeout_s, 10.0)):
-            raise MoveError(f"action {action} is not available")
-        sent = self._node.get_clock().now().nanoseconds
-        try:  # the same goal sent again while no answer comes (a first request can be lost, see graph)
-            handle = send_goal_with_resend(
-                self._client, request, params.move_timeout_s, wait=interrupt.wait_until, resend_s=5.0
-            )
-        except TimeoutError as exc:
-            raise MoveError(f"{action}: the trajectory goal got no answer ({exc})") from exc
-        if not handle.accepted:
-            raise MoveError(f"{action} rejected the trajectory (see the controller's log)")
-        try:
-            outcome = wait_future(
-                handle.get_result_async(), duration + 2 * params.move_timeout_s, "trajectory result", interrupt
-            )
-        except WaitInterruptedError:
-            handle.cancel_goal_async()  # the arm stops too (the answer is not awaited)
-            raise
+        outcome, sent = run_action_goal(self._node, self._client, request, action, params.move_timeout_s,
+                                        duration + 2 * params.move_timeout_s, interrupt, "trajectory",
+                                        rejected=" (see the controller's log)")  # fmt: skip
         code, text = outcome.result.error_code, outcome.result.error_string
         if outcome.status != GoalStatus.STATUS_SUCCEEDED or code != FollowJointTrajectory.Result.SUCCESSFUL:
             raise MoveError(f"{action} failed: error code {code} {text!r} (status {outcome.status})")
