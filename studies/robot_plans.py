@@ -27,7 +27,8 @@ file (e.g. ``nbv_planner.min_camera_height_m=0.2``, the Panda file's old floor).
 is sampled every 2 s during each run and reported with the plans.
 
 Writes to ``--out``: ``plans.csv`` (one row per plan), ``runs.csv`` (one row per run), ``summary.md``
-and ``plan_times.png``, and ``<label>/`` (the run's ``views.csv`` and ``nbv_planner.log``). Runs of
+and ``plan_times.png``, and ``<label>/`` (the run's ``views.csv``, ``nbv_planner.log`` and
+``cpu_sharers.txt``: the busiest processes 30 s into the run). Runs of
 another label already in ``--out`` are kept, so variants add up in one summary.
 """
 
@@ -65,6 +66,8 @@ UR5E_START = [0.0, -1.7, 1.2, -1.9, -1.57, 0.0]
 UR5E_CAMERA_XYZ = [0.0, 0.0, 0.03]
 #: The speeds of a fast run (nbv_planner parameters), as test_robot_launch.
 FAST = {"trajectory_velocity_scale": 1.0, "max_joint_acceleration": 4.0, "max_joint_jerk": 40.0}
+#: The blocks of a parameters file --set may change (robot.py's nodes and the shared block).
+NODE_BLOCKS = ("/**", "integrator", "completion_server", "gain_server", "nbv_planner")
 #: The planner's per-view log line (nbv_prob_cnn.exploration.step_log.stage_times).
 VIEW_LINE = re.compile(
     r"view (?P<view>\d+)(?P<fallback> \(fallback[^)]*\))?: .*?; plan (?P<plan_s>[\d.]+) s \(CNN (?P<cnn_s>[\d.]+), "
@@ -72,11 +75,24 @@ VIEW_LINE = re.compile(
     r"capability (?P<capability_s>[\d.]+), IK\+collision (?P<ik_collision_s>[\d.]+) \((?P<checked>\d+) checked\))?, "
     r"other (?P<other_s>[\d.]+)\), move (?P<move_s>[\d.]+) s, grid wait (?P<grid_wait_s>[\d.]+) s"
 )
+ARM_CHECKED = re.compile(r"(\d+) checked of \d+ candidates")
+IN_COLLISION = re.compile(r"(\d+) in collision")
 FAILED_MOVE = re.compile(r"view \d+: move failed")
 SET_UP = re.compile(r"arm set-up for the grid \(capability map, collision model\): (?P<s>[\d.]+) s")
 #: The plan's stages, as the log names them (the plan time is their sum up to rounding).
 STAGES = ("cnn_s", "raycast_s", "views_s", "rank_reply_s", "capability_s", "ik_collision_s", "other_s")
-PLAN_COLUMNS = ("label", "view", "fallback", "plan_s", *STAGES, "checked", "move_s", "grid_wait_s")
+PLAN_COLUMNS = (
+    "label",
+    "view",
+    "fallback",
+    "plan_s",
+    *STAGES,
+    "checked",
+    "arm_checked",
+    "in_collision",
+    "move_s",
+    "grid_wait_s",
+)
 RUN_COLUMNS = ("label", "file", "overrides", "speeds", "views_asked", "plans", "first_plan_s", "median_plan_s",
                "max_plan_s", "first_checked", "fallbacks", "failed_moves", "final_unknown", "arm_set_up_s", "load_min",
                "load_mean", "load_max", "wall_s", "exit", "started_utc")  # fmt: skip
@@ -187,21 +203,28 @@ def apply_overrides(params: dict, overrides: list[str], fast: bool) -> dict:
     for item in overrides:
         key, sep, value = item.partition("=")
         node, dot, name = key.partition(".")
-        if not sep or not dot or node not in params:
-            raise ValueError(f"--set: expected NODE.NAME=VALUE with NODE one of {sorted(params)}, got {item!r}")
-        params[node]["ros__parameters"][name] = yaml.safe_load(value)
+        if not sep or not dot or node not in NODE_BLOCKS:
+            raise ValueError(f"--set: expected NODE.NAME=VALUE with NODE one of {', '.join(NODE_BLOCKS)}, got {item!r}")
+        params.setdefault(node, {"ros__parameters": {}})["ros__parameters"][name] = yaml.safe_load(value)
     return params
 
 
 def parse_plans(log_text: str) -> tuple[list[dict], int, float | None]:
     """Each plan's times from a planner log, the failed moves and the arm set-up time (s, None: not logged)."""
     rows = []
+    previous_end = 0
     for match in VIEW_LINE.finditer(log_text):
         found = match.groupdict()
         row: dict = {"view": int(found["view"]), "fallback": int(found["fallback"] is not None)}
         for key in ("plan_s", *STAGES, "move_s", "grid_wait_s"):
             row[key] = float(found[key]) if found.get(key) is not None else 0.0
         row["checked"] = int(found["checked"]) if found["checked"] is not None else 0
+        # the arm check line before the plan's: every pass (a fallback's first pass too, which "checked" omits)
+        start = log_text.rfind("arm check: ", previous_end, match.start())
+        arm = log_text[start : match.start()] if start >= 0 else ""
+        previous_end = match.end()
+        row["arm_checked"] = sum(int(n) for n in ARM_CHECKED.findall(arm))
+        row["in_collision"] = sum(int(n) for n in IN_COLLISION.findall(arm))
         rows.append(row)
     set_up = SET_UP.search(log_text)
     return rows, len(FAILED_MOVE.findall(log_text)), float(set_up["s"]) if set_up else None
@@ -221,12 +244,23 @@ def dominant_stage(rows: list[dict]) -> tuple[str, float]:
     return stage, medians[stage]
 
 
+def cpu_sharers(count: int = 8) -> str:
+    """The ``count`` busiest processes now (``ps``: pid, nice, %CPU over the process's life, command line cut)."""
+    listing = subprocess.run(["ps", "-eo", "pid,ni,pcpu,args", "--sort=-pcpu"], capture_output=True, text=True)
+    return "".join(line[:130] + "\n" for line in listing.stdout.splitlines()[: count + 1])
+
+
+#: When the sampler notes which processes share the CPU (samples of period_s: 30 s into the run).
+SHARERS_AFTER_SAMPLES = 15
+
+
 @dataclass
 class LoadSampler:
     """The 1-minute load average every ``period_s`` in a background thread."""
 
     period_s: float = 2.0
     samples: list[float] = field(default_factory=list)
+    sharers: str = ""  # the busiest processes, once, SHARERS_AFTER_SAMPLES samples in
     _stop: threading.Event = field(default_factory=threading.Event)
 
     def __enter__(self) -> LoadSampler:
@@ -237,6 +271,8 @@ class LoadSampler:
     def _loop(self) -> None:
         while True:
             self.samples.append(os.getloadavg()[0])
+            if len(self.samples) == SHARERS_AFTER_SAMPLES:
+                self.sharers = cpu_sharers()
             if self._stop.wait(self.period_s):
                 return
 
@@ -275,6 +311,8 @@ def run_file(path: Path, label: str, args: argparse.Namespace, run_dir: Path) ->
     env = ros_environment(args.domain_id if args.domain_id is not None else free_domain_id())
     cmd = [sys.executable, str(REPO / "launch_scripts" / "robot.py"), "--params-file", str(params_file),
            "--views", str(args.views), "--out", str(run_dir / "run"), "--timeout", str(args.timeout)]  # fmt: skip
+    if args.method:
+        cmd += ["--method", args.method]
     started = time.strftime("%Y-%m-%d %H:%M", time.gmtime())
     print(f"[robot_plans] {label}: ROS_DOMAIN_ID={env['ROS_DOMAIN_ID']}, {' '.join(cmd)}", flush=True)
     start = time.monotonic()
@@ -283,12 +321,14 @@ def run_file(path: Path, label: str, args: argparse.Namespace, run_dir: Path) ->
         robot.start_node("sim_camera", "sim_camera", camera)
         done = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=args.timeout + 120)
     (run_dir / "robot_py.out").write_text(done.stdout + done.stderr)
+    (run_dir / "cpu_sharers.txt").write_text(load.sharers)
     log_path = run_dir / "run" / "logs" / "nbv_planner.log"
     plans, failed, set_up = parse_plans(log_path.read_text() if log_path.is_file() else "")
+    overrides = " ".join(args.set + ([f"method {args.method}"] if args.method else []))
     run = {"label": label, "file": str(path.relative_to(REPO)) if path.is_relative_to(REPO) else str(path),
-           "overrides": " ".join(args.set), "speeds": "file" if args.careful_speeds else "fast", "views_asked":
+           "overrides": overrides, "speeds": "file" if args.careful_speeds else "fast", "views_asked":
            args.views, "plans": len(plans), **plan_summary([p["plan_s"] for p in plans]),
-           "first_checked": plans[0]["checked"] if plans else 0, "fallbacks": sum(p["fallback"] for p in plans),
+           "first_checked": plans[0]["arm_checked"] if plans else 0, "fallbacks": sum(p["fallback"] for p in plans),
            "failed_moves": failed, "final_unknown": final_unknown(run_dir / "run" / "views.csv"),
            "arm_set_up_s": set_up if set_up is not None else math.nan, "load_min": min(load.samples),
            "load_mean": statistics.fmean(load.samples), "load_max": max(load.samples),
@@ -328,14 +368,14 @@ def write_summary(out: Path, runs: list[dict], plans: list[dict], notes: list[st
             f"{float(r['load_mean']):.1f} / {float(r['load_max']):.1f} | {r['exit']} | {r['started_utc']} |"
         )
     lines += ["", "Median time per stage (s) over each run's plans, and the views the arm check tried:", "",
-              "| label | " + " | ".join(STAGES) + " | checked median / max | largest stage |",
+              "| label | " + " | ".join(STAGES) + " | views checked median / max | largest stage |",
               "|---|" + "---|" * (len(STAGES) + 2)]  # fmt: skip
     for r in runs:
         mine = [p for p in plans if p["label"] == r["label"]]
         if not mine:
             continue
         stage, seconds = dominant_stage(mine)
-        checked = [int(p["checked"]) for p in mine]
+        checked = [int(p["arm_checked"]) for p in mine]
         medians = " | ".join(f"{statistics.median(float(p[s]) for p in mine):.2f}" for s in STAGES)
         lines.append(f"| {r['label']} | {medians} | {statistics.median(checked):g} / {max(checked)} | "
                      f"{stage} ({seconds:.2f} s) |")  # fmt: skip
@@ -349,21 +389,23 @@ def plot(out: Path, runs: list[dict], plans: list[dict]) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, ax = plt.subplots(figsize=(7, 4))
-    for r in runs:
-        mine = [p for p in plans if p["label"] == r["label"]]
-        views = [int(p["view"]) + 1 for p in mine]
-        ax.plot(views, [float(p["plan_s"]) for p in mine], marker="o",
-                label=f"{r['label']} (load {float(r['load_mean']):.1f})")  # fmt: skip
-        falls = [(v, float(p["plan_s"])) for v, p in zip(views, mine, strict=True) if int(p["fallback"])]
-        if falls:
-            ax.plot(*zip(*falls, strict=True), "kx", markersize=10)
-    ax.axhline(1.5, color="grey", linestyle="--", linewidth=1, label="target median 1.5 s")
-    ax.set_xlabel("view (plan number)")
-    ax.set_ylabel("plan time (s)")
-    ax.set_title("Plan time per view through robot.py (x: near-camera fallback)")
-    ax.set_ylim(bottom=0)
-    ax.legend(fontsize=8)
+    files = sorted({Path(r["file"]).name for r in runs})
+    fig, axes = plt.subplots(1, max(1, len(files)), figsize=(6.5 * max(1, len(files)), 4.2), squeeze=False)
+    for ax, name in zip(axes[0], files, strict=False):
+        for r in (r for r in runs if Path(r["file"]).name == name):
+            mine = [p for p in plans if p["label"] == r["label"]]
+            views = [int(p["view"]) + 1 for p in mine]
+            ax.plot(views, [float(p["plan_s"]) for p in mine], marker="o",
+                    label=f"{r['label']} (load {float(r['load_mean']):.1f})")  # fmt: skip
+            falls = [(v, float(p["plan_s"])) for v, p in zip(views, mine, strict=True) if int(p["fallback"])]
+            if falls:
+                ax.plot(*zip(*falls, strict=True), "kx", markersize=10)
+        ax.axhline(1.5, color="grey", linestyle="--", linewidth=1, label="target median 1.5 s")
+        ax.set_xlabel("view (plan number)")
+        ax.set_ylabel("plan time (s)")
+        ax.set_title(f"{name} through robot.py (x: near-camera fallback)", fontsize=10)
+        ax.set_ylim(bottom=0)
+        ax.legend(fontsize=7)
     fig.tight_layout()
     fig.savefig(out / "plan_times.png", dpi=110)
     plt.close(fig)
@@ -377,6 +419,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", type=Path, default=Path("out/robot_plans"), help="results directory")
     parser.add_argument("--set", action="append", default=[], metavar="NODE.NAME=VALUE",
                         help="override a parameter of every file (YAML value)")  # fmt: skip
+    parser.add_argument("--method", default="", help="the Explore goal's method (default: the file's)")
     parser.add_argument("--label-suffix", default="", help="appended to each run's label (the file's stem)")
     parser.add_argument("--careful-speeds", action="store_true", help="keep the files' slow arm speeds")
     parser.add_argument("--seed", type=int, default=1000, help="3DT world seed of the scene (default 1000)")
@@ -399,13 +442,20 @@ def run(args: argparse.Namespace) -> int:
         run_, plans_ = run_file(path.resolve(), label, args, args.work / label)
         saved = args.out / label
         saved.mkdir(exist_ok=True)
-        for name in ("run/views.csv", "run/logs/nbv_planner.log"):
+        for name in ("run/views.csv", "run/logs/nbv_planner.log", "cpu_sharers.txt"):
             if (args.work / label / name).is_file():
                 shutil.copy(args.work / label / name, saved / Path(name).name)
         runs = [r for r in runs if r["label"] != label] + [{k: _fmt(v) for k, v in run_.items()}]
         plans = [p for p in plans if p["label"] != label] + [{k: _fmt(v) for k, v in p.items()} for p in plans_]
         print(f"[robot_plans] {label}: " + ", ".join(f"{k} {_fmt(v)}" for k, v in run_.items()), flush=True)
         status = status or int(run_["exit"] != 0)
+    for run_ in runs:  # plans.csv from each run's saved log (the log is the record; the parser may have grown)
+        log = args.out / run_["label"] / "nbv_planner.log"
+        if log.is_file():
+            parsed, _, _ = parse_plans(log.read_text())
+            plans = [p for p in plans if p["label"] != run_["label"]]
+            plans += [{k: _fmt(v) for k, v in {"label": run_["label"], **p}.items()} for p in parsed]
+            run_["first_checked"] = str(parsed[0]["arm_checked"]) if parsed else "0"
     write_csv(args.out / "runs.csv", RUN_COLUMNS, runs)
     write_csv(args.out / "plans.csv", PLAN_COLUMNS, plans)
     notes_path = args.out / "notes.txt"

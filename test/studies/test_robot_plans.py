@@ -26,10 +26,16 @@ from studies.robot_plans import (
 
 LOG = """\
 [INFO] [1796670591.27] [nbv_planner]: arm set-up for the grid (capability map, collision model): 21.9 s
+[INFO] [1796670597.00] [nbv_planner]: arm check: 300 checked of 20000 candidates (673 camera-blocked skipped, 0 \
+unreachable, 300 in collision, 0 path blocked; paths planned 0, not found 0); s: ik 1.00, collision 1.42, no view; \
+near the camera: 1 checked of 20000 candidates (0 camera-blocked skipped, 0 unreachable, 0 in collision, 0 path \
+blocked; paths planned 0, not found 0); s: ik 0.05, collision 0.38
 [INFO] [1796670598.01] [nbv_planner]: view 0 (fallback: no ranked view was feasible): gain 3.6269, unknown fraction \
 0.2016, 687590 cells changed; plan 8.60 s (CNN 0.90, ray casting 0.20, views 0.01, rank reply 0.31, capability 0.11, \
 IK+collision 5.00 (300 checked), other 2.07), move 2.43 s, grid wait 0.62 s; servers: completion server 0.9
 [WARN] [1796670600.00] [nbv_planner]: view 1: move failed (aborted: path tolerance); trying the next ranked view
+[INFO] [1796670601.00] [nbv_planner]: arm check: 3 checked of 20000 candidates (0 camera-blocked skipped, 0 \
+unreachable, 2 in collision, 0 path blocked; paths planned 0, not found 0); s: ik 0.05, collision 0.51
 [INFO] [1796670602.96] [nbv_planner]: view 1: gain 1.5944, unknown fraction 0.1134, 138693 cells changed; plan \
 2.37 s (CNN 1.00, ray casting 0.46, views 0.01, rank reply 0.35, capability 0.07, IK+collision 0.50 (1 checked), \
 other 0.00), move 2.33 s, grid wait 0.25 s; servers: completion server 1.0
@@ -43,7 +49,9 @@ def test_plan_lines_are_read_with_their_stages_fallbacks_and_failed_moves():
     assert [p["view"] for p in plans] == [0, 1, 2]
     assert [p["fallback"] for p in plans] == [1, 0, 0]
     assert [p["plan_s"] for p in plans] == [8.60, 2.37, 1.40]
-    assert [p["checked"] for p in plans] == [300, 1, 0]
+    assert [p["checked"] for p in plans] == [300, 1, 0]  # as the plan lines say
+    assert [p["arm_checked"] for p in plans] == [301, 3, 0]  # every pass of the arm check line before each
+    assert [p["in_collision"] for p in plans] == [300, 2, 0]
     assert plans[0]["ik_collision_s"] == 5.00 and plans[0]["other_s"] == 2.07 and plans[0]["move_s"] == 2.43
     assert plans[2]["rank_reply_s"] == 0.0 and plans[2]["cnn_s"] == 0.99  # a plan without the arm's stages
     assert failed == 1 and set_up == 21.9
@@ -72,7 +80,7 @@ def test_summary_from_hand_made_csvs(tmp_path):
     text = (tmp_path / "summary.md").read_text()
     row = "| a | `f.yaml` | - | fast | 3 | 3.00 | 2.00 | 3.00 | 300 | 1 | 0 | 0.0123 | 1.5 | 1.0 / 2.0 / 3.0 | 0 |"
     assert row in text
-    assert "cnn_s (0.99 s)" in text and "| 1 / 300 |" in text and "* shared the CPU with two evaluations" in text
+    assert "cnn_s (0.99 s)" in text and "| 3 / 301 |" in text and "* shared the CPU with two evaluations" in text
 
 
 def test_overrides_and_fast_speeds():
@@ -81,6 +89,8 @@ def test_overrides_and_fast_speeds():
     planner = out["nbv_planner"]["ros__parameters"]
     assert planner["min_camera_height_m"] == 0.2 and out["gain_server"]["ros__parameters"]["free_above_m"] == 0.3
     assert planner["trajectory_velocity_scale"] == 1.0
+    out = apply_overrides(params, ["completion_server.precision=bfloat16"], False)  # a block the file lacks
+    assert out["completion_server"]["ros__parameters"] == {"precision": "bfloat16"}
     with pytest.raises(ValueError, match="NODE.NAME=VALUE"):
         apply_overrides(params, ["min_camera_height_m=0.2"], False)
     with pytest.raises(ValueError, match="NODE.NAME=VALUE"):
