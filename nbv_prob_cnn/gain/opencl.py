@@ -49,6 +49,13 @@ VIEW_GAIN_ORIGINS_PER_LAUNCH = 1 << 17
 BEST_VIEW_FIRST_BATCH = 2048
 #: Origins per axis of a block of ``best_view`` (one bound per block).
 BOUND_BLOCK = 2
+#: Grid dimensions whose surface-blend block bounds take the largest gain over the windows' ranges
+#: of ``p`` (``SURFACE_BOUND`` 2, a second pass over each bound ray) rather than the window's largest
+#: ``p`` for the factor and its smallest for the visibility (1). Measured on half-explored grids
+#: (seed 1000, CPU time of one search, best of 5; a 2-core CPU shared with two evaluations):
+#: 3DT 0.380 -> 0.333 s and 3DU 0.125 -> 0.067 s with 2 (3DT: 2 126 origins evaluated exactly
+#: instead of 62 641), 2D 0.160 -> 0.217 s (its bounds were tight already), so 1 there.
+SURFACE_BOUND_DP_DIMS = (3,)
 #: Fewer origins per block on average: ``best_view`` evaluates all origins exactly.
 MIN_ORIGINS_PER_BLOCK = 2.0
 #: Relative (and absolute) margin added to the block bounds of ``best_view``.
@@ -90,12 +97,13 @@ class OpenCLRayCaster:
         """:meth:`program_lanes` of the program a launch with ``options`` runs."""
         return self.program_lanes(options is not None and options.flags[1])
 
-    def kernels(self, variant: str, exact: bool = False, sensor: bool = False, surface_bound: bool = False) -> tuple:
+    def kernels(self, variant: str, exact: bool = False, sensor: bool = False, surface_bound: int = 0) -> tuple:
         """``(ray_gain, view_gain)`` of the program of gain ``variant`` (built on first use), with
         the exact-traversal and ``"returns"`` options (:class:`MarchOptions`), marching
         :meth:`program_lanes` origins per work-item; ``surface_bound``: the program of a surface
-        blend's block bounds (``SURFACE_BOUND``)."""
-        key = (variant, bool(exact), bool(sensor), bool(surface_bound))
+        blend's block bounds (``SURFACE_BOUND``: 1 the window's largest ``p`` for the factor, 2 the
+        largest gain over the windows' ranges of ``p``, see :data:`SURFACE_BOUND_DP_DIMS`)."""
+        key = (variant, bool(exact), bool(sensor), int(surface_bound))
         if key not in self._kernels:
             options = [f"-DLANES={self.program_lanes(sensor)}"]
             if check_variant(variant) == "original":
@@ -103,7 +111,7 @@ class OpenCLRayCaster:
                             f"-DORIGINAL_NEAR_HIT={ORIGINAL_NEAR_HIT!r}f"]  # fmt: skip
             options += ["-DGAIN_EXACT=1"] if exact else []
             options += ["-DGAIN_SENSOR=1"] if sensor else []
-            options += ["-DSURFACE_BOUND=1"] if surface_bound else []
+            options += [f"-DSURFACE_BOUND={int(surface_bound)}"] if surface_bound else []
             program = self._runtime.build(KERNEL_SOURCE, tuple(options))
             self._kernels[key] = (self._cl.Kernel(program, "ray_gain"), self._cl.Kernel(program, "view_gain"))
         return self._kernels[key]
@@ -198,13 +206,15 @@ class OpenCLRayCaster:
         return self._views(code_buf, padded, origin_index, offset_buf, march, membership, local_size, view_sets)
 
     def _views(self, code_buf, padded, origin_index, offset_buf, march: RayMarch, membership,
-               local_size=VIEW_GAIN_LOCAL_SIZE, view_sets=None, surface_bound=None) -> np.ndarray:  # fmt: skip
+               local_size=VIEW_GAIN_LOCAL_SIZE, view_sets=None, surface_bound=None,
+               surface_program=2) -> np.ndarray:  # fmt: skip
         """``view_gain`` on a device grid ``code_buf`` (host copy ``padded``) at linear origins.
 
         ``view_sets``: None (every view exact) or per origin the views wanted exactly, ``(N, V)``
         booleans: a work-group sums the union of its origins' views and marches only their rays;
         other views get 0 (a lower bound of their gains). ``surface_bound``: the device grid of
-        :func:`~nbv_prob_cnn.gain.search_bounds.surface_bound_grid` (block bounds of a surface blend)."""
+        :func:`~nbv_prob_cnn.gain.search_bounds.surface_bound_grid` (block bounds of a surface blend),
+        ``surface_program`` its ``SURFACE_BOUND`` (:meth:`kernels`)."""
         cl, mf = self._cl, self._cl.mem_flags
         n, r, v = origin_index.shape[0], march.offsets.shape[0], membership.shape[1]
         out = np.empty((n, v), dtype=np.float32)
@@ -229,7 +239,7 @@ class OpenCLRayCaster:
         if view_sets is None:
             cl.enqueue_copy(self.queue, set_buf, every)
         out_buf = cl.Buffer(self.context, mf.WRITE_ONLY, block * v * 4)
-        kernel = self.kernels(*march.program, surface_bound=surface_bound is not None)[1]
+        kernel = self.kernels(*march.program, surface_bound=0 if surface_bound is None else surface_program)[1]
         extra = self._option_args(march.options, padded.shape) + ([] if surface_bound is None else [surface_bound])
         for begin in range(0, n, block):
             count = min(block, n - begin)
@@ -280,7 +290,8 @@ class OpenCLRayCaster:
             most = surface_bound_grid(padded, dims, size)
             surface_buf = self._cl.Buffer(self.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=most)
         view_bound = self._views(bound_buf, bound, corner_index, self._offsets(march.offsets, bound.shape),
-                                 bound_march, membership, surface_bound=surface_buf)  # fmt: skip
+                                 bound_march, membership, surface_bound=surface_buf,
+                                 surface_program=2 if dims in SURFACE_BOUND_DP_DIMS else 1)  # fmt: skip
         return block_of, view_bound
 
     def best_view(

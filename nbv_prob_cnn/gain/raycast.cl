@@ -53,10 +53,11 @@
 // the ray's return lands. With GAIN_SENSOR the surface term is sum_t u_t w_t q_t (the return
 // measured at t) and the blend mixes it with the sensor model's gain. beta = 0 multiplies by exactly
 // 1 (resp. adds exactly 0): the paper's gains, bit for bit.
-// SURFACE_BOUND = 1 (a build option, the coarse-to-fine bounds of a blend): the code holds the
+// SURFACE_BOUND = 1 or 2 (a build option, the coarse-to-fine bounds of a blend): the code holds the
 // smallest p of each window and the grid `surface_bound` (opencl.py: search_bounds) the largest p
-// of its unknown cells; the bound is the ray's largest gain over every p in that range, found
-// backwards after the march (see the end of march_rays).
+// of its unknown cells. 1: an unknown sample's factor reads the largest p and its visibility the
+// smallest. 2: the ray's largest gain over every p in that range, found backwards after the
+// march (see the end of march_rays); tighter, for a second pass.
 #pragma OPENCL FP_CONTRACT OFF
 
 #define MODE_PROBABILISTIC 0
@@ -89,7 +90,7 @@
 #define SURFACE_BOUND 0
 #endif
 // the bound of a blend by dynamic programming (march_rays), in the paper's variant without the sensor model
-#define SURFACE_DP (SURFACE_BOUND && !GAIN_ORIGINAL && !GAIN_SENSOR)
+#define SURFACE_DP (SURFACE_BOUND == 2 && !GAIN_ORIGINAL && !GAIN_SENSOR)
 #if GAIN_ORIGINAL && (GAIN_EXACT || GAIN_SENSOR)
 #error "GAIN_EXACT and GAIN_SENSOR are options of the paper's variant"
 #endif
@@ -257,7 +258,7 @@ inline void march_rays(__global const float *code, __global const int *origins, 
 #if SURFACE_DP
             end = alive ? (intv)(t + 1) : end;
             marched_end = t + 1;
-#else
+#else  // SURFACE_P: the sample's p, or with SURFACE_BOUND 1 the window's largest
             hit = unknown ? hit + visible * weight * ((1.0f - surface) + surface * SURFACE_P(c, cell)) : hit;
 #endif
             visible = unknown ? visible * (1.0f - c) : visible;

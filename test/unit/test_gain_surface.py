@@ -168,22 +168,23 @@ def test_block_bounds_bound_every_origin_of_their_block(surface):
 
 
 @pytest.mark.parametrize("surface", [0.5, 1.0])
-def test_block_bounds_of_one_cell_blocks_are_the_exact_gains(surface):
+@pytest.mark.parametrize("dims", [2, 3])
+def test_block_bounds_of_one_cell_blocks_are_the_exact_gains(surface, dims):
     """A block of one cell has windows of one cell (the smallest and largest p are its p): the
-    bound's dynamic programme then has a single choice per sample and must give the exact gain
-    of the numpy reference, view by view."""
+    bound (3D: its dynamic programme, one choice per sample; 2D: the window's largest p for the
+    factor) must then give the exact gain of the numpy reference, view by view."""
     from nbv_prob_cnn.gain.march import ray_march
     from nbv_prob_cnn.gain.marched_grid import encode_grid
     from nbv_prob_cnn.gain.opencl import get_ray_caster
 
     rng = np.random.default_rng(29)
-    state, prob = _random_world(rng, (15, 14, 12), unknown=0.45)
-    d = ray_directions(3, 4)
-    member = view_membership(d, orientations(3), 60.0, 46.0)
+    state, prob = _random_world(rng, (15, 14, 12) if dims == 3 else (31, 27), unknown=0.45)
+    d = ray_directions(dims, 4 if dims == 3 else 16)
+    member = view_membership(d, orientations(dims), 60.0, 46.0 if dims == 3 else None)
     origins = empty_origins(state)
     settings = GainSettings(surface=surface)
     exact = origin_view_gains(state, prob, d, 9, member, origins, "numpy", settings=settings)
     block_of, bounds = get_ray_caster().block_bounds(
-        encode_grid(state, prob), origins, ray_march(3, d, 9, settings), member, size=1
+        encode_grid(state, prob), origins, ray_march(dims, d, 9, settings), member, size=1
     )
     np.testing.assert_allclose(bounds[block_of], exact, rtol=0, atol=1e-6)
