@@ -83,7 +83,7 @@ class OpenCLRayCaster:
         if self.lanes not in LANE_WIDTHS:
             raise ValueError(f"lanes: expected one of {LANE_WIDTHS}, got {lanes!r}")
         self._runtime = runtime
-        self._kernels: dict[tuple[str, bool, bool, bool], tuple] = {}
+        self._kernels: dict[tuple[str, bool, bool, int], tuple] = {}
         self._ray_kernel, self._view_kernel = self.kernels("paper")
         self._cache: dict[tuple, object] = {}
         self._last_options: tuple | None = None
