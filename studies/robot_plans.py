@@ -29,7 +29,10 @@ is sampled every 2 s during each run and reported with the plans.
 Writes to ``--out``: ``plans.csv`` (one row per plan), ``runs.csv`` (one row per run), ``summary.md``
 and ``plan_times.png``, and ``<label>/`` (the run's ``views.csv``, ``nbv_planner.log`` and
 ``cpu_sharers.txt``: the busiest processes 30 s into the run). Runs of
-another label already in ``--out`` are kept, so variants add up in one summary.
+another label already in ``--out`` are kept, so variants add up in one summary; ``plans.csv`` is
+rebuilt from the saved logs each time, with the ``arm check:`` line before each plan (every pass:
+a fallback plan's first pass too, which the plan line's count omits). ``--files`` with no file
+writes the summary and the figure again; ``--method`` sets the Explore goal's method.
 """
 
 from __future__ import annotations
