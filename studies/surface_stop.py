@@ -68,13 +68,18 @@ def analyse(runs: list[tuple[list[float], list[float]]], thresholds: list[float]
     return out
 
 
+def run_paths(folder: Path, method: str, guarded: bool = False) -> list[Path]:
+    """The run CSVs of ``method`` in ``folder`` in name order (``guarded``: its runs with the view guard)."""
+    return sorted(folder.glob(f"*_{method}{'_guarded' if guarded else ''}_seed*.csv"))
+
+
 def read_runs(
-    folder: Path, method: str, views: int, require_estimates: bool = True
+    folder: Path, method: str, views: int, require_estimates: bool = True, guarded: bool = False
 ) -> list[tuple[list[float], list[float]]]:
     """``(estimates, coverage)`` of every run CSV of ``method`` in ``folder`` (all of them, in name
     order: each must hold ``views`` views and, with ``require_estimates``, the estimates)."""
     found = []
-    for path in sorted(folder.glob(f"*_{method}_seed*.csv")):
+    for path in run_paths(folder, method, guarded):
         with open(path, newline="") as handle:
             rows = list(csv.DictReader(handle))[:views]
         if len(rows) < views or (require_estimates and "new_surface_cells" not in rows[0]):
@@ -87,12 +92,14 @@ def read_runs(
     return found
 
 
-def replayed_estimates(path: Path, dataset: str, method: str, views: int) -> list[float]:
+def replayed_estimates(path: Path, dataset: str, method: str, views: int, below: float = 0.0) -> list[float]:
     """The estimates of a stored run's views made again with today's estimator: its views taken again
     on the world (as ``nbv evaluate --replay``), before each one the method's map of the grid so far
     and the view's :func:`~nbv_prob_cnn.planners.surface_stop.predicted_new_surface` (NaN for the
     random first view; the stored view itself is not needed: the estimate is the most surface any
-    candidate view could add, :func:`~nbv_prob_cnn.planners.surface_stop.best_new_surface`)."""
+    candidate view could add, :func:`~nbv_prob_cnn.planners.surface_stop.best_new_surface`). Once an
+    estimate is below ``below`` (the smallest threshold: every threshold has stopped the run by then)
+    the later views get NaN, not estimated."""
     from nbv_prob_cnn.exploration.replay import POSE_COLUMNS, read_rows, view_of_row
     from nbv_prob_cnn.planners import PlanningContext
     from nbv_prob_cnn.planners.methods import GAIN_METHODS, GainPlanner, probability_map
@@ -116,6 +123,8 @@ def replayed_estimates(path: Path, dataset: str, method: str, views: int) -> lis
             assert prob is not None  # a probabilistic method's map
             origins = GainPlanner(GAIN_METHODS[method]).candidates(state, context)
             estimates.append(best_new_surface(state, prob, origins, context))
+            if estimates[-1] < below:
+                return estimates + [float("nan")] * (len(rows) - len(estimates))
         observe(state, world.ground_truth, cell, context.orientations[view], context.active_sensor)
     return estimates
 
@@ -128,6 +137,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--views", type=int, default=30, help="the budget the runs went to")
     parser.add_argument("--thresholds", type=float, nargs="+", default=[5, 10, 20, 50, 100, 200])
     parser.add_argument("--out", type=Path, required=True)
+    parser.add_argument("--guarded", action="store_true", help="the method's runs with the view guard")
     parser.add_argument("--replay", metavar="DATASET", help="make each view's estimate again with today's estimator "
                         "on the runs' worlds (the runs of DATASET), instead of reading new_surface_cells")  # fmt: skip
 
@@ -135,11 +145,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
-    runs = read_runs(args.runs, args.method, args.views, require_estimates=args.replay is None)
+    runs = read_runs(args.runs, args.method, args.views, require_estimates=args.replay is None, guarded=args.guarded)
     if args.replay is not None:
-        paths = sorted(args.runs.glob(f"*_{args.method}_seed*.csv"))
+        paths = run_paths(args.runs, args.method, args.guarded)
         pairs = tqdm(list(zip(paths, runs, strict=True)), desc="replay", unit="run")
-        runs = [(replayed_estimates(path, args.replay, args.method, args.views), coverage)
+        runs = [(replayed_estimates(path, args.replay, args.method, args.views, min(args.thresholds)), coverage)
                 for path, (_, coverage) in pairs]  # fmt: skip
     rows = analyse(runs, args.thresholds)
     args.out.mkdir(parents=True, exist_ok=True)
@@ -148,7 +158,8 @@ def run(args: argparse.Namespace) -> int:
         writer.writeheader()
         writer.writerows(asdict(r) for r in rows)
     lines = [
-        f"{args.method}, {rows[0].runs} runs to {args.views} views ({args.runs})", "",
+        (f"{args.method}{' (view guard)' if args.guarded else ''}, {rows[0].runs} runs to {args.views} views "
+         f"({args.runs})"), "",
         ("| stop below (cells) | runs stopped | views taken | views saved | coverage at the stop "
         "| coverage lost, mean / worst |"),
         "|---|---|---|---|---|---|",

@@ -37,3 +37,23 @@ def test_views_to_a_level_counts_the_views_taken():
 
     assert views_to(np.array([0.1, 0.85, 0.96]), 0.95) == 3.0 and views_to(np.array([0.1, 0.85]), 0.8) == 2.0
     assert math.isnan(views_to(np.array([0.1, 0.5]), 0.95))
+
+
+def test_estimates_after_the_first_below_every_threshold_change_nothing():
+    """The replay stops estimating once an estimate is below the smallest threshold: every threshold
+    has stopped the run by then, so NaN in their place gives the same rows."""
+    coverage = [0.1, 0.5, 0.8, 0.9, 0.95, 0.96]
+    full = [NAN, 400.0, 120.0, 3.0, 80.0, 1.0]
+    cut = [NAN, 400.0, 120.0, 3.0, NAN, NAN]
+    thresholds = [5.0, 50.0, 200.0]
+    assert analyse([(cut, coverage)], thresholds) == analyse([(full, coverage)], thresholds)
+
+
+def test_run_paths_tell_the_guarded_runs_apart(tmp_path):
+    from studies.surface_stop import run_paths
+
+    for name in ("3du_cnn_surface_seed121", "3du_cnn_surface_seed120", "3du_cnn_surface_guarded_seed120"):
+        (tmp_path / f"{name}.csv").write_text("")
+    plain = ["3du_cnn_surface_seed120", "3du_cnn_surface_seed121"]
+    assert [p.stem for p in run_paths(tmp_path, "cnn_surface")] == plain
+    assert [p.stem for p in run_paths(tmp_path, "cnn_surface", guarded=True)] == ["3du_cnn_surface_guarded_seed120"]
