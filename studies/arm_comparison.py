@@ -126,9 +126,10 @@ class ArmPlanner:
         if report.view is None:
             return None
         q_start = self.q
-        counts = {name: int(getattr(report, name)) for name in STAGE_COUNTS}
+        counts = {name: int(getattr(report, name)) for name in STAGE_COUNTS}  # the pass that found the view
         view = report.view
-        self.moves.append(ArmMove(view.q.copy(), view.path_length, dict(report.times), counts, view.waypoints))
+        times = dict(report.total().times)  # a fallback: both passes
+        self.moves.append(ArmMove(view.q.copy(), view.path_length, times, counts, view.waypoints))
         self.selector.moved(q_start, report.view)
         return report.view.choice
 

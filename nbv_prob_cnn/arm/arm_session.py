@@ -179,7 +179,9 @@ class ArmBookkeepingMover(Mover[TargetT]):
 
 
 def unreachable_message(report: FeasibilityReport) -> str:
-    """Why arm-constrained planning found no view, with the counts of the exact stage."""
+    """Why arm-constrained planning found no view, with the counts of the exact stage (a fallback:
+    both passes, :meth:`FeasibilityReport.total`)."""
+    report = report.total()
     budget = ", check budget spent" if report.budget_exhausted else ""
     budget += ", near the camera too" if report.fallback else ""
     return (

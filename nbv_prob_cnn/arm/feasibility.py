@@ -83,11 +83,27 @@ def _seconds_text(seconds: dict[str, float]) -> str:
     return ", ".join(f"{name} {value:.2f}" for name, value in seconds.items())
 
 
+def _summed(a: dict[str, float], b: dict[str, float]) -> dict[str, float]:
+    """Times (s) of named stages, added name by name (a name in one only keeps its time)."""
+    return {name: a.get(name, 0.0) + b.get(name, 0.0) for name in {**a, **b}}
+
+
+#: The counters of a :class:`FeasibilityReport` (views per stage), summed over the passes by
+#: :meth:`~FeasibilityReport.total`.
+_COUNTERS = ("ranked", "candidates", "camera_blocked", "checked", "unreachable", "in_collision", "path_blocked",
+             "paths_planned", "paths_not_found")  # fmt: skip
+
+
 @dataclass
 class FeasibilityReport:
     """Outcome of :meth:`ArmFeasibility.select`: the chosen view (None if none is feasible),
     counters (ranked views, candidates left by the capability map, exact checks and why they
-    failed) and times (seconds) of the stages."""
+    failed) and times (seconds) of the stages.
+
+    A near-camera fallback (:meth:`~nbv_prob_cnn.arm.selection.ArmViewSelector.select`) ranks and
+    checks twice: its report is the second pass's own, with the first in ``first_pass``;
+    :meth:`total` is what the whole plan counted and took, :meth:`fallback_text` what the first
+    pass found."""
 
     view: ArmView | None
     ranked: int = 0
@@ -116,8 +132,45 @@ class FeasibilityReport:
         """Add the time from ``since`` (``time.perf_counter()``) until now to ``parts[stage]``."""
         self.parts[stage] = self.parts.get(stage, 0.0) + time.perf_counter() - since
 
+    def total(self) -> FeasibilityReport:
+        """The whole plan: with ``first_pass`` (a fallback), both passes in one report (the
+        counters, ``times``, ``parts``, ``path_stages`` and ``path_length_rad`` summed; the view
+        and ``fallback`` of this, the last, pass; ``budget_exhausted`` when either pass spent the
+        budget; no ``first_pass``); without, this report itself."""
+        if self.first_pass is None:
+            return self
+        first = self.first_pass.total()
+        return FeasibilityReport(
+            self.view,
+            **{name: getattr(first, name) + getattr(self, name) for name in _COUNTERS},
+            budget_exhausted=first.budget_exhausted or self.budget_exhausted,
+            fallback=self.fallback,
+            times=_summed(first.times, self.times),
+            parts=_summed(first.parts, self.parts),
+            path_stages=_summed(first.path_stages, self.path_stages),
+            path_length_rad=first.path_length_rad + self.path_length_rad,
+        )
+
+    def fallback_text(self) -> str:
+        """What the first pass of a fallback found, for a log line: ``"fallback after 300 checked:
+        300 in collision, 673 camera-blocked skipped"`` (its failures, then ``check budget spent``
+        when it was; ranked views and candidates when it checked none); ``""`` without
+        ``first_pass``. No parentheses: the view line's note (``view 3 (...)``) ends at one."""
+        first = self.first_pass
+        if first is None:
+            return ""
+        found = [f"{count} {what}" for count, what in ((first.unreachable, "unreachable"),
+                 (first.in_collision, "in collision"), (first.path_blocked, "path blocked"),
+                 (first.camera_blocked, "camera-blocked skipped")) if count]  # fmt: skip
+        if first.budget_exhausted:
+            found.append("check budget spent")
+        if not first.checked and not first.camera_blocked:
+            found.append(f"{first.ranked} ranked, {first.candidates} candidates")
+        return f"fallback after {first.checked} checked: {', '.join(found)}"
+
     def summary(self) -> str:
-        """One log line: the counters and the parts of the IK + collision time."""
+        """One log line: the counters and the parts of the IK + collision time (a fallback: each
+        pass's own, the first pass's first)."""
         seconds = {**self.parts, **{k: v for k, v in self.times.items() if k == "path_planning"}}
         parts = _seconds_text(seconds)
         paths = f" (path: {_seconds_text(self.path_stages)}; length {self.path_length_rad:.2f} rad)"

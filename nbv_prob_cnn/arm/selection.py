@@ -96,13 +96,12 @@ class ArmViewSelector:
         self, planner, state: np.ndarray, context: PlanningContext, current_q: np.ndarray, top_k: int
     ) -> FeasibilityReport:
         """The arm's next view from ``current_q`` (``report.view`` None: none feasible, even near
-        the camera). Stage times of the report cover both passes when the fallback ran."""
+        the camera). When the fallback ran, the report is the pass near the camera, the first in
+        its ``first_pass``: :meth:`FeasibilityReport.total` sums both (counts and times)."""
         args = (planner, self.known(state), context, self.geometry, self.arm, current_q, top_k)
         report = plan_with_arm(*args, view_mask=self.not_taken)
         if report.view is None and self.fallback_radius_m > 0:
             first = report
             report = plan_with_arm(*args, origin_filter=self.near_camera(current_q), view_mask=self.not_taken)
             report.fallback, report.first_pass = True, first
-            for stage, seconds in first.times.items():
-                report.times[stage] = report.times.get(stage, 0.0) + seconds
         return report

@@ -128,6 +128,7 @@ def core_exploration(seed: int = 1000, views: int = 6, setup: ArmPlanningSetup |
 
 def _step(state: np.ndarray, q: np.ndarray, report: FeasibilityReport, total: float) -> LoopStep:
     first = report.view.choice.times if report.view is not None else {}
+    report = report.total()  # a fallback: both passes' checks and times
     times = {
         "cnn": float(first.get("cnn", 0.0)),
         "rank": float(first.get("raycast", 0.0)) + float(first.get("views", 0.0)),

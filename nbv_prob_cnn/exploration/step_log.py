@@ -7,7 +7,8 @@ from typing import Protocol
 
 
 class PlanTimes(Protocol):
-    """A plan's times (s) and exact-check count, as ``PlanNextBestView.Response`` has them."""
+    """A plan's times (s) and exact-check count, as ``PlanNextBestView.Response`` has them (a
+    near-camera fallback: both passes, its two rankings and two arm checks, summed)."""
 
     time_total_s: float
     time_cnn_s: float
@@ -17,6 +18,15 @@ class PlanTimes(Protocol):
     time_capability_s: float
     time_ik_collision_s: float
     arm_checked: int
+
+
+def fallback_note(fallback: bool, found: str) -> str:
+    """The view line's note on a near-camera fallback: ``" (fallback after 300 checked: 300 in
+    collision)"`` with ``found`` what the first pass found (the plan response's ``message``,
+    :meth:`~nbv_prob_cnn.arm.feasibility.FeasibilityReport.fallback_text`); ``""`` without one."""
+    if not fallback:
+        return ""
+    return f" ({found or 'fallback: no ranked view was feasible'})"
 
 
 def stage_times(planned: PlanTimes, move_s: float, grid_wait_s: float) -> str:

@@ -18,6 +18,9 @@ from nbv_prob_cnn.planners.base import (
     filter_region,
 )
 
+#: The times :attr:`RecordingPlanner.stage_seconds` sums over its ranks.
+RANK_STAGES = ("rank", "cnn", "raycast", "views")
+
 
 class RecordingPlanner:
     """A planner whose ``rank`` also applies the request's origin filter (after the arm's
@@ -37,6 +40,9 @@ class RecordingPlanner:
         self.arm_filter: OriginFilter | None = None
         self.view_mask: ViewMask | None = None
         self.seconds = 0.0  # the last rank's time (CNN included)
+        #: every rank so far, summed (s): ``rank`` (the calls, CNN included) and the best view's
+        #: ``cnn``, ``raycast`` and ``views`` of each (a plan with the arm's near-camera fallback ranks twice)
+        self.stage_seconds = dict.fromkeys(RANK_STAGES, 0.0)
         self.takes_view_mask = takes_view_mask(planner)  # passed on to the planner (plan_with_arm)
 
     def rank(
@@ -65,6 +71,10 @@ class RecordingPlanner:
         else:
             self.ranked = self.planner.rank(state, context, top_k, searched, view_mask=view_mask)  # type: ignore[call-arg]
         self.seconds = time.perf_counter() - start
+        self.stage_seconds["rank"] += self.seconds
+        if self.ranked:
+            for stage in ("cnn", "raycast", "views"):
+                self.stage_seconds[stage] += float(self.ranked[0].times.get(stage, 0.0))
         return self.ranked
 
     def plan(self, state: np.ndarray, context: PlanningContext) -> ViewChoice | None:

@@ -32,9 +32,12 @@ view the arm reaches collision-free from the configuration of the latest ``/join
 (:class:`~nbv_prob_cnn.arm.selection.ArmViewSelector`, as ``nbv study arm_compare``: views ranked by
 gain, capability map, IK and its alternatives, self/grid collision and the straight joint path,
 utility ``gain − motion_weight · path length``, a near-camera fallback); the response carries its
-joint goal. The planner's grid (not the integrator's) counts as free the cells the arm's bodies
-filled at the configurations seen on ``/joint_states`` and along the moves the exploration
-commanded (``arm_carve_swept``); a view the exploration moved to is never planned again.
+joint goal. A fallback plan's times and ``arm_checked`` count both passes (the first ranking and
+check, then the one near the camera), and its ``message`` says what the first pass found
+(``fallback after 300 checked: 300 in collision``, also in the view's log line). The planner's
+grid (not the integrator's) counts as free the cells the arm's bodies filled at the configurations
+seen on ``/joint_states`` and along the moves the exploration commanded (``arm_carve_swept``); a
+view the exploration moved to is never planned again.
 """
 
 from __future__ import annotations
@@ -72,7 +75,7 @@ from nbv_prob_cnn.exploration.session import (
     TakenView,
 )
 from nbv_prob_cnn.exploration.slot import ExplorationSlot
-from nbv_prob_cnn.exploration.step_log import server_stage_times, stage_times
+from nbv_prob_cnn.exploration.step_log import fallback_note, server_stage_times, stage_times
 from nbv_prob_cnn.exploration.view_guard import ViewGuard
 from nbv_prob_cnn.planners import ViewChoice, check_ros_method, make_planner, ros_method
 from nbv_prob_cnn.planners.base import OriginFilter
@@ -379,14 +382,14 @@ class NbvPlanner(Node):
             ranked = planner.ranked
             # messages only for the views the response and the markers show (arm_top_k may rank 20 000)
             views = [(*view_pose(c, context, geometry), c.gain) for c in ranked[: max(top_k, 1)]]
-            if ranked:
-                t = ranked[0].times
-                response.time_cnn_s, response.time_raycast_s, response.time_views_s = t["cnn"], t["raycast"], t["views"]
-                response.time_rank_s = max(0.0, planner.seconds - t["cnn"])
+            t = planner.stage_seconds  # every rank of the plan (a near-camera fallback ranks twice)
+            response.time_cnn_s, response.time_raycast_s, response.time_views_s = t["cnn"], t["raycast"], t["views"]
+            response.time_rank_s = max(0.0, t["rank"] - t["cnn"])
             if report is not None:
-                response.time_capability_s = report.times.get("capability", 0.0)
-                response.time_ik_collision_s = report.times.get("ik_collision", 0.0)
-                response.arm_checked = int(report.checked)
+                total = report.total()  # a fallback: both passes
+                response.time_capability_s = total.times.get("capability", 0.0)
+                response.time_ik_collision_s = total.times.get("ik_collision", 0.0)
+                response.arm_checked = int(total.checked)
             if not views:
                 raise ValueError(f"{NO_POSITIVE_GAIN}: {no_view_reason(state)}")
             ranked_msgs = [ViewScore(pose=arrays_to_pose_stamped(p, q, frame, grid.header.stamp), gain=float(g))
@@ -402,6 +405,7 @@ class NbvPlanner(Node):
                 response.best_pose = arrays_to_pose_stamped(position, quaternion, frame, grid.header.stamp)
                 response.best_gain, response.reachable = float(chosen.gain), True
                 response.fallback = bool(report.fallback)  # the view is near the camera, none ranked was feasible
+                response.message = report.fallback_text()  # what the first pass found ("" without a fallback)
                 response.joint_goal = joint_state_msg(self._arm.robot, report.view.q)
                 response.joint_goal.header.stamp, response.joint_goal.header.frame_id = grid.header.stamp, frame
                 response.joint_path_length = report.view.path_length
@@ -409,6 +413,7 @@ class NbvPlanner(Node):
             response.success = True
             self.get_logger().info(
                 f"plan: {planner.name}, best gain {response.best_gain:.4g} in {time.perf_counter() - start:.2f} s"
+                f"{fallback_note(response.fallback, response.message)}"
             )
             self._nbv_pub.publish(response.best_pose)
             sensor = context.active_sensor
@@ -526,7 +531,7 @@ class NbvPlanner(Node):
         if self.config.move_mode in ARM_MOVE_MODES:
             feedback.joint_goal, feedback.joint_travel = planned.joint_goal, planned.joint_path_length
         goal_handle.publish_feedback(feedback)
-        fell_back = " (fallback: no ranked view was feasible)" if planned.fallback else ""
+        fell_back = fallback_note(planned.fallback, planned.message)
         self.get_logger().info(
             f"view {taken.index}{fell_back}: gain {planned.best_gain:.4f}, "
             f"unknown fraction {taken.unknown_fraction:.4f}, {taken.changed_cells} cells changed; "
