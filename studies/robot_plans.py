@@ -31,7 +31,7 @@ and ``plan_times.png``, and ``<label>/`` (the run's ``views.csv``, ``nbv_planner
 ``cpu_sharers.txt``: the busiest processes 30 s into the run). Runs of
 another label already in ``--out`` are kept, so variants add up in one summary; ``plans.csv`` is
 rebuilt from the saved logs each time, with the ``arm check:`` line before each plan (every pass:
-a fallback plan's first pass too, which the plan line's count omits). ``--files`` with no file
+a fallback plan's first pass too, which the plan line's count omitted before commit fe1a103). ``--files`` with no file
 writes the summary and the figure again; ``--method`` sets the Explore goal's method.
 """
 
@@ -222,7 +222,8 @@ def parse_plans(log_text: str) -> tuple[list[dict], int, float | None]:
         for key in ("plan_s", *STAGES, "move_s", "grid_wait_s"):
             row[key] = float(found[key]) if found.get(key) is not None else 0.0
         row["checked"] = int(found["checked"]) if found["checked"] is not None else 0
-        # the arm check line before the plan's: every pass (a fallback's first pass too, which "checked" omits)
+        # the arm check line before the plan's: every pass (a fallback's first pass, which "checked" omitted
+        # in the shipped runs, made before commit fe1a103; it counts both passes now)
         start = log_text.rfind("arm check: ", previous_end, match.start())
         arm = log_text[start : match.start()] if start >= 0 else ""
         previous_end = match.end()
