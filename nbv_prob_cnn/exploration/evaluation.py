@@ -280,7 +280,9 @@ def evaluate(
             view (3D data sets); a stored run without one is redone.
         replay: a folder of stored runs (``runs/`` under it, as ``out``'s): each run not done in
             ``out`` is replayed from its namesake there, which must hold at least ``views`` views
-            of the same gain variant and guard (the weights it ran with are kept with it).
+            of the same gain variant and guard (the weights it ran with are kept with it); a run of
+            ``out`` whose namesake is missing there (a method planned into ``out`` first) is read
+            back as it is, so one table holds both.
 
     Raises:
         ValueError: ``chamfer`` on 2D, or a run ``replay`` lacks or cannot replay.
@@ -304,6 +306,10 @@ def evaluate(
         fingerprints = {}
         for seed, method in jobs:
             source = run_path(replay, dataset, method, seed, guard)
+            made = run_path(out, dataset, method, seed, guard)
+            if not source.is_file() and made.is_file():  # planned in out (a method the source lacks): read back
+                fingerprints[seed, method] = recorded_weights(made)
+                continue
             fingerprints[seed, method] = recorded_weights(source)
             status = run_status(
                 source, views, fingerprints[seed, method], gain_variant, threshold, surface_blend=_surface_blend(method)

@@ -83,6 +83,23 @@ def test_a_run_that_does_not_replay_is_refused(stored, tmp_path):
         evaluate("3du", ["random"], [120], 5, tmp_path / "out", progress=False, workers=0, replay=source)
 
 
+def test_a_run_planned_in_out_is_read_beside_the_replayed_ones(stored, tmp_path):
+    """A method the replayed folder lacks (planned into ``out`` first) is read back from ``out``, not
+    refused, so one table holds the replayed methods and the new one."""
+    source = tmp_path / "source" / "3du"
+    (source / "runs").mkdir(parents=True)
+    shutil.copy(run_path(stored / "old" / "3du", "3du", "random", 120), source / "runs")
+    out = tmp_path / "out"
+    evaluate("3du", ["prob_ig"], [120], 4, out, progress=False, workers=0)  # planned here, not in source
+    planned = run_path(out, "3du", "prob_ig", 120).read_bytes()
+    logs = evaluate("3du", METHODS, [120], 4, out, progress=False, workers=0, replay=source)
+    assert run_path(out, "3du", "prob_ig", 120).read_bytes() == planned  # read back, not redone
+    assert REPLAY_KEY in json.loads(run_path(out, "3du", "random", 120).with_suffix(".json").read_text())
+    assert logs["random"][0].surface_coverage is not None and len(logs["prob_ig"]) == 1
+    with pytest.raises(ValueError, match="missing"):  # neither in source nor planned in out
+        evaluate("3du", ["ig"], [120], 4, out, progress=False, workers=0, replay=source)
+
+
 def test_evaluate_command_writes_the_coverage_table_csvs_and_plot(stored, tmp_path, capsys):
     from nbv_prob_cnn.cli import main
 
