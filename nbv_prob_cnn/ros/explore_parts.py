@@ -54,12 +54,16 @@ class GoalPlanner:
     failure an error."""
 
     def __init__(
-        self, plan: PlanFunction, joints: JointStateTracker | None, joints_timeout_s: float, goal: Explore.Goal
+        self,
+        plan: PlanFunction,
+        joints: JointStateTracker | None,
+        joints_timeout_s: float,
+        goal: Explore.Goal,
+        estimate_surface: bool = False,
     ) -> None:
         self._plan, self._joints, self._joints_timeout_s = plan, joints, joints_timeout_s
         self.request = goal_plan_request(goal)
-        # the stop rule's estimate (a second view search per view) only when the goal has the rule
-        self.estimate_surface = bool(goal.stop_new_surface_cells > 0 or goal.stop_new_surface_share > 0)
+        self.estimate_surface = estimate_surface  # the stop rule's estimate: a second view search per view
 
     def plan(
         self, grid: np.ndarray, views: int, guard: ViewGuard | None, interrupt: Interrupt

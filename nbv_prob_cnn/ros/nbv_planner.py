@@ -483,13 +483,15 @@ class NbvPlanner(Node):
         self._slot.start(goal_handle, interrupt)
         try:
             guard_cells = None if cfg.guard_min_cells < 0 else cfg.guard_min_cells
-            planner = GoalPlanner(self.plan, self._joints, cfg.move_timeout_s, goal)
+            stop_surface = SurfaceStop(float(goal.stop_new_surface_cells), float(goal.stop_new_surface_share))
+            planner = GoalPlanner(
+                self.plan, self._joints, cfg.move_timeout_s, goal, estimate_surface=stop_surface.active
+            )
             session = ExplorationSession(
                 ExploreGrids(self._grid, cfg.grid_timeout_s), planner, self._mover, goal.max_views,
                 guard=None if cfg.guard_min_cells == 0 else partial(ViewGuard.for_grid, min_changed_cells=guard_cells),
                 stop_unknown_fraction=goal.stop_unknown_fraction, stop_gain=goal.stop_gain,
-                stop_surface=SurfaceStop(float(goal.stop_new_surface_cells), float(goal.stop_new_surface_share)),
-                max_failed_moves=cfg.max_failed_executions, interrupt=interrupt,
+                stop_surface=stop_surface, max_failed_moves=cfg.max_failed_executions, interrupt=interrupt,
                 on_view=partial(self._took_view, goal_handle, result),
                 on_failed_move=partial(self._move_failed, goal_handle, result),
             )  # fmt: skip
