@@ -38,9 +38,9 @@ from nbv_prob_cnn.gain.variant import GAIN_VARIANTS
 BACKENDS = BACKEND_NAMES
 
 __all__ = [
-    "BACKENDS", "ray_directions", "ray_gains", "origin_view_gains", "view_gains", "view_membership",
-    "empty_origins", "best_origin_view", "BestOriginView", "GAIN_VARIANTS", "GainSensor", "GainSettings",
-    "PAPER_GAIN",
+    "BACKENDS", "ray_directions", "ray_gains", "each_origin_ray_gains", "origin_view_gains", "view_gains",
+    "view_membership", "empty_origins", "best_origin_view", "best_origin_views", "BestOriginView", "GAIN_VARIANTS",
+    "GainSensor", "GainSettings", "PAPER_GAIN",
 ]  # fmt: skip
 
 
@@ -118,6 +118,49 @@ def ray_gains(
 
     march = ray_march(state.ndim, directions, r_max, settings, options)
     return get_ray_caster().run(_grid_code(state, prob, settings), origins, march)
+
+
+def each_origin_ray_gains(
+    state: np.ndarray,
+    prob: np.ndarray | None,
+    directions: np.ndarray,
+    r_max: int,
+    origins: np.ndarray,
+    backend: str = "auto",
+    *,
+    settings: GainSettings = PAPER_GAIN,
+) -> np.ndarray:
+    """:func:`ray_gains` of each origin along its own rays: ``directions`` ``(N, R, dims)``, origin
+    ``i`` casting ``directions[i]`` (e.g. the rays through each of N camera images). ``(N, R)``
+    float32; the grid is encoded and uploaded once for all of them.
+
+    Raises:
+        ValueError: as :func:`ray_gains`, or ``directions`` not ``(len(origins), R, dims)``.
+    """
+    directions = np.asarray(directions, dtype=np.float64)
+    origins = np.asarray(origins)
+    if directions.ndim != 3 or origins.ndim != 2 or directions.shape[0] != origins.shape[0]:
+        raise ValueError(
+            f"directions: expected (N, R, dims) rays for {origins.shape[:1]} origins, got {directions.shape}"
+        )
+    n, r, dims = directions.shape
+    state, prob, flat, origins, backend = _check_gain_inputs(state, prob, directions.reshape(n * r, dims), r_max,
+                                                             origins, backend, settings)  # fmt: skip
+    if n == 0:
+        return np.zeros((0, r), dtype=np.float32)
+    own = flat.reshape(n, r, dims)
+    first = march_options(state, prob, own[0], r_max, settings)
+    normals = None if first is None else first.normals
+    options = [first] + [march_options(state, prob, d, r_max, settings, normals) for d in own[1:]]
+    if backend == "numpy":
+        return np.concatenate([
+            reference_ray_gains(state, prob, d, r_max, origins[i : i + 1], settings, o)
+            for i, (d, o) in enumerate(zip(own, options, strict=True))
+        ])  # fmt: skip
+    from nbv_prob_cnn.gain.opencl import get_ray_caster
+
+    marches = [ray_march(state.ndim, d, r_max, settings, o) for d, o in zip(own, options, strict=True)]
+    return get_ray_caster().run_each(_grid_code(state, prob, settings), origins, marches)
 
 
 def origin_view_gains(
@@ -198,16 +241,62 @@ def best_origin_view(
         flat = int(np.argmax(gains))
         index = flat // gains.shape[1]
         return BestOriginView(index, flat % gains.shape[1], float(gains.flat[flat]), origins[index])
+    index, views, gains = _bounded_search(state, prob, directions, r_max, member, origins, settings, block_size,
+                                          prune_views, 1, None)  # fmt: skip
+    if index.size == 0:  # no positive gain: the exhaustive argmax of zeros
+        return BestOriginView(0, 0, 0.0, origins[0])
+    return BestOriginView(int(index[0]), int(views[0]), float(gains[0]), origins[int(index[0])])
+
+
+def best_origin_views(
+    state: np.ndarray,
+    prob: np.ndarray | None,
+    directions: np.ndarray,
+    r_max: int,
+    membership: np.ndarray,
+    origins: np.ndarray,
+    top_k: int,
+    allowed: np.ndarray | None = None,
+    *,
+    settings: GainSettings = PAPER_GAIN,
+    block_size: int | None = None,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The ``top_k`` (origin, view) pairs of largest positive :func:`origin_view_gains`, best first
+    (ties: the first origin, then the first view), by the coarse-to-fine search of
+    :func:`best_origin_view` on OpenCL: ``(origin positions, views, gains)``, at most ``top_k``.
+    ``allowed``: ``(N, V)`` bool, the views allowed at each origin (the others gain nothing).
+
+    Raises:
+        ValueError: bad inputs (as :func:`origin_view_gains`), ``top_k`` < 1 or ``allowed`` of another shape.
+    """
+    state, prob, directions, origins, _ = _check_gain_inputs(state, prob, directions, r_max, origins, "opencl",
+                                                             settings)  # fmt: skip
+    member = _check_membership(membership, directions)
+    if isinstance(top_k, bool) or not isinstance(top_k, (int, np.integer)) or top_k < 1:
+        raise ValueError(f"top_k: expected a positive integer, got {top_k!r}")
+    if allowed is not None:
+        allowed = np.asarray(allowed, dtype=bool)
+        if allowed.shape != (origins.shape[0], member.shape[1]):
+            expected = (origins.shape[0], member.shape[1])
+            raise ValueError(f"allowed: expected a {expected} bool mask, got {allowed.shape}")
+    if origins.shape[0] == 0:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0, np.float32)
+    return _bounded_search(state, prob, directions, r_max, member, origins, settings, block_size, True, top_k, allowed)
+
+
+def _bounded_search(state, prob, directions, r_max, member, origins, settings, block_size, prune_views, top_k,
+                    allowed) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # fmt: skip
+    """:meth:`~nbv_prob_cnn.gain.opencl.OpenCLRayCaster.best_views` on checked inputs."""
     from nbv_prob_cnn.gain.opencl import BOUND_BLOCK, get_ray_caster
 
     if block_size is not None and (not isinstance(block_size, (int, np.integer)) or block_size < 1):
         raise ValueError(f"block_size: expected a positive integer, got {block_size!r}")
     march = ray_march(state.ndim, directions, r_max, settings, march_options(state, prob, directions, r_max, settings))
     code = _grid_code(state, prob, settings)
-    found = get_ray_caster().best_view(code, origins, march, member, block_size=block_size or BOUND_BLOCK,
-                                       prune_views=prune_views)  # fmt: skip
-    origin, view, gain, _ = found
-    return BestOriginView(origin, view, gain, origins[origin] if origin >= 0 else None)
+    index, views, gains, _ = get_ray_caster().best_views(code, origins, march, member, top_k, allowed,
+                                                         block_size=int(block_size or BOUND_BLOCK),
+                                                         prune_views=prune_views)  # fmt: skip
+    return index, views, gains
 
 
 def _grid_code(state: np.ndarray, prob: np.ndarray | None, settings: GainSettings) -> np.ndarray:

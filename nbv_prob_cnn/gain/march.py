@@ -94,10 +94,16 @@ class RayMarch:
 
 
 def march_options(
-    state: np.ndarray, prob: np.ndarray | None, directions: np.ndarray, r_max: int, settings: GainSettings
+    state: np.ndarray,
+    prob: np.ndarray | None,
+    directions: np.ndarray,
+    r_max: int,
+    settings: GainSettings,
+    normals: np.ndarray | None = None,
 ) -> MarchOptions | None:
     """The :class:`MarchOptions` of ``settings.sensor`` and ``settings.sampling``, or None for the
-    paper's gain on rounded samples (the default path, unchanged)."""
+    paper's gain on rounded samples (the default path, unchanged). ``normals``: the grid's
+    :func:`~nbv_prob_cnn.gain.sampling.occupancy_normals` when already computed (the sensor model)."""
     if not settings.marches_table:
         return None
     sensor, min_range = settings.sensor, settings.min_range
@@ -106,7 +112,8 @@ def march_options(
     if sensor is None:
         return MarchOptions(ray_samples(directions, r_max, settings.sampling), float(min_range))
     samples = ray_samples(directions, r_max, settings.sampling, sensor.reach(state.shape))
-    return MarchOptions(samples, sensor.min_range, sensor, directions, occupancy_normals(state, prob))
+    normals = occupancy_normals(state, prob) if normals is None else normals
+    return MarchOptions(samples, sensor.min_range, sensor, directions, normals)
 
 
 def ray_march(

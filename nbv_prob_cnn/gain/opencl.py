@@ -170,25 +170,53 @@ class OpenCLRayCaster:
     def run(self, code: np.ndarray, origins: np.ndarray, march: RayMarch) -> np.ndarray:
         """Ray gains ``(N, R)`` float32 for the encoded grid ``code`` (:func:`encode_grid`) from
         ``origins``, marching ``march`` (:class:`~nbv_prob_cnn.gain.march.RayMarch`)."""
-        cl, mf = self._cl, self._cl.mem_flags
         n, r = origins.shape[0], march.offsets.shape[0]
-        lanes = self._launch_lanes(march.options)
         if n == 0:
             return np.empty((n, r), dtype=np.float32)
         code_buf, padded, origin_index, offset_buf = self._common(code, origins, march)
+        return self._rays(code_buf, padded, origin_index, offset_buf, march)
+
+    def run_each(self, code: np.ndarray, origins: np.ndarray, marches: list[RayMarch]) -> np.ndarray:
+        """Ray gains ``(N, R)`` float32 of each origin marching its own rays: origin ``i`` marches
+        ``marches[i]`` (the same settings, ``R`` rays each) on one upload of ``code``, the launches
+        queued together."""
+        if origins.shape[0] == 0:
+            return np.empty((0, 0), dtype=np.float32)
+        code_buf, padded, _, _ = self._common(code, origins[:1], marches[0])
+        origin_index = linear_indices(origins, padded.shape, shift=1)
+        mf = self._cl.mem_flags
+        launched = []
+        for index, march in zip(origin_index, marches, strict=True):
+            offsets = linear_indices(march.offsets.reshape(-1, march.offsets.shape[2]), padded.shape, shift=0)
+            offset_buf = self._cl.Buffer(self.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=offsets)
+            launched.append(self._enqueue_rays(code_buf, padded, index[None], offset_buf, march) + (offset_buf,))
+        self.queue.finish()
+        return np.stack([out.transpose(0, 2, 1).reshape(-1, out.shape[1])[0] for out, *_ in launched])
+
+    def _rays(self, code_buf, padded, origin_index, offset_buf, march: RayMarch) -> np.ndarray:
+        """``ray_gain`` on a device grid ``code_buf`` (host copy ``padded``) at linear origins: ``(N, R)``."""
+        out, *_ = self._enqueue_rays(code_buf, padded, origin_index, offset_buf, march)
+        self.queue.finish()
+        return np.ascontiguousarray(out.transpose(0, 2, 1).reshape(-1, out.shape[1])[: origin_index.shape[0]])
+
+    def _enqueue_rays(self, code_buf, padded, origin_index, offset_buf, march: RayMarch) -> tuple:
+        """Queue ``ray_gain`` and the copy of its ``(blocks, R, lanes)`` output; returns the host output
+        followed by the buffers and arguments the queue uses (keep them until it has finished)."""
+        cl, mf = self._cl, self._cl.mem_flags
+        r = march.offsets.shape[0]
+        lanes = self._launch_lanes(march.options)
         origin_index = pad_to(origin_index, lanes)
         blocks = origin_index.size // lanes
         out = np.empty((blocks, r, lanes), dtype=np.float32)
         origin_buf = cl.Buffer(self.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=origin_index)
         out_buf = cl.Buffer(self.context, mf.WRITE_ONLY, out.nbytes)
         kernel = self.kernels(*march.program)[0]
-        extra = self._option_args(march.options, padded.shape)  # held until the queue has finished
+        extra = self._option_args(march.options, padded.shape)
         kernel.set_args(code_buf, origin_buf, np.int32(origin_index.size), offset_buf, *_march_args(march), out_buf,
                         *extra)  # fmt: skip
         cl.enqueue_nd_range_kernel(self.queue, kernel, (blocks * r,), None)
-        cl.enqueue_copy(self.queue, out, out_buf)
-        self.queue.finish()
-        return np.ascontiguousarray(out.transpose(0, 2, 1).reshape(-1, r)[:n])
+        cl.enqueue_copy(self.queue, out, out_buf, is_blocking=False)
+        return out, origin_buf, out_buf, extra
 
     def run_views(
         self,
@@ -327,7 +355,35 @@ class OpenCLRayCaster:
         ``"returns"`` gain too.
 
         Returns:
-            ``(origin position, view, gain, origins evaluated exactly)``.
+            ``(origin position, view, gain, origins evaluated exactly)``; ``(0, 0, 0.0, n)`` when no
+            view has a positive gain (the exhaustive argmax of all zeros).
+        """
+        index, view, gain, done = self.best_views(code, origins, march, membership, 1, None, first_batch, block_size,
+                                                  prune_views)  # fmt: skip
+        if index.size == 0:
+            return 0, 0, 0.0, done
+        return int(index[0]), int(view[0]), float(gain[0]), done
+
+    def best_views(
+        self,
+        code: np.ndarray,
+        origins: np.ndarray,
+        march: RayMarch,
+        membership: np.ndarray,
+        top_k: int = 1,
+        allowed: np.ndarray | None = None,
+        first_batch: int = BEST_VIEW_FIRST_BATCH,
+        block_size: int = BOUND_BLOCK,
+        prune_views: bool = True,
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
+        """The ``top_k`` ``(origin, view)`` pairs of largest positive ``G_W``, best first (ties: the
+        first origin, then the first view), exactly as the exhaustive ``run_views(...)`` ranking, by
+        the coarse-to-fine search of :meth:`best_view` with the ``top_k``-th best gain as the bar a
+        block's bound must reach. ``allowed``: ``(N, V)`` bool, the views allowed per origin (the
+        others count as zero gain; the bounds still bound the allowed views).
+
+        Returns:
+            ``(origin positions, views, gains, origins evaluated exactly)``: at most ``top_k`` each.
         """
         n = origins.shape[0]
         code_buf, padded, origin_index, offset_buf = self._common(code, origins, march)
@@ -348,29 +404,35 @@ class OpenCLRayCaster:
         view_bound = view_bound * np.float32(1.0 + BOUND_MARGIN) + np.float32(BOUND_MARGIN)
         block_bound = view_bound.max(axis=1)
         ordered = BoundOrder(block_bound, block_of)
-        best = (-1.0, n, 0)  # gain, origin, view
+        kept_gain = np.zeros(0, dtype=np.float32)
+        kept_origin = kept_view = np.zeros(0, dtype=np.int64)
+        bar = -1.0  # a gain must reach it to enter the ranking: the top_k-th best once there are top_k
         done, batch = 0, max(1, first_batch)
         while done < n:
             following, bounds = ordered.take(done, min(n, done + batch))
-            if bounds[0] < best[0]:
+            if bounds[0] < bar:
                 break
-            stop = done + int(np.count_nonzero(bounds >= best[0]))
+            stop = done + int(np.count_nonzero(bounds >= bar))
             # origins in grid order: the lanes and work-items of a work-group march from neighbouring cells
             chosen, view_sets = np.sort(following[: stop - done]), None
-            if prune_views and best[0] >= 0.0 and not sparse:
-                pattern, reach = reaching_views(view_bound, block_of[chosen], best[0])
+            if prune_views and bar >= 0.0 and not sparse:
+                pattern, reach = reaching_views(view_bound, block_of[chosen], bar)
                 by_pattern = np.argsort(pattern, kind="stable")  # work-groups of one view set
                 chosen, view_sets = chosen[by_pattern], reach[pattern[by_pattern]]
             gains = self._views(code_buf, padded, origin_index[chosen], offset_buf, march, membership,
                                 view_sets=view_sets)  # fmt: skip
-            top = float(gains.max())
-            rows, cols = np.nonzero(gains == gains.max())
-            first = np.lexsort((cols, chosen[rows]))[0]
-            candidate = (top, int(chosen[rows[first]]), int(cols[first]))
-            if top > best[0] or (top == best[0] and candidate[1:] < best[1:]):
-                best = candidate
+            if allowed is not None:
+                gains = np.where(allowed[chosen], gains, np.float32(0.0))
+            rows, cols = np.nonzero((gains > 0.0) & (gains >= bar))
+            kept_gain = np.concatenate([kept_gain, gains[rows, cols]])
+            kept_origin = np.concatenate([kept_origin, chosen[rows]])
+            kept_view = np.concatenate([kept_view, cols.astype(np.int64)])
+            order = np.lexsort((kept_view, kept_origin, -kept_gain))[:top_k]
+            kept_gain, kept_origin, kept_view = kept_gain[order], kept_origin[order], kept_view[order]
+            if kept_gain.size == top_k:
+                bar = float(kept_gain[-1])
             done, batch = stop, batch * 2
-        return best[1], best[2], best[0], done
+        return kept_origin, kept_view, kept_gain, done
 
 
 def _march_args(march: RayMarch) -> list:

@@ -16,7 +16,10 @@ The surface methods (docs/method.md#surface-gain) count where a ray's return is 
 among the unknown cells (blended with the paper's gain by ``context.surface_blend``):
 ``cnn_surface`` on the CNN's map, ``prob_surface`` on the constant ``P0`` (with a constant map the
 surface term is ``P0`` times the paper's, so it ranks as ``prob_ig`` does: the control that shows
-what the CNN's map adds) and ``omniscient_surface`` on the ground truth (simulation only).
+what the CNN's map adds) and ``omniscient_surface`` on the ground truth (simulation only). They
+re-rank the search's best ``context.image_rerank`` views by rays through each view's own image
+(:mod:`~nbv_prob_cnn.planners.image_rays`); with that, ``prob_surface`` no longer ranks exactly as
+``prob_ig``.
 
 [*] drawn after any origin filter (workspace box, origin budget), so that a filtered request
 still evaluates up to the full budget inside the box.
@@ -42,6 +45,7 @@ from nbv_prob_cnn.planners.base import (
     search_views,
 )
 from nbv_prob_cnn.planners.candidates import near_unknown_origins, ray_reach
+from nbv_prob_cnn.planners.image_rays import rerank_by_image
 from nbv_prob_cnn.planners.surface_stop import best_new_surface
 
 #: Origins evaluated by the downsampled method, per dimensionality (docs/method.md#candidate-views-and-view-gain).
@@ -157,10 +161,14 @@ class GainPlanner(RankingPlanner):
             assert context.ranker is not None
             found = context.ranker(self.name, state, prob, top_k)
         else:
+            rerank = self.method.surface and context.image_rerank > 1
             found = search_views(
-                state, prob, origins, context, self.method.mode, top_k, view_mask=view_mask,
-                probability=self.method.probability, surface=self.method.surface,
+                state, prob, origins, context, self.method.mode, max(top_k, context.image_rerank) if rerank else top_k,
+                view_mask=view_mask, probability=self.method.probability, surface=self.method.surface,
             )  # fmt: skip
+            if rerank:
+                settings = context.gain_settings(self.method.mode, self.method.probability, self.method.surface)
+                found = rerank_by_image(state, prob, found, context, settings)[:top_k]
         surface_map = prob if prob is not None else probability_with_constant(state, context.defaults.p0)
         estimate = functools.partial(self._best_new_surface, state, surface_map, context, origin_filter, origins)
         for choice in found:

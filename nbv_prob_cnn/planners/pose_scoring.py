@@ -10,11 +10,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from nbv_prob_cnn.basics.camera import in_frustum, matrix_from_quaternion, unit_quaternions
+from nbv_prob_cnn.basics.camera import in_frustum, unit_quaternions
 from nbv_prob_cnn.basics.geometry import GridGeometry
 from nbv_prob_cnn.gain import GainSettings, ray_gains
-from nbv_prob_cnn.gain.frustum_rays import frustum_rays
 from nbv_prob_cnn.planners.base import PlanningContext
+from nbv_prob_cnn.planners.image_rays import IMAGE_RAYS_ACROSS, image_ray_gains
 
 VALID = 0
 OUTSIDE_GRID = 1
@@ -22,11 +22,8 @@ IN_OCCUPIED_CELL = 2
 IN_UNKNOWN_CELL = 3
 INVALID_POSE = 4
 #: Rays across a pose's own image that ``/nbv/evaluate_views`` scores with by default
-#: (``gain_server``'s ``evaluate_rays_across``). On the 7-Scenes kitchen, 16 anchors x 10 recorded poses at 4 cm
-#: (``nbv gain-study``, docs/evaluation.md#does-the-gain-predict-what-a-real-camera-sees), the within-anchor
-#: rank agreement with what each frame revealed rose from 0.14 (prob_ig) / 0.29 (cnn_prob) with the view
-#: search's 56 rays (3.6 inside the frustum) to 0.71 / 0.65; 64 across gave no more.
-EVALUATE_RAYS_ACROSS = 32
+#: (``gain_server``'s ``evaluate_rays_across``): :data:`~nbv_prob_cnn.planners.image_rays.IMAGE_RAYS_ACROSS`.
+EVALUATE_RAYS_ACROSS = IMAGE_RAYS_ACROSS
 
 REASONS = {
     VALID: "",
@@ -116,7 +113,7 @@ def score_poses(
     q = unit_quaternions(quats, tiny=1e-6)[0][ok]
     orientations = np.array([yaw_of(v) for v in q]) if state.ndim == 2 else q
     if rays_across:
-        gains[ok] = _own_frustum_gains(state, prob, cells[ok], orientations, context, settings, rays_across)
+        gains[ok] = image_ray_gains(state, prob, cells[ok], orientations, context, settings, rays_across)
         return PoseScores(gains, validity, reasons)
     unique_cells, which = np.unique(cells[ok], axis=0, return_inverse=True)
     per_ray = ray_gains(state, prob, context.directions, sensor.r_max, unique_cells, context.backend,
@@ -124,34 +121,3 @@ def score_poses(
     member = in_frustum(context.directions, orientations, sensor.hfov_deg, sensor.vfov_deg)  # (R, P)
     gains[ok] = np.einsum("pr,rp->p", per_ray[which.reshape(-1)], member.astype(np.float32))
     return PoseScores(gains, validity, reasons)
-
-
-def camera_rotation(orientation: np.ndarray | float) -> np.ndarray:
-    """Grid-from-camera rotation of a pose: a yaw (2D, ``(2, 2)``) or a quaternion (3D, ``(3, 3)``)."""
-    if np.ndim(orientation) == 0:
-        c, s = math.cos(float(orientation)), math.sin(float(orientation))
-        return np.array([[c, -s], [s, c]])
-    return matrix_from_quaternion(np.asarray(orientation))
-
-
-def _own_frustum_gains(
-    state: np.ndarray,
-    prob: np.ndarray | None,
-    cells: np.ndarray,
-    orientations: np.ndarray,
-    context: PlanningContext,
-    settings: GainSettings,
-    across: int,
-) -> np.ndarray:
-    """``Σ Ω_r G_r`` of each pose over ``across`` rays through its own image, one cast per pose (a
-    cast of a chunk of poses against all their rays was slower: it marches every pose's rays from
-    every origin of the chunk)."""
-    sensor = context.active_sensor
-    camera_directions, weights = frustum_rays(state.ndim, across, sensor.hfov_deg, sensor.vfov_deg)
-    gains = np.zeros(cells.shape[0], dtype=np.float64)
-    for i, (cell, orientation) in enumerate(zip(cells, orientations, strict=True)):
-        directions = camera_directions @ camera_rotation(orientation).T
-        per_ray = ray_gains(state, prob, directions, sensor.r_max, cell[None].astype(np.int64), context.backend,
-                            settings=settings)  # fmt: skip
-        gains[i] = float(per_ray[0].astype(np.float64) @ weights)
-    return gains.astype(np.float32)

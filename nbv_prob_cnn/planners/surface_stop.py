@@ -24,7 +24,7 @@ from nbv_prob_cnn.gain import ray_gains
 from nbv_prob_cnn.gain.frustum_rays import frustum_rays
 from nbv_prob_cnn.gain.sampling import traversal_table
 from nbv_prob_cnn.gain.settings import GainSettings
-from nbv_prob_cnn.planners.pose_scoring import camera_rotation
+from nbv_prob_cnn.planners.image_rays import camera_rotation
 
 #: Rays across the view's image for the estimate (as ``/nbv/evaluate_views``' default).
 SURFACE_RAYS_ACROSS = 32

@@ -6,9 +6,16 @@ import numpy as np
 import pytest
 
 from nbv_prob_cnn.basics.camera import orientations
-from nbv_prob_cnn.gain import GainSettings, best_origin_view, origin_view_gains, ray_directions, view_membership
+from nbv_prob_cnn.gain import (
+    GainSettings,
+    _grid_code,
+    best_origin_view,
+    origin_view_gains,
+    ray_directions,
+    view_membership,
+)
 from nbv_prob_cnn.gain.directions import distance_weights, sample_offsets
-from nbv_prob_cnn.gain.march import RayMarch
+from nbv_prob_cnn.gain.march import RayMarch, march_options, ray_march
 from nbv_prob_cnn.gain.marched_grid import encode_grid
 from nbv_prob_cnn.gain.opencl import get_ray_caster
 
@@ -258,3 +265,51 @@ def test_unique_rows_matches_numpy_unique(width):
     rows, inverse = unique_rows(flags)
     assert np.array_equal(rows[inverse], flags)
     assert rows.shape[0] == np.unique(flags, axis=0).shape[0]
+
+
+def _exhaustive_top(gains: np.ndarray, top_k: int) -> list[tuple[int, int, float]]:
+    """The ``top_k`` positive entries of ``gains`` by a plain sort: gain descending, then origin, then view."""
+    entries = [(-float(g), i, v) for (i, v), g in np.ndenumerate(gains) if g > 0.0]
+    return [(i, v, -g) for g, i, v in sorted(entries)[:top_k]]
+
+
+@pytest.mark.parametrize("shape,n_rays,r_max", CASES)
+@pytest.mark.parametrize("surface", [0.0, 0.9])
+@pytest.mark.parametrize("masked", [False, True])
+def test_best_views_rank_as_a_sort_of_every_gain(shape, n_rays, r_max, surface, masked):
+    """The bounded top-k search returns the first ``top_k`` of a plain sort of the exhaustive OpenCL
+    gains (with a random view mask: of the allowed ones), for a k that forces it past the first batch."""
+    from nbv_prob_cnn.gain import best_origin_views
+
+    state, p, d, member, origins = _explored_views(3, shape, n_rays, "prob")
+    settings = GainSettings(mode="prob", min_range=2, surface=surface)
+    gains = origin_view_gains(state, p, d, r_max, member, origins, "opencl", settings=settings)
+    allowed = np.random.default_rng(5).random(gains.shape) > 0.3 if masked else None
+    if allowed is not None:
+        gains = np.where(allowed, gains, 0.0)
+    march = ray_march(len(shape), d, r_max, settings, march_options(state, p, d, r_max, settings))
+    evaluated = []
+    for top_k in (1, 5, 40):
+        expected = _exhaustive_top(gains, top_k)
+        assert len(expected) == top_k
+        found = best_origin_views(state, p, d, r_max, member, origins, top_k, allowed, settings=settings, block_size=2)
+        # small batches: the search stops at the bound of the k-th best
+        *small, done = get_ray_caster().best_views(_grid_code(state, p, settings), origins, march, member, top_k,
+                                                   allowed, first_batch=8, block_size=2)  # fmt: skip
+        evaluated.append(done)
+        for index, view, gain in (found, small):
+            assert list(zip(index.tolist(), view.tolist(), strict=True)) == [(i, v) for i, v, _ in expected]
+            np.testing.assert_array_equal(gain, np.float32([g for _, _, g in expected]))
+    assert evaluated[0] <= evaluated[1] <= evaluated[2] <= origins.shape[0]  # a lower bar lets more origins through
+    if surface == 0.0 and len(shape) == 3:
+        assert evaluated[0] < origins.shape[0]  # pruning happened
+
+
+def test_best_views_rejects_bad_arguments():
+    from nbv_prob_cnn.gain import best_origin_views
+
+    state, p, d, member, origins = _explored_views(0, (19, 17, 15), 4, "prob")
+    with pytest.raises(ValueError, match="top_k"):
+        best_origin_views(state, p, d, 8, member, origins, 0)
+    with pytest.raises(ValueError, match="allowed"):
+        best_origin_views(state, p, d, 8, member, origins, 3, np.ones((2, 2), dtype=bool))

@@ -216,14 +216,14 @@ def test_every_lane_width_matches_the_reference(monkeypatch, lanes):
 @pytest.mark.parametrize("sampling", ["rounded", "exact"])
 def test_pruned_search_finds_the_exact_argmax(monkeypatch, dims, shape, n_rays, sampling):
     bounded = []  # whether each search used block bounds (dense origins) and how many it evaluated
-    original = OpenCLRayCaster.best_view
+    original = OpenCLRayCaster.best_views
 
     def spy(self, *args, **kwargs):
         found = original(self, *args, first_batch=64, **kwargs)  # small batches: pruning on small grids
         bounded.append(found[3] < args[1].shape[0])
         return found
 
-    monkeypatch.setattr(OpenCLRayCaster, "best_view", spy)
+    monkeypatch.setattr(OpenCLRayCaster, "best_views", spy)
     d = ray_directions(dims, n_rays)
     member = view_membership(d, orientations(dims), 60.0, 46.0 if dims == 3 else None)
     for seed in range(2):
