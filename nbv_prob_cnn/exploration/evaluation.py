@@ -59,6 +59,9 @@ GUARD_KEY = "guard_min_cells"
 #: Key of a run's ``.json`` that holds a surface method's blend (docs/method.md#surface-gain; written
 #: only for the surface methods: a run of another blend is redone).
 SURFACE_KEY = "surface_blend"
+#: A surface method's run records how many views it re-ranked by their image rays (none recorded: 0,
+#: the runs made before the re-ranking).
+RERANK_KEY = "image_rerank"
 #: File-name label of guarded runs and their summaries (they sit beside the plain ones).
 GUARDED = "guarded"
 
@@ -127,6 +130,7 @@ def run_status(
     guard_min_cells: int | None = None,
     chamfer: bool = False,
     surface_blend: float | None = None,
+    image_rerank: int | None = None,
 ) -> str:
     """``"done"``: the run CSV exists for at least ``views`` views (or stopped early in a run that
     asked for as many) and was made with the weights of fingerprint ``weights`` (None: a method
@@ -135,7 +139,9 @@ def run_status(
     ``.json`` records another ``gain_variant``; none recorded: ``"paper"``), or ``"other guard"``
     (another view-guard threshold, ``guard_min_cells``; None: the plain loop, none recorded), or,
     with ``chamfer``, ``"no chamfer"`` (its ``.json`` holds no Chamfer distance), or ``"other surface
-    blend"`` (a surface method's run whose ``.json`` records another blend than ``surface_blend``)."""
+    blend"`` (a surface method's run whose ``.json`` records another blend than ``surface_blend``), or
+    ``"other image re-ranking"`` (another ``image_rerank``, :data:`RERANK_KEY`; None: a method that
+    does not re-rank)."""
     if not path.is_file():
         return "missing"
     meta_path = path.with_suffix(".json")
@@ -154,6 +160,8 @@ def run_status(
             return "no chamfer"
         if meta.get(SURFACE_KEY) != surface_blend:
             return "other surface blend"
+        if meta.get(RERANK_KEY, None if surface_blend is None else 0) != image_rerank:
+            return "other image re-ranking"
     else:
         if gain_variant != "paper":
             return "other gain variant"
@@ -163,6 +171,8 @@ def run_status(
             return "no chamfer"
         if surface_blend is not None:
             return "other surface blend"
+        if image_rerank is not None:
+            return "other image re-ranking"
         with open(path) as handle:
             enough = sum(1 for _ in handle) - 1 >= views
         recorded = None
@@ -217,7 +227,15 @@ def run_one(
         meta[CHAMFER_KEY] = result.chamfer.as_dict()
     if _surface_blend(method) is not None:
         meta[SURFACE_KEY] = context.surface_blend
+        meta[RERANK_KEY] = context.image_rerank
     return text.getvalue(), meta
+
+
+def _image_rerank(method: str) -> int | None:
+    """The views a surface method re-ranks by their image rays (the default), None for the other methods."""
+    from nbv_prob_cnn.planners.base import DEFAULT_IMAGE_RERANK
+
+    return DEFAULT_IMAGE_RERANK if _surface_blend(method) is not None else None
 
 
 def _surface_blend(method: str) -> float | None:
@@ -312,8 +330,9 @@ def evaluate(
                 continue
             fingerprints[seed, method] = recorded_weights(source)
             status = run_status(
-                source, views, fingerprints[seed, method], gain_variant, threshold, surface_blend=_surface_blend(method)
-            )
+                source, views, fingerprints[seed, method], gain_variant, threshold,
+                surface_blend=_surface_blend(method), image_rerank=_image_rerank(method),
+            )  # fmt: skip
             if status != "done":
                 raise ValueError(f"replay: {source}: {status} (needs {views} views of this gain variant and guard)")
             sources[seed, method] = str(source)
@@ -322,7 +341,7 @@ def evaluate(
     for seed, method in jobs:
         status = run_status(
             run_path(out, dataset, method, seed, guard), views, fingerprints[seed, method], gain_variant, threshold,
-            chamfer, _surface_blend(method),
+            chamfer, _surface_blend(method), _image_rerank(method),
         )  # fmt: skip
         if status != "done":
             pending[seed, method] = (dataset, method, seed, views, backend, gain_variant, threshold, chamfer,

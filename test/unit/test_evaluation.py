@@ -47,12 +47,19 @@ def test_run_status_by_hand(tmp_path):
     meta.write_text(json.dumps({"views": 100}))  # written before fingerprints were recorded
     assert run_status(path, 100) == "done" and run_status(path, 100, "abc") == "other weights"
     # a surface method's run is kept only for the blend it ran with
-    meta.write_text(json.dumps({"views": 100, "surface_blend": 0.8}))
-    assert run_status(path, 100, surface_blend=0.8) == "done"
-    assert run_status(path, 100, surface_blend=0.9) == "other surface blend"
+    meta.write_text(json.dumps({"views": 100, "surface_blend": 0.8}))  # made before the image re-ranking
+    assert run_status(path, 100, surface_blend=0.8) == "other image re-ranking"
+    assert run_status(path, 100, surface_blend=0.8, image_rerank=0) == "done"
+    assert run_status(path, 100, surface_blend=0.9, image_rerank=0) == "other surface blend"
     assert run_status(path, 100) == "other surface blend"  # not a surface method's run
+    # ... and for the views it re-ranked by their image rays
+    meta.write_text(json.dumps({"views": 100, "surface_blend": 0.8, "image_rerank": 20}))
+    assert run_status(path, 100, surface_blend=0.8, image_rerank=20) == "done"
+    assert run_status(path, 100, surface_blend=0.8, image_rerank=10) == "other image re-ranking"
+    assert run_status(path, 100, surface_blend=0.8) == "other image re-ranking"
     meta.unlink()
     assert run_status(path, 3, surface_blend=0.8) == "other surface blend"  # no .json: no blend recorded
+    assert run_status(path, 3, image_rerank=20) == "other image re-ranking"
 
 
 def test_runs_with_other_weights_are_redone(tmp_path, monkeypatch, capsys):
