@@ -88,3 +88,42 @@ def test_omniscient_requires_ground_truth():
     state[30:40, 30:40] = 0
     with pytest.raises(ValueError, match="ground truth"):
         make_planner("omniscient").plan(state, context)
+
+
+def test_explore_command_passes_the_surface_options_to_the_context(tmp_path, monkeypatch, capsys):
+    """``nbv explore --surface-blend B --image-rerank K`` plan with that blend and re-ranking (without
+    them: the context's defaults); a negative or non-integer ``--image-rerank`` is refused naming the flag."""
+    import argparse
+
+    from nbv_prob_cnn.cli import main
+    from nbv_prob_cnn.commands import explore as command
+    from nbv_prob_cnn.gain.settings import DEFAULT_SURFACE_BLEND
+    from nbv_prob_cnn.planners.base import DEFAULT_IMAGE_RERANK
+
+    contexts = []
+
+    def fake_explore(world, planner, context, views, **kwargs):
+        contexts.append(context)
+        raise RuntimeError("stop here")
+
+    monkeypatch.setattr(command, "explore", fake_explore)
+    parser = argparse.ArgumentParser()
+    command.add_arguments(parser)
+    base = ["--dataset", "2d", "--method", "prob_surface", "--log", str(tmp_path / "run.csv"), "--quiet"]
+    for extra, blend, rerank in [
+        ([], DEFAULT_SURFACE_BLEND, DEFAULT_IMAGE_RERANK),
+        (["--image-rerank", "0"], DEFAULT_SURFACE_BLEND, 0),
+        (["--image-rerank", "7", "--surface-blend", "0.25"], 0.25, 7),
+    ]:
+        with pytest.raises(RuntimeError, match="stop here"):
+            command.run(parser.parse_args(base + extra))
+        assert (contexts[-1].surface_blend, contexts[-1].image_rerank) == (blend, rerank), extra
+    assert DEFAULT_IMAGE_RERANK not in (0, 7)  # the flag, not the default, gave 0 and 7
+    for bad in ("-1", "2.5", "many"):
+        with pytest.raises(SystemExit) as exit_info:
+            main(["explore", *base, "--image-rerank", bad])
+        assert exit_info.value.code == 2
+        assert f"argument --image-rerank: expected a number of views >= 0 (0: no re-ranking), got '{bad}'" in (
+            capsys.readouterr().err
+        )
+    assert len(contexts) == 3  # nothing explored with a refused value
