@@ -105,6 +105,9 @@ class PlanningParams(Protocol):
     @property
     def surface_blend(self) -> float: ...
 
+    @property
+    def image_rerank(self) -> int: ...
+
     def apply_sensor_model(self, context, resolution_m: float) -> None: ...
 
 
@@ -112,7 +115,7 @@ def node_planning_context(
     params: PlanningParams, geometry: GridGeometry, frustum: Frustum, rng: np.random.Generator
 ) -> PlanningContext:
     """The planning set-up of one request on ``geometry``: the node's data set, backend, rays, gain
-    variant and sensor model, planned with ``frustum``.
+    variant, surface blend, image re-ranking and sensor model, planned with ``frustum``.
 
     Raises:
         ValueError: the grid does not fit the data set, or bad frustum overrides.
@@ -123,6 +126,7 @@ def node_planning_context(
     )  # fmt: skip
     context.gain_variant = params.gain_variant
     context.surface_blend = float(params.surface_blend)
+    context.image_rerank = int(params.image_rerank)
     params.apply_sensor_model(context, geometry.resolution)
     return context
 

@@ -81,14 +81,20 @@ from nbv_prob_cnn.planners import ViewChoice, check_ros_method, make_planner, ro
 from nbv_prob_cnn.planners.base import OriginFilter
 from nbv_prob_cnn.planners.recording import RecordingPlanner
 from nbv_prob_cnn.planners.registry import DEFAULT_METHOD
-from nbv_prob_cnn.planners.requests import origin_filter, planning_context, view_pose
+from nbv_prob_cnn.planners.requests import origin_filter, view_pose
 from nbv_prob_cnn.planners.surface_stop import SurfaceStop
 from nbv_prob_cnn.planners.workspace import Box, height_box, intersect_boxes, workspace_box
 from nbv_prob_cnn.ros import names
-from nbv_prob_cnn.ros.camera_sensor import CameraInfoSensor, SensorParams
+from nbv_prob_cnn.ros.camera_sensor import CameraInfoSensor, SensorParams, node_planning_context
 from nbv_prob_cnn.ros.conversions import arrays_to_pose_stamped, geometry_of, msg_to_grid
 from nbv_prob_cnn.ros.explore_parts import NO_POSITIVE_GAIN, ExploreGrids, GoalPlanner, cancel_requested
-from nbv_prob_cnn.ros.gain_params import backend_param, gain_variant_param, n_rays_param, surface_blend_param
+from nbv_prob_cnn.ros.gain_params import (
+    backend_param,
+    gain_variant_param,
+    image_rerank_param,
+    n_rays_param,
+    surface_blend_param,
+)
 from nbv_prob_cnn.ros.grid_holder import GridSourceParams, LatestGrid, grid_transport_param
 from nbv_prob_cnn.ros.joint_state_intake import JointStateIntake
 from nbv_prob_cnn.ros.markers import planning_markers
@@ -133,6 +139,10 @@ class PlannerConfig(GridSourceParams, SensorParams, ArmViewParams, MoveItParams)
     )
     surface_blend: float = surface_blend_param(
         "the surface methods' blend in-process (0 the paper's gain, 1 the surface alone; else gain_server's)"
+    )
+    image_rerank: int = image_rerank_param(
+        "the surface methods re-rank the search's best this many views by their own image rays in-process "
+        "(0: none; else gain_server's)"
     )
     frame_id: str = param("world", "frame of grids that carry none")
     grid_transport: str = grid_transport_param()
@@ -345,16 +355,9 @@ class NbvPlanner(Node):
             grid = self._grid.latest()
             state, geometry = msg_to_grid(grid)
             frame = grid.header.frame_id or cfg.frame_id
-            frustum = self._sensor.frustum()
-            context = planning_context(
-                cfg.dataset, geometry, cfg.backend, cfg.n_rays, self._rng,
-                frustum.hfov_deg, frustum.vfov_deg, frustum.max_range_m, frustum.min_range_m,
-            )  # fmt: skip
-            context.gain_variant = cfg.gain_variant
-            context.surface_blend = float(cfg.surface_blend)
+            context = node_planning_context(cfg, geometry, self._sensor.frustum(), self._rng)
             context.cnn_window = None if cfg.cnn_window < 0 else cfg.cnn_window
             context.cnn_precision = cfg.cnn_precision
-            cfg.apply_sensor_model(context, geometry.resolution)
             box = self._planning_box(request)
             top_k = max(1, int(request.top_k), cfg.markers_top_k)
             low, high = box if box is not None else (np.zeros(3), np.zeros(3))  # unused without a box
