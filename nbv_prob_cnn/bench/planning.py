@@ -440,19 +440,20 @@ def format_table(results: list[BenchResult]) -> str:
 def cnn_table(seed: int = 1000, repeats: int = 3, echo: Echo | None = None) -> str:
     """CNN inference time and a full ``cnn_prob`` planning iteration (CNN + ray casting + views)
     per data set at ~50 % explored, next to ``prob_ig`` and ``cnn_surface`` (the surface gain on the same
-    map; its time over ``cnn_prob``'s, measured side by side); markdown table (``echo``: each line as
-    soon as it is measured)."""
+    map, with its re-ranking of the best views by their image rays and without it; times over
+    ``cnn_prob``'s, measured side by side); markdown table (``echo``: each line as soon as it is measured)."""
     from nbv_prob_cnn.completion import complete
     from nbv_prob_cnn.worlds import load_or_generate
 
     lines = EchoedLines([
         ("| data set | grid | CNN inference (s) | cnn_prob iteration (s) | prob_ig iteration (s) "
-        "| cnn_surface iteration (s) | cnn_surface / cnn_prob |"),
-        "|---|---|---|---|---|---|---|",
+        "| cnn_surface iteration (s) | cnn_surface / cnn_prob | without re-ranking (s) | ratio |"),
+        "|---|---|---|---|---|---|---|---|---|",
     ], echo)  # fmt: skip
     for dataset in ("2d", "3du", "3dt"):
         world = load_or_generate(dataset, seed)
         context = PlanningContext(_defaults(dataset), rng=np.random.default_rng(seed), backend="opencl")
+        unranked = PlanningContext(_defaults(dataset), rng=context.rng, backend="opencl", image_rerank=0)
         state = half_explored(world, context)
         complete(state, dataset=dataset)  # warm-up: load the weights
         t_cnn = _time(lambda: complete(state, dataset=dataset), repeats)  # noqa: B023 - used right here
@@ -460,9 +461,11 @@ def cnn_table(seed: int = 1000, repeats: int = 3, echo: Echo | None = None) -> s
         t_plan = _time(lambda: cnn.plan(state, context), repeats)  # noqa: B023
         t_constant = _time(lambda: constant.plan(state, context), repeats)  # noqa: B023
         t_surface = _time(lambda: surface.plan(state, context), repeats)  # noqa: B023
+        t_unranked = _time(lambda: surface.plan(state, unranked), repeats)  # noqa: B023
         shape = "×".join(map(str, world.shape))
         lines.append(f"| {dataset.upper()} | {shape} | {t_cnn:.3f} | {t_plan:.3f} | {t_constant:.3f} "
-                     f"| {t_surface:.3f} | {t_surface / t_plan:.2f} |")  # fmt: skip
+                     f"| {t_surface:.3f} | {t_surface / t_plan:.2f} "
+                     f"| {t_unranked:.3f} | {t_unranked / t_plan:.2f} |")  # fmt: skip
     return "\n".join(lines)
 
 

@@ -98,5 +98,5 @@ def test_the_cnn_table_shows_each_row_as_soon_as_it_is_measured(monkeypatch):
     echoed = [e[1] for e in events if e[0] == "echo"]
     assert "\n".join(echoed) == text and len(echoed) == 5  # header, rule, 2D, 3DU, 3DT
     assert [e[0] for e in events] == ["echo", "echo", "load", "echo", "load", "echo", "load", "echo"]
-    assert events[3] == ("echo", "| 2D | 4×4 | 0.250 | 0.250 | 0.250 | 0.250 | 1.00 |")
+    assert events[3] == ("echo", "| 2D | 4×4 | 0.250 | 0.250 | 0.250 | 0.250 | 1.00 | 0.250 | 1.00 |")
     assert planning.cnn_table() == text  # without echo: the same table, printed by nobody
