@@ -452,8 +452,9 @@ def cnn_table(seed: int = 1000, repeats: int = 3, echo: Echo | None = None) -> s
     ], echo)  # fmt: skip
     for dataset in ("2d", "3du", "3dt"):
         world = load_or_generate(dataset, seed)
-        context = PlanningContext(_defaults(dataset), rng=np.random.default_rng(seed), backend="opencl")
-        unranked = PlanningContext(_defaults(dataset), rng=context.rng, backend="opencl", image_rerank=0)
+        rng = np.random.default_rng(seed)
+        context = PlanningContext(_defaults(dataset), rng=rng, backend="opencl")
+        unranked = PlanningContext(_defaults(dataset), rng=rng, backend="opencl", image_rerank=0)
         state = half_explored(world, context)
         complete(state, dataset=dataset)  # warm-up: load the weights
         t_cnn = _time(lambda: complete(state, dataset=dataset), repeats)  # noqa: B023 - used right here
