@@ -107,6 +107,15 @@ def test_surface_methods_take_the_best_image_gain_among_the_search_top(rng):
     first = planner.plan(state, plain)
     assert (tuple(first.cell), first.view_index, first.image_gain) == (tuple(top[0].cell), top[0].view_index, None)
     assert int(np.argmax(image)) != 0  # the re-ranking changed the choice on this grid
+    # a longer ranking: the re-ranked best 8, then the search's order
+    ranked = planner.rank(state, reranked, top_k=12)
+    longer = search_views(state, prob, origins, plain, top_k=12, probability="constant", surface=True)
+    cells, views = np.array([c.cell for c in top]), plain.orientations[[c.view_index for c in top]]
+    cast = image_ray_gains(state, prob, cells, views, plain, settings)  # the planner's numbers (near ties)
+    np.testing.assert_allclose(cast, image, rtol=1e-5)
+    image_order = [top[i] for i in np.argsort(-cast, kind="stable") if cast[i] > 0]
+    key = lambda c: (tuple(c.cell), c.view_index)  # noqa: E731
+    assert [key(c) for c in ranked] == [key(c) for c in image_order + longer[8:]][:12]
     ig = make_planner("prob_ig")
     a, b = ig.plan(state, plain), ig.plan(state, reranked)
     assert (tuple(a.cell), a.view_index, a.image_gain) == (tuple(b.cell), b.view_index, None)
