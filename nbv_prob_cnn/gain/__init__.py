@@ -132,7 +132,7 @@ def each_origin_ray_gains(
 ) -> np.ndarray:
     """:func:`ray_gains` of each origin along its own rays: ``directions`` ``(N, R, dims)``, origin
     ``i`` casting ``directions[i]`` (e.g. the rays through each of N camera images). ``(N, R)``
-    float32; the grid is encoded and uploaded once for all of them.
+    float32; on OpenCL one launch marches each origin's rays alone (``own_ray_gain``).
 
     Raises:
         ValueError: as :func:`ray_gains`, or ``directions`` not ``(len(origins), R, dims)``.
@@ -148,19 +148,19 @@ def each_origin_ray_gains(
                                                              origins, backend, settings)  # fmt: skip
     if n == 0:
         return np.zeros((0, r), dtype=np.float32)
-    own = flat.reshape(n, r, dims)
-    first = march_options(state, prob, own[0], r_max, settings)
-    normals = None if first is None else first.normals
-    options = [first] + [march_options(state, prob, d, r_max, settings, normals) for d in own[1:]]
-    if backend == "numpy":
+    options = march_options(state, prob, flat, r_max, settings)
+    if backend == "numpy":  # the reference, origin by origin
+        normals = None if options is None else options.normals
+        own = flat.reshape(n, r, dims)
         return np.concatenate([
-            reference_ray_gains(state, prob, d, r_max, origins[i : i + 1], settings, o)
-            for i, (d, o) in enumerate(zip(own, options, strict=True))
+            reference_ray_gains(state, prob, own[i], r_max, origins[i : i + 1], settings,
+                                march_options(state, prob, own[i], r_max, settings, normals))
+            for i in range(n)
         ])  # fmt: skip
     from nbv_prob_cnn.gain.opencl import get_ray_caster
 
-    marches = [ray_march(state.ndim, d, r_max, settings, o) for d, o in zip(own, options, strict=True)]
-    return get_ray_caster().run_each(_grid_code(state, prob, settings), origins, marches)
+    march = ray_march(state.ndim, flat, r_max, settings, options)
+    return get_ray_caster().run_each(_grid_code(state, prob, settings), origins, march)
 
 
 def origin_view_gains(

@@ -84,7 +84,7 @@ class OpenCLRayCaster:
             raise ValueError(f"lanes: expected one of {LANE_WIDTHS}, got {lanes!r}")
         self._runtime = runtime
         self._kernels: dict[tuple[str, bool, bool, int], tuple] = {}
-        self._ray_kernel, self._view_kernel = self.kernels("paper")
+        self._ray_kernel, self._view_kernel, _ = self.kernels("paper")
         self._cache: dict[tuple, object] = {}
         self._last_options: tuple | None = None
 
@@ -98,7 +98,7 @@ class OpenCLRayCaster:
         return self.program_lanes(options is not None and options.flags[1])
 
     def kernels(self, variant: str, exact: bool = False, sensor: bool = False, surface_bound: int = 0) -> tuple:
-        """``(ray_gain, view_gain)`` of the program of gain ``variant`` (built on first use), with
+        """``(ray_gain, view_gain, own_ray_gain)`` of the program of gain ``variant`` (built on first use), with
         the exact-traversal and ``"returns"`` options (:class:`MarchOptions`), marching
         :meth:`program_lanes` origins per work-item; ``surface_bound``: the program of a surface
         blend's block bounds (``SURFACE_BOUND``: 1 the window's largest ``p`` for the factor, 2 the
@@ -113,7 +113,8 @@ class OpenCLRayCaster:
             options += ["-DGAIN_SENSOR=1"] if sensor else []
             options += [f"-DSURFACE_BOUND={int(surface_bound)}"] if surface_bound else []
             program = self._runtime.build(KERNEL_SOURCE, tuple(options))
-            self._kernels[key] = (self._cl.Kernel(program, "ray_gain"), self._cl.Kernel(program, "view_gain"))
+            self._kernels[key] = tuple(self._cl.Kernel(program, name) for name in ("ray_gain", "view_gain",
+                                                                                  "own_ray_gain"))  # fmt: skip
         return self._kernels[key]
 
     def _option_args(self, options: MarchOptions | None, padded_shape: tuple[int, int, int]) -> list:
@@ -176,34 +177,34 @@ class OpenCLRayCaster:
         code_buf, padded, origin_index, offset_buf = self._common(code, origins, march)
         return self._rays(code_buf, padded, origin_index, offset_buf, march)
 
-    def run_each(self, code: np.ndarray, origins: np.ndarray, marches: list[RayMarch]) -> np.ndarray:
-        """Ray gains ``(N, R)`` float32 of each origin marching its own rays: origin ``i`` marches
-        ``marches[i]`` (the same settings, ``R`` rays each) on one upload of ``code``, the launches
-        queued together."""
-        if origins.shape[0] == 0:
+    def run_each(self, code: np.ndarray, origins: np.ndarray, march: RayMarch) -> np.ndarray:
+        """Ray gains ``(N, R)`` float32 of each origin along its own rays: ``march`` holds ``N * R``
+        rays, origin ``i`` marches rows ``i * R .. (i + 1) * R - 1`` (one launch, ``own_ray_gain``)."""
+        cl, mf = self._cl, self._cl.mem_flags
+        n = origins.shape[0]
+        if n == 0:
             return np.empty((0, 0), dtype=np.float32)
-        code_buf, padded, _, _ = self._common(code, origins[:1], marches[0])
-        origin_index = linear_indices(origins, padded.shape, shift=1)
-        mf = self._cl.mem_flags
-        launched = []
-        for index, march in zip(origin_index, marches, strict=True):
-            offsets = linear_indices(march.offsets.reshape(-1, march.offsets.shape[2]), padded.shape, shift=0)
-            offset_buf = self._cl.Buffer(self.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=offsets)
-            launched.append(self._enqueue_rays(code_buf, padded, index[None], offset_buf, march) + (offset_buf,))
+        rays = march.offsets.shape[0] // n
+        code_buf, padded, origin_index, offset_buf = self._common(code, origins, march)
+        lanes = self._launch_lanes(march.options)
+        blocks = np.repeat(origin_index, lanes)  # one origin per block: its lanes march the same ray
+        out = np.empty((n, rays, lanes), dtype=np.float32)
+        origin_buf = cl.Buffer(self.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=blocks)
+        out_buf = cl.Buffer(self.context, mf.WRITE_ONLY, out.nbytes)
+        kernel = self.kernels(*march.program)[2]
+        extra = self._option_args(march.options, padded.shape)  # held until the queue has finished
+        args = _march_args(march)
+        args[0] = np.int32(rays)
+        kernel.set_args(code_buf, origin_buf, np.int32(blocks.size), offset_buf, *args, out_buf, *extra)
+        cl.enqueue_nd_range_kernel(self.queue, kernel, (n * rays,), None)
+        cl.enqueue_copy(self.queue, out, out_buf)
         self.queue.finish()
-        return np.stack([out.transpose(0, 2, 1).reshape(-1, out.shape[1])[0] for out, *_ in launched])
+        return np.ascontiguousarray(out[:, :, 0])
 
     def _rays(self, code_buf, padded, origin_index, offset_buf, march: RayMarch) -> np.ndarray:
         """``ray_gain`` on a device grid ``code_buf`` (host copy ``padded``) at linear origins: ``(N, R)``."""
-        out, *_ = self._enqueue_rays(code_buf, padded, origin_index, offset_buf, march)
-        self.queue.finish()
-        return np.ascontiguousarray(out.transpose(0, 2, 1).reshape(-1, out.shape[1])[: origin_index.shape[0]])
-
-    def _enqueue_rays(self, code_buf, padded, origin_index, offset_buf, march: RayMarch) -> tuple:
-        """Queue ``ray_gain`` and the copy of its ``(blocks, R, lanes)`` output; returns the host output
-        followed by the buffers and arguments the queue uses (keep them until it has finished)."""
         cl, mf = self._cl, self._cl.mem_flags
-        r = march.offsets.shape[0]
+        n, r = origin_index.shape[0], march.offsets.shape[0]
         lanes = self._launch_lanes(march.options)
         origin_index = pad_to(origin_index, lanes)
         blocks = origin_index.size // lanes
@@ -211,12 +212,13 @@ class OpenCLRayCaster:
         origin_buf = cl.Buffer(self.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=origin_index)
         out_buf = cl.Buffer(self.context, mf.WRITE_ONLY, out.nbytes)
         kernel = self.kernels(*march.program)[0]
-        extra = self._option_args(march.options, padded.shape)
+        extra = self._option_args(march.options, padded.shape)  # held until the queue has finished
         kernel.set_args(code_buf, origin_buf, np.int32(origin_index.size), offset_buf, *_march_args(march), out_buf,
                         *extra)  # fmt: skip
         cl.enqueue_nd_range_kernel(self.queue, kernel, (blocks * r,), None)
-        cl.enqueue_copy(self.queue, out, out_buf, is_blocking=False)
-        return out, origin_buf, out_buf, extra
+        cl.enqueue_copy(self.queue, out, out_buf)
+        self.queue.finish()
+        return np.ascontiguousarray(out.transpose(0, 2, 1).reshape(-1, r)[:n])
 
     def run_views(
         self,

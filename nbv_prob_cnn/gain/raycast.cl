@@ -330,6 +330,31 @@ __kernel void ray_gain(__global const float *code, __global const int *origins, 
     LANES_AT(__global floatv, out + (size_t)gid * LANES) = gains;
 }
 
+// ray_gain with rays of each origin's own: work-item (block n, ray h) marches ray n * n_rays + h of
+// offsets (n_rays rays per block) from the LANES origins of block n (the caller repeats one origin
+// over a block's lanes); out is (blocks, n_rays, LANES).
+__kernel void own_ray_gain(__global const float *code, __global const int *origins, const int n_origins,
+                           __global const int *offsets, const int n_rays, const int n_samples,
+                           const int nu, const float inv_total, const float total_weight, const float eps,
+                           const int mode, const float min_range, const float surface,
+                           __global float *out EXACT_KERNEL_PARAMS SENSOR_KERNEL_PARAMS SURFACE_KERNEL_PARAMS)
+{
+    const int gid = get_global_id(0);
+    if (gid >= n_origins / LANES * n_rays) {
+        return;
+    }
+    const int n = gid / n_rays;
+    const int ray = gid;  // row n * n_rays + h of the rays: block n's own rays follow each other
+    floatv gains, totals;
+    march_rays(code, origins + (size_t)n * LANES, offsets + (size_t)ray * n_samples, 0, n_samples, nu, inv_total,
+               total_weight, eps, mode, min_range, surface, &gains, &totals EXACT_ARGS(ray) SENSOR_ARGS(ray)
+               SURFACE_ARGS);
+#if GAIN_ORIGINAL
+    gains = (totals > 0.0f) ? gains / totals : (floatv)(0.0f);
+#endif
+    LANES_AT(__global floatv, out + (size_t)gid * LANES) = gains;
+}
+
 // G_W(v, W) for every origin and candidate view, without storing ray gains in global memory.
 // One work-group per block of consecutive origins (origins padded to whole work-groups), LANES
 // origins per work-item: the lanes march the same ray from neighbouring cells (coherent loops
