@@ -132,7 +132,7 @@ def each_origin_ray_gains(
 ) -> np.ndarray:
     """:func:`ray_gains` of each origin along its own rays: ``directions`` ``(N, R, dims)``, origin
     ``i`` casting ``directions[i]`` (e.g. the rays through each of N camera images). ``(N, R)``
-    float32; on OpenCL one launch marches each origin's rays alone (``own_ray_gain``).
+    float32; on OpenCL one launch of ``ray_gain`` marches each origin's rays alone.
 
     Raises:
         ValueError: as :func:`ray_gains`, or ``directions`` not ``(len(origins), R, dims)``.

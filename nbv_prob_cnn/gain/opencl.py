@@ -84,7 +84,7 @@ class OpenCLRayCaster:
             raise ValueError(f"lanes: expected one of {LANE_WIDTHS}, got {lanes!r}")
         self._runtime = runtime
         self._kernels: dict[tuple[str, bool, bool, int], tuple] = {}
-        self._ray_kernel, self._view_kernel, _ = self.kernels("paper")
+        self._ray_kernel, self._view_kernel = self.kernels("paper")
         self._cache: dict[tuple, object] = {}
         self._last_options: tuple | None = None
 
@@ -98,7 +98,7 @@ class OpenCLRayCaster:
         return self.program_lanes(options is not None and options.flags[1])
 
     def kernels(self, variant: str, exact: bool = False, sensor: bool = False, surface_bound: int = 0) -> tuple:
-        """``(ray_gain, view_gain, own_ray_gain)`` of the program of gain ``variant`` (built on first use), with
+        """``(ray_gain, view_gain)`` of the program of gain ``variant`` (built on first use), with
         the exact-traversal and ``"returns"`` options (:class:`MarchOptions`), marching
         :meth:`program_lanes` origins per work-item; ``surface_bound``: the program of a surface
         blend's block bounds (``SURFACE_BOUND``: 1 the window's largest ``p`` for the factor, 2 the
@@ -113,8 +113,7 @@ class OpenCLRayCaster:
             options += ["-DGAIN_SENSOR=1"] if sensor else []
             options += [f"-DSURFACE_BOUND={int(surface_bound)}"] if surface_bound else []
             program = self._runtime.build(KERNEL_SOURCE, tuple(options))
-            self._kernels[key] = tuple(self._cl.Kernel(program, name) for name in ("ray_gain", "view_gain",
-                                                                                  "own_ray_gain"))  # fmt: skip
+            self._kernels[key] = (self._cl.Kernel(program, "ray_gain"), self._cl.Kernel(program, "view_gain"))
         return self._kernels[key]
 
     def _option_args(self, options: MarchOptions | None, padded_shape: tuple[int, int, int]) -> list:
@@ -179,32 +178,24 @@ class OpenCLRayCaster:
 
     def run_each(self, code: np.ndarray, origins: np.ndarray, march: RayMarch) -> np.ndarray:
         """Ray gains ``(N, R)`` float32 of each origin along its own rays: ``march`` holds ``N * R``
-        rays, origin ``i`` marches rows ``i * R .. (i + 1) * R - 1`` (one launch, ``own_ray_gain``)."""
-        cl, mf = self._cl, self._cl.mem_flags
+        rays, origin ``i`` marches rows ``i * R .. (i + 1) * R - 1`` (one launch of ``ray_gain``)."""
         n = origins.shape[0]
         if n == 0:
             return np.empty((0, 0), dtype=np.float32)
-        rays = march.offsets.shape[0] // n
         code_buf, padded, origin_index, offset_buf = self._common(code, origins, march)
         lanes = self._launch_lanes(march.options)
-        blocks = np.repeat(origin_index, lanes)  # one origin per block: its lanes march the same ray
-        out = np.empty((n, rays, lanes), dtype=np.float32)
-        origin_buf = cl.Buffer(self.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=blocks)
-        out_buf = cl.Buffer(self.context, mf.WRITE_ONLY, out.nbytes)
-        kernel = self.kernels(*march.program)[2]
-        extra = self._option_args(march.options, padded.shape)  # held until the queue has finished
-        args = _march_args(march)
-        args[0] = np.int32(rays)
-        kernel.set_args(code_buf, origin_buf, np.int32(blocks.size), offset_buf, *args, out_buf, *extra)
-        cl.enqueue_nd_range_kernel(self.queue, kernel, (n * rays,), None)
-        cl.enqueue_copy(self.queue, out, out_buf)
-        self.queue.finish()
-        return np.ascontiguousarray(out[:, :, 0])
+        # one origin per block of lanes (they march the same ray): block i is origin i
+        gains = self._rays(code_buf, padded, np.repeat(origin_index, lanes), offset_buf, march,
+                           own_rays=march.offsets.shape[0] // n)  # fmt: skip
+        return np.ascontiguousarray(gains[::lanes])
 
-    def _rays(self, code_buf, padded, origin_index, offset_buf, march: RayMarch) -> np.ndarray:
-        """``ray_gain`` on a device grid ``code_buf`` (host copy ``padded``) at linear origins: ``(N, R)``."""
+    def _rays(self, code_buf, padded, origin_index, offset_buf, march: RayMarch, own_rays: int = 0) -> np.ndarray:
+        """``ray_gain`` on a device grid ``code_buf`` (host copy ``padded``) at linear origins: ``(N, R)``
+        with ``R`` the march's rays, or with ``own_rays`` > 0 ``R = own_rays``, each block of lanes
+        marching its own ``own_rays`` consecutive rays of the march (block ``b``: rows ``b * R ..``)."""
         cl, mf = self._cl, self._cl.mem_flags
-        n, r = origin_index.shape[0], march.offsets.shape[0]
+        n = origin_index.shape[0]
+        r = own_rays or march.offsets.shape[0]
         lanes = self._launch_lanes(march.options)
         origin_index = pad_to(origin_index, lanes)
         blocks = origin_index.size // lanes
@@ -213,8 +204,10 @@ class OpenCLRayCaster:
         out_buf = cl.Buffer(self.context, mf.WRITE_ONLY, out.nbytes)
         kernel = self.kernels(*march.program)[0]
         extra = self._option_args(march.options, padded.shape)  # held until the queue has finished
-        kernel.set_args(code_buf, origin_buf, np.int32(origin_index.size), offset_buf, *_march_args(march), out_buf,
-                        *extra)  # fmt: skip
+        args = _march_args(march)
+        args[0] = np.int32(r)
+        kernel.set_args(code_buf, origin_buf, np.int32(origin_index.size), offset_buf, *args,
+                        np.int32(1 if own_rays else 0), out_buf, *extra)  # fmt: skip
         cl.enqueue_nd_range_kernel(self.queue, kernel, (blocks * r,), None)
         cl.enqueue_copy(self.queue, out, out_buf)
         self.queue.finish()

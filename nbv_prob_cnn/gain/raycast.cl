@@ -311,7 +311,7 @@ inline void march_rays(__global const float *code, __global const int *origins, 
 __kernel void ray_gain(__global const float *code, __global const int *origins, const int n_origins,
                        __global const int *offsets, const int n_rays, const int n_samples,
                        const int nu, const float inv_total, const float total_weight, const float eps,
-                       const int mode, const float min_range, const float surface,
+                       const int mode, const float min_range, const float surface, const int own_rays,
                        __global float *out EXACT_KERNEL_PARAMS SENSOR_KERNEL_PARAMS SURFACE_KERNEL_PARAMS)
 {
     const int gid = get_global_id(0);
@@ -320,31 +320,9 @@ __kernel void ray_gain(__global const float *code, __global const int *origins, 
     }
     const int n = gid / n_rays;
     const int h = gid - n * n_rays;
-    floatv gains, totals;
-    march_rays(code, origins + (size_t)n * LANES, offsets + (size_t)h * n_samples, 0, n_samples, nu, inv_total,
-               total_weight, eps, mode, min_range, surface, &gains, &totals EXACT_ARGS(h) SENSOR_ARGS(h)
-               SURFACE_ARGS);
-#if GAIN_ORIGINAL
-    gains = (totals > 0.0f) ? gains / totals : (floatv)(0.0f);
-#endif
-    LANES_AT(__global floatv, out + (size_t)gid * LANES) = gains;
-}
-
-// ray_gain with rays of each origin's own: work-item (block n, ray h) marches ray n * n_rays + h of
-// offsets (n_rays rays per block) from the LANES origins of block n (the caller repeats one origin
-// over a block's lanes); out is (blocks, n_rays, LANES).
-__kernel void own_ray_gain(__global const float *code, __global const int *origins, const int n_origins,
-                           __global const int *offsets, const int n_rays, const int n_samples,
-                           const int nu, const float inv_total, const float total_weight, const float eps,
-                           const int mode, const float min_range, const float surface,
-                           __global float *out EXACT_KERNEL_PARAMS SENSOR_KERNEL_PARAMS SURFACE_KERNEL_PARAMS)
-{
-    const int gid = get_global_id(0);
-    if (gid >= n_origins / LANES * n_rays) {
-        return;
-    }
-    const int n = gid / n_rays;
-    const int ray = gid;  // row n * n_rays + h of the rays: block n's own rays follow each other
+    // own_rays: block n marches its own rays, rows n * n_rays .. n * n_rays + n_rays - 1 of the
+    // offsets (each origin its own ray set, e.g. its camera's image); else every block row h
+    const int ray = own_rays ? gid : h;
     floatv gains, totals;
     march_rays(code, origins + (size_t)n * LANES, offsets + (size_t)ray * n_samples, 0, n_samples, nu, inv_total,
                total_weight, eps, mode, min_range, surface, &gains, &totals EXACT_ARGS(ray) SENSOR_ARGS(ray)
