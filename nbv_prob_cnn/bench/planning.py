@@ -133,20 +133,33 @@ def half_explored(world: World, context: PlanningContext, target: float = 0.5, m
 
 
 def _time(fn, repeats: int) -> float:
+    """Best of ``repeats`` wall-clock times, each repeat marching its grid anew (:func:`_fresh_grid`)."""
     best = float("inf")
     for _ in range(repeats):
+        _fresh_grid()
         start = time.perf_counter()
         fn()
         best = min(best, time.perf_counter() - start)
     return best
 
 
+def _fresh_grid() -> None:
+    """The ray caster keeps the last marched grid for the next launch on an equal grid (a search and
+    its re-ranking); a repeat on the same grid would skip marching it, which no plan of an exploration
+    does: drop it."""
+    from nbv_prob_cnn.gain.opencl import forget_marched_grid
+
+    forget_marched_grid()
+
+
 def _measure(fn, repeats: int, device_bytes: int = 0) -> Timing:
     """Best of ``repeats`` wall-clock times (and the CPU time of that run, less sensitive to other
-    processes on the machine); memory peak of the first run (tracemalloc)."""
+    processes on the machine), each repeat marching its grid anew; memory peak of the first run
+    (tracemalloc)."""
     tracemalloc.start()
     best = Timing(float("inf"), 0)
     for run in range(max(1, repeats)):
+        _fresh_grid()
         cpu, start = time.process_time(), time.perf_counter()
         fn()
         wall, cpu = time.perf_counter() - start, time.process_time() - cpu
@@ -553,6 +566,7 @@ def planning_time_sweep(
                     search_views(state, prob, origins, context, prune=prune, prune_views=views_too)
             found, times = {}, []
             for name, (prune, views_too) in options.items():
+                _fresh_grid()
                 cpu, start = time.process_time(), time.perf_counter()
                 found[name] = search_views(state, prob, origins, context, prune=prune, prune_views=views_too)
                 times += [time.perf_counter() - start, time.process_time() - cpu]

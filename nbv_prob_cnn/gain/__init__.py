@@ -159,7 +159,7 @@ def each_origin_ray_gains(
         ])  # fmt: skip
     from nbv_prob_cnn.gain.opencl import get_ray_caster
 
-    march = ray_march(state.ndim, flat, r_max, settings, options)
+    march = ray_march(state.ndim, flat, r_max, settings, options, groups=n)
     return get_ray_caster().run_each(_grid_code(state, prob, settings), origins, march)
 
 

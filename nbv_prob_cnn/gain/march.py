@@ -10,7 +10,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from nbv_prob_cnn.gain.directions import distance_weights, sample_offsets
+from nbv_prob_cnn.gain.directions import distance_weights, grouped_sample_offsets, sample_offsets
 from nbv_prob_cnn.gain.sampling import GainSensor, RaySamples, occupancy_normals, ray_samples
 from nbv_prob_cnn.gain.settings import GainSettings
 from nbv_prob_cnn.gain.variant import sample_count, sample_weights
@@ -117,14 +117,24 @@ def march_options(
 
 
 def ray_march(
-    dims: int, directions: np.ndarray, r_max: int, settings: GainSettings, options: MarchOptions | None = None
+    dims: int,
+    directions: np.ndarray,
+    r_max: int,
+    settings: GainSettings,
+    options: MarchOptions | None = None,
+    groups: int = 1,
 ) -> RayMarch:
     """The :class:`RayMarch` of ``settings`` on a ``dims``-dimensional grid: the samples of
-    ``options`` when given, else those of the variant's range with its weights."""
+    ``options`` when given, else those of the variant's range with its weights. ``groups``: the
+    directions are that many sets of rays, one per origin, whose paper-variant tables are kept
+    (:func:`~nbv_prob_cnn.gain.directions.grouped_sample_offsets`)."""
     if options is not None:
         offsets, total, min_range = options.samples.offsets, options.samples.total, options.min_range
     elif settings.variant == "paper":
-        offsets, total = sample_offsets(directions, r_max), float(distance_weights(r_max, dims).sum())
+        offsets = (
+            sample_offsets(directions, r_max) if groups == 1 else grouped_sample_offsets(directions, r_max, groups)
+        )
+        total = float(distance_weights(r_max, dims).sum())
         min_range = settings.min_range
     else:
         n_samples = sample_count(settings.variant, r_max)

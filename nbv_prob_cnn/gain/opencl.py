@@ -83,10 +83,11 @@ class OpenCLRayCaster:
         if self.lanes not in LANE_WIDTHS:
             raise ValueError(f"lanes: expected one of {LANE_WIDTHS}, got {lanes!r}")
         self._runtime = runtime
-        self._kernels: dict[tuple[str, bool, bool, int], tuple] = {}
+        self._kernels: dict[tuple[str, bool, bool, int, int], tuple] = {}
         self._ray_kernel, self._view_kernel = self.kernels("paper")
         self._cache: dict[tuple, object] = {}
         self._last_options: tuple | None = None
+        self._last_grid: tuple | None = None
 
     def program_lanes(self, sensor: bool = False) -> int:
         """Origins per work-item of a program: :attr:`lanes`, at most :data:`SENSOR_MAX_LANES` for
@@ -97,15 +98,19 @@ class OpenCLRayCaster:
         """:meth:`program_lanes` of the program a launch with ``options`` runs."""
         return self.program_lanes(options is not None and options.flags[1])
 
-    def kernels(self, variant: str, exact: bool = False, sensor: bool = False, surface_bound: int = 0) -> tuple:
+    def kernels(
+        self, variant: str, exact: bool = False, sensor: bool = False, surface_bound: int = 0, lanes: int | None = None
+    ) -> tuple:
         """``(ray_gain, view_gain)`` of the program of gain ``variant`` (built on first use), with
         the exact-traversal and ``"returns"`` options (:class:`MarchOptions`), marching
-        :meth:`program_lanes` origins per work-item; ``surface_bound``: the program of a surface
-        blend's block bounds (``SURFACE_BOUND``: 1 the window's largest ``p`` for the factor, 2 the
-        largest gain over the windows' ranges of ``p``, see :data:`SURFACE_BOUND_DP_DIMS`)."""
-        key = (variant, bool(exact), bool(sensor), int(surface_bound))
+        :meth:`program_lanes` origins per work-item (``lanes``: that many instead, e.g. 1);
+        ``surface_bound``: the program of a surface blend's block bounds (``SURFACE_BOUND``: 1 the
+        window's largest ``p`` for the factor, 2 the largest gain over the windows' ranges of ``p``,
+        see :data:`SURFACE_BOUND_DP_DIMS`)."""
+        lanes = self.program_lanes(sensor) if lanes is None else int(lanes)
+        key = (variant, bool(exact), bool(sensor), int(surface_bound), lanes)
         if key not in self._kernels:
-            options = [f"-DLANES={self.program_lanes(sensor)}"]
+            options = [f"-DLANES={lanes}"]
             if check_variant(variant) == "original":
                 options += ["-DGAIN_ORIGINAL=1", f"-DORIGINAL_FOCAL={ORIGINAL_FOCAL!r}f",
                             f"-DORIGINAL_NEAR_HIT={ORIGINAL_NEAR_HIT!r}f"]  # fmt: skip
@@ -154,18 +159,41 @@ class OpenCLRayCaster:
             self._cache[key] = buf
         return buf
 
-    def _offsets(self, offsets: np.ndarray, padded_shape: tuple[int, ...]):
-        """The device's linear sample offsets ``(R, T)`` of ``(R, T, dims)`` cell offsets."""
+    def _offsets(self, offsets: np.ndarray, padded_shape: tuple[int, ...], cached: bool = True):
+        """The device's linear sample offsets ``(R, T)`` of ``(R, T, dims)`` cell offsets; ``cached``:
+        kept by content (:meth:`_constant`; a search launches the same table many times), else a
+        buffer of its own (one launch's, e.g. each camera's image rays: hashing them cost more)."""
         offset_index = linear_indices(offsets.reshape(-1, offsets.shape[2]), padded_shape, shift=0)
-        return self._constant(offset_index.reshape(offsets.shape[:2]))
+        if cached:
+            return self._constant(offset_index.reshape(offsets.shape[:2]))
+        mf = self._cl.mem_flags
+        return self._cl.Buffer(self.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=offset_index)
 
-    def _common(self, code: np.ndarray, origins: np.ndarray, march: RayMarch):
-        """Device grid, host grid, linear origins and device linear offsets ``(R, T)``."""
-        cl, mf = self._cl, self._cl.mem_flags
-        padded = march_grid(code, _border(march))
-        code_buf = cl.Buffer(self.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=padded)
+    def _common(self, code: np.ndarray, origins: np.ndarray, march: RayMarch, cached_offsets: bool = True):
+        """Device grid, host grid, linear origins and device linear offsets ``(R, T)`` (``cached_offsets``:
+        see :meth:`_offsets`)."""
+        code_buf, padded = self._marched(code, _border(march))
         origin_index = linear_indices(origins, padded.shape, shift=1)
-        return code_buf, padded, origin_index, self._offsets(march.offsets, padded.shape)
+        return code_buf, padded, origin_index, self._offsets(march.offsets, padded.shape, cached_offsets)
+
+    def _marched(self, code: np.ndarray, border: float):
+        """The device and host copies of :func:`march_grid` of ``code``: the last ones again when
+        ``code`` and ``border`` equal the last launch's (a search and the re-ranking of its best
+        views by their image rays march one grid: on half-explored 3DT its marched grid, with the
+        empty-space distances, cost 26-34 ms). Holds one grid, its copy and its marched grid."""
+        last = self._last_grid
+        if last is not None and last[1] == border and last[0].shape == code.shape and np.array_equal(last[0], code):
+            return last[2], last[3]
+        self._last_grid = None  # free the old grid before building the new one
+        padded = march_grid(code, border)
+        mf = self._cl.mem_flags
+        code_buf = self._cl.Buffer(self.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=padded)
+        self._last_grid = (code.copy(), border, code_buf, padded)
+        return code_buf, padded
+
+    def forget_grid(self) -> None:
+        """Drop the kept marched grid (:meth:`_marched`): the next launch marches its grid anew."""
+        self._last_grid = None
 
     def run(self, code: np.ndarray, origins: np.ndarray, march: RayMarch) -> np.ndarray:
         """Ray gains ``(N, R)`` float32 for the encoded grid ``code`` (:func:`encode_grid`) from
@@ -182,27 +210,25 @@ class OpenCLRayCaster:
         n = origins.shape[0]
         if n == 0:
             return np.empty((0, 0), dtype=np.float32)
-        code_buf, padded, origin_index, offset_buf = self._common(code, origins, march)
-        lanes = self._launch_lanes(march.options)
-        # one origin per block of lanes (they march the same ray): block i is origin i
-        gains = self._rays(code_buf, padded, np.repeat(origin_index, lanes), offset_buf, march,
-                           own_rays=march.offsets.shape[0] // n)  # fmt: skip
-        return np.ascontiguousarray(gains[::lanes])
+        code_buf, padded, origin_index, offset_buf = self._common(code, origins, march, cached_offsets=False)
+        return self._rays(code_buf, padded, origin_index, offset_buf, march, own_rays=march.offsets.shape[0] // n)
 
     def _rays(self, code_buf, padded, origin_index, offset_buf, march: RayMarch, own_rays: int = 0) -> np.ndarray:
         """``ray_gain`` on a device grid ``code_buf`` (host copy ``padded``) at linear origins: ``(N, R)``
-        with ``R`` the march's rays, or with ``own_rays`` > 0 ``R = own_rays``, each block of lanes
-        marching its own ``own_rays`` consecutive rays of the march (block ``b``: rows ``b * R ..``)."""
+        with ``R`` the march's rays, or with ``own_rays`` > 0 ``R = own_rays``, origin ``i`` marching
+        its own ``own_rays`` consecutive rays of the march (rows ``i * R ..``), on the one-lane program
+        (lanes march one ray: a block of lanes on one origin marched it that many times; 3DT, 20
+        views x 768 rays: 20.6 ms with 16 lanes, 2.8 ms with one)."""
         cl, mf = self._cl, self._cl.mem_flags
         n = origin_index.shape[0]
         r = own_rays or march.offsets.shape[0]
-        lanes = self._launch_lanes(march.options)
+        lanes = 1 if own_rays else self._launch_lanes(march.options)
         origin_index = pad_to(origin_index, lanes)
         blocks = origin_index.size // lanes
         out = np.empty((blocks, r, lanes), dtype=np.float32)
         origin_buf = cl.Buffer(self.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=origin_index)
         out_buf = cl.Buffer(self.context, mf.WRITE_ONLY, out.nbytes)
-        kernel = self.kernels(*march.program)[0]
+        kernel = self.kernels(*march.program, lanes=lanes)[0]
         extra = self._option_args(march.options, padded.shape)  # held until the queue has finished
         args = _march_args(march)
         args[0] = np.int32(r)
@@ -454,3 +480,10 @@ def _border(march: RayMarch) -> float:
 def get_ray_caster() -> OpenCLRayCaster:
     """The process-wide OpenCL ray caster (built on first use)."""
     return OpenCLRayCaster()
+
+
+def forget_marched_grid() -> None:
+    """:meth:`OpenCLRayCaster.forget_grid` of the process-wide caster, if one was built (benchmarks:
+    each repeat on one grid marches it, as each plan of an exploration does)."""
+    if get_ray_caster.cache_info().currsize:
+        get_ray_caster().forget_grid()

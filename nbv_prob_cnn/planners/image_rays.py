@@ -44,6 +44,7 @@ def image_ray_gains(
     context: PlanningContext,
     settings: GainSettings,
     across: int = IMAGE_RAYS_ACROSS,
+    reach: np.ndarray | None = None,
 ) -> np.ndarray:
     """``Σ Ω_r G_r`` of each view (camera in ``cells``, ``(P, dims)``; ``orientations``: yaws in 2D,
     quaternions ``(x, y, z, w)`` of the optical frame in 3D) over ``across`` rays through its own
@@ -51,7 +52,9 @@ def image_ray_gains(
 
     One cast on the grid cut to the views' reach, each view's camera cell marching its own rays
     (:func:`~nbv_prob_cnn.gain.each_origin_ray_gains`): the grid is encoded and uploaded once (a
-    cast per view cost about 35 ms of set-up a view on 3DT)."""
+    cast per view cost about 35 ms of set-up a view on 3DT). ``reach``: cut it to the reach of these
+    cells instead (``(M, dims)``, among them ``cells``; e.g. the view search's origins: the cast then
+    marches the search's grid again, which the ray caster keeps)."""
     sensor = context.active_sensor
     camera_directions, weights = frustum_rays(state.ndim, across, sensor.hfov_deg, sensor.vfov_deg)
     cells = np.asarray(cells, dtype=np.int64).reshape(-1, state.ndim)
@@ -71,16 +74,18 @@ def rerank_by_image(
     context: PlanningContext,
     settings: GainSettings,
     across: int = IMAGE_RAYS_ACROSS,
+    reach: np.ndarray | None = None,
 ) -> list[ViewChoice]:
     """``found`` (a view search's best views) ordered by :func:`image_ray_gains`, best first (ties
     keep the search's order); views whose image rays gain nothing are dropped. Each keeps its search
-    gain ``gain``; its ``image_gain`` is set, and the seconds spent are added to its ``raycast`` time."""
+    gain ``gain``; its ``image_gain`` is set, and the seconds spent are added to its ``raycast`` time.
+    ``reach``: the search's origins (:func:`image_ray_gains`)."""
     if not found:
         return found
     start = time.perf_counter()
     cells = np.array([np.asarray(choice.cell).reshape(-1) for choice in found])
     orientations = context.orientations[[choice.view_index for choice in found]]
-    gains = image_ray_gains(state, prob, cells, orientations, context, settings, across)
+    gains = image_ray_gains(state, prob, cells, orientations, context, settings, across, reach)
     seconds = time.perf_counter() - start
     for choice, gain in zip(found, gains.tolist(), strict=True):
         choice.image_gain = gain

@@ -169,7 +169,7 @@ class GainPlanner(RankingPlanner):
             if rerank:  # the search's best image_rerank views by their image rays, the rest in the search's order
                 settings = context.gain_settings(self.method.mode, self.method.probability, self.method.surface)
                 head, tail = found[: context.image_rerank], found[context.image_rerank :]
-                found = (rerank_by_image(state, prob, head, context, settings) + tail)[:top_k]
+                found = (rerank_by_image(state, prob, head, context, settings, reach=origins) + tail)[:top_k]
         surface_map = prob if prob is not None else probability_with_constant(state, context.defaults.p0)
         estimate = functools.partial(self._best_new_surface, state, surface_map, context, origin_filter, origins)
         for choice in found:

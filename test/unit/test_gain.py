@@ -281,3 +281,81 @@ def test_bad_lane_width():
 
     with pytest.raises(ValueError, match="lanes"):
         OpenCLRayCaster(3)
+
+
+def test_sample_offsets_by_hand():
+    """``round(t b)`` with halves rounded up: (0.6, 0.8) gives (0,0) (1,1) (1,2) (2,2); (0.5, 0.866)
+    at t = 1 gives (1, 1) (0.5 rounds up)."""
+    from nbv_prob_cnn.gain.directions import sample_offsets
+
+    got = sample_offsets(np.array([[0.6, 0.8], [0.5, np.sqrt(0.75)]]), 3)
+    assert got.dtype == np.int16 and got.shape == (2, 4, 2)
+    np.testing.assert_array_equal(got[0], [[0, 0], [1, 1], [1, 2], [2, 2]])
+    np.testing.assert_array_equal(got[1, 1], [1, 1])
+
+
+def test_grouped_sample_offsets_equal_one_table_and_are_kept(rng, monkeypatch):
+    """Set by set, with each set's table kept (read-only, the same values on the next call), the
+    offsets equal :func:`sample_offsets` of all the rays; the kept tables stay within the byte budget
+    (the least recently used dropped)."""
+    from nbv_prob_cnn.gain import directions as module
+
+    rays = rng.normal(size=(4 * 30, 3))
+    rays /= np.linalg.norm(rays, axis=1, keepdims=True)
+    expected = module.sample_offsets(rays, 17)
+    tables = module._OffsetTables()
+    monkeypatch.setattr(module, "_OFFSET_TABLES", tables)
+    for _ in range(2):
+        np.testing.assert_array_equal(module.grouped_sample_offsets(rays, 17, 4), expected)
+    assert len(tables._tables) == 4 and not next(iter(tables._tables.values())).flags.writeable
+    one = expected[:30].nbytes
+    monkeypatch.setattr(module, "OFFSET_CACHE_BYTES", 2 * one)
+    np.testing.assert_array_equal(module.grouped_sample_offsets(rays[:60], 9, 2), module.sample_offsets(rays[:60], 9))
+    assert tables._bytes <= 2 * one and len(tables._tables) == 2  # the two newest: range 9
+    assert all(key[2] == 9 for key in tables._tables)
+    with pytest.raises(ValueError, match="groups"):
+        module.grouped_sample_offsets(rays, 17, 7)
+
+
+@pytest.mark.parametrize("edit", ["in place", "new array"])
+def test_ray_caster_marches_a_changed_grid_again(rng, edit):
+    """The caster keeps the last marched grid for a launch on an equal grid: a grid changed since
+    (the same array edited in place, or another array) is marched anew; gains equal the reference's."""
+    from nbv_prob_cnn.gain import each_origin_ray_gains
+
+    state = rng.choice(np.array([E, U, O], dtype=np.int8), size=(12, 11, 10), p=[0.5, 0.4, 0.1])
+    prob = rng.uniform(0.05, 0.95, size=state.shape).astype(np.float32)
+    origins = np.argwhere(state == E)[:9]
+    d = ray_directions(3, 3)
+    own = np.stack([d[rng.permutation(d.shape[0])[:6]] for _ in range(origins.shape[0])])
+    for step in range(3):
+        for backend in BACKENDS:  # the reference, then OpenCL on the same grid twice
+            got = each_origin_ray_gains(state, prob, own, 9, origins, backend)
+            if backend == "numpy":
+                expected = got
+            np.testing.assert_allclose(got, expected, atol=1e-5, rtol=0, err_msg=f"step {step} {backend}")
+        np.testing.assert_allclose(each_origin_ray_gains(state, prob, own, 9, origins, "opencl"), expected, atol=1e-5)
+        unknown = np.argwhere(state == U)
+        flip = unknown[rng.permutation(unknown.shape[0])[:20]]
+        if edit == "new array":
+            state = state.copy()
+        state[tuple(flip.T)] = O  # new surface hides what was behind it
+
+
+def test_ray_caster_keeps_a_copy_of_the_last_grid(rng):
+    """The grid code edited in place after a launch is not taken for the grid launched before."""
+    from nbv_prob_cnn.gain.directions import sample_offsets
+    from nbv_prob_cnn.gain.marched_grid import encode_grid
+    from nbv_prob_cnn.gain.opencl import get_ray_caster
+
+    state = rng.choice(np.array([E, U], dtype=np.int8), size=(10, 9, 8), p=[0.5, 0.5])
+    code = encode_grid(state, np.full(state.shape, 0.5, np.float32))
+    d = ray_directions(3, 3)
+    march = RayMarch(sample_offsets(d, 8), float(distance_weights(8, 3).sum()))
+    origins = np.argwhere(state == E)[:5]
+    caster = get_ray_caster()
+    before = caster.run(code, origins, march)
+    code[code >= 0.0] = 0.9  # every unknown cell now likelier occupied: other gains
+    after = caster.run(code, origins, march)
+    np.testing.assert_array_equal(after, caster.run(code.copy(), origins, march))
+    assert not np.allclose(before, after)
