@@ -56,6 +56,11 @@ BOUND_BLOCK = 2
 #: 3DT 0.380 -> 0.333 s and 3DU 0.125 -> 0.067 s with 2 (3DT: 2 126 origins evaluated exactly
 #: instead of 62 641), 2D 0.160 -> 0.217 s (its bounds were tight already), so 1 there.
 SURFACE_BOUND_DP_DIMS = (3,)
+#: Most samples per ray whose window ranges the surface blend's bounds by dynamic programming keep
+#: in private arrays for the backward pass (``DP_SAMPLES``; longer rays gather them again): 2 x 16
+#: lanes x 4 bytes a sample, 33 KB a work-item at 256. 3DT block bounds (6 cells) of 4 grids of
+#: ``cnn_surface`` explorations: 0.98 -> 0.78 CPU seconds, the same bounds bit for bit.
+DP_KEPT_SAMPLES = 256
 #: Fewer origins per block on average: ``best_view`` evaluates all origins exactly.
 MIN_ORIGINS_PER_BLOCK = 2.0
 #: Relative (and absolute) margin added to the block bounds of ``best_view``.
@@ -83,7 +88,7 @@ class OpenCLRayCaster:
         if self.lanes not in LANE_WIDTHS:
             raise ValueError(f"lanes: expected one of {LANE_WIDTHS}, got {lanes!r}")
         self._runtime = runtime
-        self._kernels: dict[tuple[str, bool, bool, int, int], tuple] = {}
+        self._kernels: dict[tuple[str, bool, bool, int, int, int], tuple] = {}
         self._ray_kernel, self._view_kernel = self.kernels("paper")
         self._cache: dict[tuple, object] = {}
         self._last_options: tuple | None = None
@@ -99,16 +104,23 @@ class OpenCLRayCaster:
         return self.program_lanes(options is not None and options.flags[1])
 
     def kernels(
-        self, variant: str, exact: bool = False, sensor: bool = False, surface_bound: int = 0, lanes: int | None = None
+        self,
+        variant: str,
+        exact: bool = False,
+        sensor: bool = False,
+        surface_bound: int = 0,
+        lanes: int | None = None,
+        dp_samples: int = 0,
     ) -> tuple:
         """``(ray_gain, view_gain)`` of the program of gain ``variant`` (built on first use), with
         the exact-traversal and ``"returns"`` options (:class:`MarchOptions`), marching
         :meth:`program_lanes` origins per work-item (``lanes``: that many instead, e.g. 1);
         ``surface_bound``: the program of a surface blend's block bounds (``SURFACE_BOUND``: 1 the
         window's largest ``p`` for the factor, 2 the largest gain over the windows' ranges of ``p``,
-        see :data:`SURFACE_BOUND_DP_DIMS`)."""
+        see :data:`SURFACE_BOUND_DP_DIMS`); ``dp_samples``: with 2, the launches' samples per ray, kept
+        per sample for the backward pass (``DP_SAMPLES``; 0: gathered again)."""
         lanes = self.program_lanes(sensor) if lanes is None else int(lanes)
-        key = (variant, bool(exact), bool(sensor), int(surface_bound), lanes)
+        key = (variant, bool(exact), bool(sensor), int(surface_bound), lanes, int(dp_samples))
         if key not in self._kernels:
             options = [f"-DLANES={lanes}"]
             if check_variant(variant) == "original":
@@ -117,6 +129,7 @@ class OpenCLRayCaster:
             options += ["-DGAIN_EXACT=1"] if exact else []
             options += ["-DGAIN_SENSOR=1"] if sensor else []
             options += [f"-DSURFACE_BOUND={int(surface_bound)}"] if surface_bound else []
+            options += [f"-DDP_SAMPLES={int(dp_samples)}"] if dp_samples else []
             program = self._runtime.build(KERNEL_SOURCE, tuple(options))
             self._kernels[key] = (self._cl.Kernel(program, "ray_gain"), self._cl.Kernel(program, "view_gain"))
         return self._kernels[key]
@@ -288,7 +301,9 @@ class OpenCLRayCaster:
         if view_sets is None:
             cl.enqueue_copy(self.queue, set_buf, every)
         out_buf = cl.Buffer(self.context, mf.WRITE_ONLY, block * v * 4)
-        kernel = self.kernels(*march.program, surface_bound=0 if surface_bound is None else surface_program)[1]
+        program = 0 if surface_bound is None else surface_program
+        kept = r_samples if program == 2 and (r_samples := march.offsets.shape[1]) <= DP_KEPT_SAMPLES else 0
+        kernel = self.kernels(*march.program, surface_bound=program, dp_samples=kept)[1]
         extra = self._option_args(march.options, padded.shape) + ([] if surface_bound is None else [surface_bound])
         for begin in range(0, n, block):
             count = min(block, n - begin)

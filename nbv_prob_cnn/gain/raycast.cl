@@ -89,6 +89,12 @@
 #ifndef SURFACE_BOUND
 #define SURFACE_BOUND 0
 #endif
+// DP_SAMPLES > 0 (with SURFACE_BOUND 2): the samples per ray of the launch; the march keeps each
+// sample's window range [lo, hi] in private arrays for the backward pass, which then reads no grid
+// (0: the backward pass gathers them again).
+#ifndef DP_SAMPLES
+#define DP_SAMPLES 0
+#endif
 // the bound of a blend by dynamic programming (march_rays), in the paper's variant without the sensor model
 #define SURFACE_DP (SURFACE_BOUND == 2 && !GAIN_ORIGINAL && !GAIN_SENSOR)
 #if GAIN_ORIGINAL && (GAIN_EXACT || GAIN_SENSOR)
@@ -210,6 +216,9 @@ inline void march_rays(__global const float *code, __global const int *origins, 
 #if SURFACE_DP
     intv end = (intv)(first_sample);  // per lane: one past the last sample it marched
     int marched_end = first_sample;  // the largest of them
+#if DP_SAMPLES
+    floatv window_lo[DP_SAMPLES], window_hi[DP_SAMPLES];  // per sample marched: code and surface_bound
+#endif
 #endif
     for (int t = first_sample; t < LOOP_END; ++t) {
         const intv cell = alive ? origin + off[t] : origin;
@@ -258,6 +267,10 @@ inline void march_rays(__global const float *code, __global const int *origins, 
 #if SURFACE_DP
             end = alive ? (intv)(t + 1) : end;
             marched_end = t + 1;
+#if DP_SAMPLES
+            window_lo[t] = c;
+            window_hi[t] = SURFACE_P(c, cell);
+#endif
 #else  // SURFACE_P: the sample's p, or with SURFACE_BOUND 1 the window's largest
             hit = unknown ? hit + visible * weight * ((1.0f - surface) + surface * SURFACE_P(c, cell)) : hit;
 #endif
@@ -282,9 +295,14 @@ inline void march_rays(__global const float *code, __global const int *origins, 
         floatv g = 0.0f;
         for (int t = marched_end - 1; t >= first_sample; --t) {
             const intv inside = (intv)(t) < end;
+#if DP_SAMPLES  // what the march read at t (lanes inside marched it)
+            const floatv c = window_lo[t];
+            const floatv hi = window_hi[t];
+#else
             const intv cell = inside ? origin + off[t] : origin;
             const floatv c = GATHER(code, cell);
             const floatv hi = SURFACE_P(c, cell);
+#endif
             const float weight = WEIGHT(t);
             const floatv at_lo = weight * ((1.0f - surface) + surface * c) + (1.0f - c) * g;
             const floatv at_hi = weight * ((1.0f - surface) + surface * hi) + (1.0f - hi) * g;

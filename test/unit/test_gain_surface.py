@@ -188,3 +188,31 @@ def test_block_bounds_of_one_cell_blocks_are_the_exact_gains(surface, dims):
         encode_grid(state, prob), origins, ray_march(dims, d, 9, settings), member, size=1
     )
     np.testing.assert_allclose(bounds[block_of], exact, rtol=0, atol=1e-6)
+
+
+@pytest.mark.parametrize("size", [1, 2, 3])
+def test_block_bounds_keeping_the_samples_equal_gathering_them_again(monkeypatch, size):
+    """The dynamic programme's backward pass reads the window ranges the march kept (``DP_SAMPLES``)
+    or, for rays longer than :data:`~nbv_prob_cnn.gain.opencl.DP_KEPT_SAMPLES`, gathers them again:
+    the same bounds, bit for bit (with one-cell blocks, the exact gains of the reference)."""
+    from nbv_prob_cnn.gain import opencl
+    from nbv_prob_cnn.gain.march import ray_march
+    from nbv_prob_cnn.gain.marched_grid import encode_grid
+
+    rng = np.random.default_rng(31)
+    state, prob = _random_world(rng, (17, 14, 12), unknown=0.5)
+    d = ray_directions(3, 4)
+    member = view_membership(d, orientations(3), 60.0, 46.0)
+    origins = empty_origins(state)
+    settings = GainSettings(surface=0.9)
+    code, march = encode_grid(state, prob), ray_march(3, d, 11, settings)
+    caster = opencl.get_ray_caster()
+    assert march.offsets.shape[1] <= opencl.DP_KEPT_SAMPLES  # kept by default
+    block_of, kept = caster.block_bounds(code, origins, march, member, size=size)
+    monkeypatch.setattr(opencl, "DP_KEPT_SAMPLES", 0)
+    _, gathered = caster.block_bounds(code, origins, march, member, size=size)
+    np.testing.assert_array_equal(kept, gathered)
+    assert np.count_nonzero(kept) > kept.size // 4
+    if size == 1:
+        exact = origin_view_gains(state, prob, d, 11, member, origins, "numpy", settings=settings)
+        np.testing.assert_allclose(kept[block_of], exact, rtol=0, atol=1e-6)
