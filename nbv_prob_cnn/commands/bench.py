@@ -175,12 +175,15 @@ def run_ros(args: argparse.Namespace) -> None:
 
 
 def run_cnn(args: argparse.Namespace) -> None:
-    from nbv_prob_cnn.bench.planning import cnn_layout_table, cnn_table
+    from nbv_prob_cnn.bench.cnn_suite import cnn_layout_table, cnn_table, exploration_plan_table
 
-    def echo(line: str) -> None:  # each row as soon as it is measured (the suite takes about 40 s)
+    def echo(line: str) -> None:  # each row as soon as it is measured (the suite takes a few minutes)
         print(line, flush=True)
 
     cnn_table(args.seed, args.repeats, echo)
+    print()
+    print("Planning time per view along a cnn_surface exploration (20 views), on the same grids:", flush=True)
+    exploration_plan_table(args.seed, args.repeats, echo=echo)
     print()
     cnn_layout_table(args.seed, args.repeats, echo)
 

@@ -83,7 +83,7 @@ def test_the_cnn_table_shows_each_row_as_soon_as_it_is_measured(monkeypatch):
 
     import nbv_prob_cnn.completion
     import nbv_prob_cnn.worlds
-    from nbv_prob_cnn.bench import planning
+    from nbv_prob_cnn.bench import cnn_suite as planning
 
     events = []
     world = types.SimpleNamespace(shape=(4, 4))
@@ -100,3 +100,44 @@ def test_the_cnn_table_shows_each_row_as_soon_as_it_is_measured(monkeypatch):
     assert [e[0] for e in events] == ["echo", "echo", "load", "echo", "load", "echo", "load", "echo"]
     assert events[3] == ("echo", "| 2D | 4×4 | 0.250 | 0.250 | 0.250 | 0.250 | 1.00 | 0.250 | 1.00 |")
     assert planning.cnn_table() == text  # without echo: the same table, printed by nobody
+
+
+def test_exploration_plan_table_sums_each_methods_best_time_per_view(monkeypatch):
+    """Per data set, the mean over the views of each method's best time on the grid before each view,
+    and the ratios; the exploration follows cnn_surface's views and ends when it has none. A fake clock:
+    each cnn_prob plan takes 0.2 s (CPU 0.4), each cnn_surface plan 0.3 s (CPU 0.5), the first repeat
+    of each 1 s longer (best of 2 drops it)."""
+    import types
+
+    import nbv_prob_cnn.worlds
+    from nbv_prob_cnn.bench import cnn_suite
+    from nbv_prob_cnn.planners.base import ViewChoice
+
+    clock = {"wall": 0.0, "cpu": 0.0}
+    fake_time = types.SimpleNamespace(perf_counter=lambda: clock["wall"], process_time=lambda: clock["cpu"])
+    monkeypatch.setattr(cnn_suite, "time", fake_time)
+
+    class FakePlanner:  # one per method and data set
+        def __init__(self, name: str) -> None:
+            self.name, self.calls = name, 0
+
+        def plan(self, state, context):
+            self.calls += 1
+            slow = 1.0 if self.calls % 3 == 2 else 0.0  # warm-up, then 2 repeats: the first is slow
+            clock["wall"] += (0.2 if self.name == "cnn_prob" else 0.3) + slow
+            clock["cpu"] += (0.4 if self.name == "cnn_prob" else 0.5) + slow
+            planned = self.calls // 3  # views planned so far
+            if self.name == "cnn_surface" and state.ndim == 3 and planned >= 2:
+                return None  # 3D: nothing left after the second view
+            return ViewChoice(np.array([1] * state.ndim), 0, 1.0)
+
+    world2 = types.SimpleNamespace(shape=(6, 5), ground_truth=np.zeros((6, 5), np.int8))
+    world3 = types.SimpleNamespace(shape=(4, 4, 4), ground_truth=np.zeros((4, 4, 4), np.int8))
+    monkeypatch.setattr(nbv_prob_cnn.worlds, "load_or_generate", lambda d, s: world2 if d == "2d" else world3)
+    monkeypatch.setattr(cnn_suite, "make_planner", FakePlanner)
+    monkeypatch.setattr(cnn_suite, "observe", lambda *a: None)
+    text = cnn_suite.exploration_plan_table(repeats=2, views=3, progress=False)
+    rows = text.splitlines()[2:]
+    assert rows[0] == "| 2D | 3 | 0.200 | 0.300 | 1.50 | 0.400 | 0.500 | 1.25 |"
+    assert rows[1].startswith("| 3DU | 2 | 0.200 | 0.300 | 1.50 |")  # 3D: stopped after the second view
+    assert rows[2].startswith("| 3DT | 2 |")
