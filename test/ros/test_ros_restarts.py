@@ -6,7 +6,7 @@
 * SIGINT to each node, idle and then busy (the planner and the servers with requests in flight,
   the integrator with camera frames arriving): afterwards no Fast DDS file that the node created,
   or that it mapped in the graph's domain, is left in /dev/shm held by no process
-  (``shm_release``).
+  (``shm_release``); a file is judged as the one the node had (:func:`_orphans`).
 
 The graph (``completion_server``, ``gain_server``, ``nbv_planner``, ``integrator``) is started once
 for the module (starting it is most of these tests' time); each test first starts again the nodes
@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import signal
 import sys
 import threading
@@ -195,7 +196,7 @@ class RestartGraph:
         self.logs: dict[str, Path] = {}
         self.starts = 0
         self.stand_in = False  # the completion_server running is the stand-in
-        self.killed_files: set[str] = set()  # the files that SIGKILLed nodes created
+        self.killed_files: set[tuple[int, int]] = set()  # the files SIGKILLed nodes created (_file_ids)
         self.plan_client = node.create_client(PlanNextBestView, "/nbv/plan")
         self.grid = _grid()
         node.create_publisher(VoxelGrid, "/nbv/grid", GRID_QOS).publish(self.grid)  # latched
@@ -220,7 +221,7 @@ class RestartGraph:
         """SIGKILL ``name`` (its files noted first, for the clean-up after the module; those it
         created are left by design, and not judged as a stopped peer's)."""
         self.graph.note_shm()
-        self.killed_files |= own_files(mapped_shm(self.procs[name].pid))
+        self.killed_files |= set(_file_ids(own_files(mapped_shm(self.procs[name].pid))).values())
         os.killpg(self.procs[name].pid, signal.SIGKILL)
         self.procs[name].wait()
 
@@ -332,14 +333,43 @@ def _judged(mapped: set[str], domain: int) -> set[str]:
     return own_files(mapped) | {name for name in mapped if segment_domain(name) in (None, domain)}
 
 
-def _orphans(names: set[str]) -> list[str]:
+def _file_ids(names: set[str]) -> dict[str, tuple[int, int]]:
+    """Each of ``names`` that is in /dev/shm now, with the file it is (device, inode): a file removed
+    and made again under the same name is another file."""
+    ids = {}
+    for name in names:
+        try:
+            stat = os.stat(f"/dev/shm/{name}")
+        except OSError:
+            continue
+        ids[name] = (stat.st_dev, stat.st_ino)
+    return ids
+
+
+def _orphans(files: dict[str, tuple[int, int]], domain: int) -> list[str]:
+    """Those of a stopped node's ``files`` (:func:`_file_ids` while it ran) that are left and held by
+    no process. A name of no domain's port range (``fastrtps_port70xx``: each new participant, of any
+    domain on the machine, takes the lowest number free) counts only while it is still the node's
+    file and no other participant has taken the number (an ``_el`` lock file of the number that is
+    not the node's; the new owner opens the port file still there): once the node's files are gone,
+    a participant of another test may take the number, and one SIGKILLed leaves its ``_el`` file
+    held by no process while its peers still map the port (seen beside a neighbour on domain 154:
+    ``fastrtps_port7001_el`` made by its node after the integrator's was removed). The other names
+    are this graph's alone (its domain's ports, or unique)."""
+
     def held(name: str) -> bool:
         if name.startswith("sem.") and name.endswith("_mutex"):
             return segment_in_use(name) or segment_in_use(name[len("sem.") : -len("_mutex")])
         return segment_in_use(name)
 
-    fast_dds = (n for n in names if n.startswith(("fastrtps_", "sem.fastrtps_")))
-    return sorted(n for n in fast_dds if os.path.exists(f"/dev/shm/{n}") and not held(n))
+    def the_nodes(name: str, file: tuple[int, int]) -> bool:
+        if segment_domain(name) in (None, domain):
+            return True
+        lock = re.sub(r"^(?:sem\.)?(fastrtps_port\d+).*$", r"\1_el", name)
+        return file == files[name] and _file_ids({lock}).get(lock) in (None, files.get(lock))
+
+    now = _file_ids({n for n in files if n.startswith(("fastrtps_", "sem.fastrtps_"))})
+    return sorted(n for n, file in now.items() if the_nodes(n, file) and not held(n))
 
 
 def _running(pid: int) -> bool:
@@ -375,11 +405,12 @@ def test_sigint_leaves_no_fast_dds_file_held_by_no_process(restart_graph):
         g.frames.on = phase == "busy"
         if g.frames.on:  # the integrator busy: frames arrive and are integrated, and go on arriving
             assert wait_for(lambda: g.integrated() >= 3, 60.0, 0.5), g.log("integrator")[-2000:]
-        judged: dict[str, set[str]] = {}
+        judged: dict[str, dict[str, tuple[int, int]]] = {}
         helpers: list[int] = []
         for name in SIGINT_ORDER:
             proc = g.procs[name]
             mapped = mapped_shm(proc.pid)
+            files = _file_ids(_judged(mapped, domain))  # the files themselves, while the node has them
             assert any(n.startswith("fastrtps_") for n in own_files(mapped)), f"{name} created no Fast DDS file"
             pressure = g.pressure(name) if phase == "busy" else None
             if pressure is not None:
@@ -392,11 +423,11 @@ def test_sigint_leaves_no_fast_dds_file_held_by_no_process(restart_graph):
                 pressure.stop()
             if name == "integrator" and g.frames.on:
                 assert wait_for(lambda sent=sent: g.frames.sent > sent, 5.0, 0.01), "no frame sent past the SIGINT"
-            judged[name] = _judged(mapped, domain) - g.killed_files
+            judged[name] = {n: file for n, file in files.items() if file not in g.killed_files}
             helpers += _release_helpers(own_files(mapped))  # started before the node exited
         g.frames.on = False
         assert wait_for(lambda h=helpers: not any(map(_running, h)), 30.0, 0.1), "shm_release still runs"
-        for name, names in judged.items():  # judged once the nodes' clean-up is over: what is left stays
-            if orphans := _orphans(names):
+        for name, files in judged.items():  # judged once the nodes' clean-up is over: what is left stays
+            if orphans := _orphans(files, domain):
                 left[f"{name} ({phase})"] = orphans
     assert not left, f"left in /dev/shm, held by no process: {left}"
