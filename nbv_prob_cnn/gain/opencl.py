@@ -50,12 +50,14 @@ BEST_VIEW_FIRST_BATCH = 2048
 #: Origins per axis of a block of ``best_view`` (one bound per block).
 BOUND_BLOCK = 2
 #: Grid dimensions whose surface-blend block bounds take the largest gain over the windows' ranges
-#: of ``p`` (``SURFACE_BOUND`` 2, a second pass over each bound ray) rather than the window's largest
+#: of ``p`` (``SURFACE_BOUND`` 2, a backward pass over each bound ray) rather than the window's largest
 #: ``p`` for the factor and its smallest for the visibility (1). Measured on half-explored grids
 #: (seed 1000, CPU time of one search, best of 5; a 2-core CPU shared with two evaluations):
 #: 3DT 0.380 -> 0.333 s and 3DU 0.125 -> 0.067 s with 2 (3DT: 2 126 origins evaluated exactly
-#: instead of 62 641), 2D 0.160 -> 0.217 s (its bounds were tight already), so 1 there.
-SURFACE_BOUND_DP_DIMS = (3,)
+#: instead of 62 641). 2D, with bound blocks of 3 cells (:func:`~nbv_prob_cnn.planners.base.bound_block_size`),
+#: idle machine, best of 5, summed: 3 half-explored maps 0.296 s (1, blocks of 2) -> 0.220 s (2), 5 grids
+#: of a ``cnn_surface`` exploration 0.289 -> 0.205 s.
+SURFACE_BOUND_DP_DIMS = (2, 3)
 #: Most samples per ray whose window ranges the surface blend's bounds by dynamic programming keep
 #: in private arrays for the backward pass (``DP_SAMPLES``; longer rays gather them again): 2 x 16
 #: lanes x 4 bytes a sample, 33 KB a work-item at 256. 3DT block bounds (6 cells) of 4 grids of

@@ -31,7 +31,7 @@ from nbv_prob_cnn.planners.candidates import crop_to_reach
 
 #: Ray and orientation sets of :class:`PlanningContext`: the paper's, or the authors' code's.
 VIEW_SETS = ("spec", "original")
-#: Ray range (cells) from which 3D searches bound larger blocks (:func:`bound_block_size`).
+#: Ray range (cells) from which searches bound larger blocks (:func:`bound_block_size`).
 LONG_RAYS = 64
 #: Views a surface method re-ranks by their own image rays (:attr:`PlanningContext.image_rerank`).
 #: 3DT, 10 worlds x 30 views with the view guard: 95 % of the surface after 9.9 views against 12.4
@@ -384,16 +384,23 @@ def search_views(
 
 def bound_block_size(dims: int, stride: int, r_max: int) -> int:
     """Origins per axis of a bounded block of the coarse-to-fine search: two origin strides (about
-    ``2**dims`` origins per block); for long 3D rays, whose bound pass costs more than the exact origins
-    looser bounds let through, three strides and at least 4 cells. Measured on half-explored grids (one
-    search, a 2-core CPU shared with other jobs): 3DT (range 128) every cell 1.25 -> 0.53 s (b 2 -> 4),
-    256x256x192 30.6 -> 9.9 s; 3DU (range 24) 0.33 -> 0.71 s and 2D 0.54 -> 0.83 s, so 2 there. On 3DT's
-    stride 2, CPU seconds of the search summed over 12 grids of ``cnn_surface`` explorations (3 worlds,
-    after 2, 5, 10 and 20 views), b 4 / 6 / 8 / 10: the paper's gain 4.30 / 4.01 / 4.48 / 5.40, the
-    surface gain's top 20 8.10 / 5.76 / 5.69 / 6.24 (its bounds by dynamic programming march each bound
-    ray twice); 3DU b 2 / 3 / 4 stayed best at 2."""
-    if dims == 3 and r_max >= LONG_RAYS:
-        return max(4, 3 * stride)
+    ``2**dims`` origins per block); for rays of :data:`LONG_RAYS` cells or more, whose bound pass costs
+    more than the exact origins looser bounds let through, three strides (and at least 4 cells in 3D).
+    Measured (one search; seconds summed over the grids, best of 3-5):
+
+    * 3DT (range 128): every cell 1.25 -> 0.53 s (b 2 -> 4), 256x256x192 30.6 -> 9.9 s (half-explored,
+      a 2-core CPU shared with other jobs). Stride 2, CPU seconds over 12 grids of ``cnn_surface``
+      explorations (3 worlds, after 2, 5, 10 and 20 views), b 4 / 6 / 8 / 10: the paper's gain 4.30 /
+      4.01 / 4.48 / 5.40, the surface gain's top 20 8.10 / 5.76 / 5.69 / 6.24 (its bounds by dynamic
+      programming march each bound ray twice).
+    * 2D (range 128, every cell), idle, b 2 / 3 / 4: 3 half-explored maps, the paper's gain 0.256 / 0.168
+      / 0.156, the surface gain's top 20 0.350 / 0.220 / 0.185; 5 grids of a ``cnn_surface`` exploration
+      0.206 / 0.164 / 0.178 and 0.256 / 0.205 / 0.212.
+    * 3DU (range 24): half-explored 0.33 -> 0.71 s (b 2 -> 4); b 2 / 3 / 4 over 12 exploration grids:
+      2 stayed best.
+    """
+    if r_max >= LONG_RAYS:
+        return max(4, 3 * stride) if dims == 3 else 3 * stride
     return 2 * stride
 
 
