@@ -325,7 +325,8 @@ def search_views(
     n_views = context.membership.shape[1]
     if prune and _uses_opencl(context.backend) and origins.shape[0] > 0 and (top_k == 1 or prune_views):
         t0 = time.perf_counter()
-        block = bound_block_size(state.ndim, context.origin_stride or context.defaults.origin_stride, sensor.r_max)
+        stride = context.origin_stride or context.defaults.origin_stride
+        block = bound_block_size(state.ndim, stride, sensor.r_max, surface=settings.surface > 0.0)
         if top_k == 1 and view_mask is None:
             one = best_origin_view(
                 state, prob, context.directions, sensor.r_max, context.membership, origins, "opencl",
@@ -382,10 +383,11 @@ def search_views(
     ]
 
 
-def bound_block_size(dims: int, stride: int, r_max: int) -> int:
+def bound_block_size(dims: int, stride: int, r_max: int, surface: bool = False) -> int:
     """Origins per axis of a bounded block of the coarse-to-fine search: two origin strides (about
     ``2**dims`` origins per block); for rays of :data:`LONG_RAYS` cells or more, whose bound pass costs
-    more than the exact origins looser bounds let through, three strides (and at least 4 cells in 3D).
+    more than the exact origins looser bounds let through, three strides (and at least 4 cells in 3D),
+    four for a ``surface`` blend, whose bounds by dynamic programming cost more per block.
     Measured (one search; seconds summed over the grids, best of 3-5):
 
     * 3DT (range 128): every cell 1.25 -> 0.53 s (b 2 -> 4), 256x256x192 30.6 -> 9.9 s (half-explored,
@@ -400,7 +402,8 @@ def bound_block_size(dims: int, stride: int, r_max: int) -> int:
       2 stayed best.
     """
     if r_max >= LONG_RAYS:
-        return max(4, 3 * stride) if dims == 3 else 3 * stride
+        strides = (4 if surface else 3) * stride
+        return max(4, strides) if dims == 3 else strides
     return 2 * stride
 
 
