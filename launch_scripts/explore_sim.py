@@ -28,7 +28,7 @@ of the world), <out>/explored.png,
 Exit status: 0 explored, 1 the exploration failed, 2 a bad argument, 4 a node exited,
 124 ``--timeout`` passed, 130 Ctrl-C.
 
-Example:  .venv/bin/python launch_scripts/explore_sim.py --views 10 --method cnn_prob [--no-arm]
+Example:  .venv/bin/python launch_scripts/explore_sim.py --views 10 --method cnn_surface [--no-arm]
 """
 
 from __future__ import annotations
@@ -38,7 +38,7 @@ import sys
 from pathlib import Path
 
 from nbv_prob_cnn.basics.camera import dataset_defaults
-from nbv_prob_cnn.planners.registry import ros_method_names
+from nbv_prob_cnn.planners.registry import DEFAULT_METHOD, ros_method_names
 from nbv_prob_cnn.ros.graph import NodeGraph, ros_environment, run_graph
 from nbv_prob_cnn.sensing.sensor_noise import PRESETS
 
@@ -69,8 +69,8 @@ def parse_args(argv=None) -> argparse.Namespace:
     parser.add_argument("--views", type=int, default=10, help="views to plan (default 10)")
     methods = ros_method_names()
     parser.add_argument(
-        "--method", default="cnn_prob", choices=methods, metavar="METHOD",
-        help="the planner's method (default cnn_prob): " + ", ".join(methods),
+        "--method", default=DEFAULT_METHOD, choices=methods, metavar="METHOD",
+        help=f"the planner's method (default {DEFAULT_METHOD}): " + ", ".join(methods),
     )  # fmt: skip
     parser.add_argument("--in-process", action="store_true", help="planner completes and ray-casts itself")
     parser.add_argument("--no-arm", action="store_true", help="free-flying camera (no arm_sim, no reachability)")

@@ -34,7 +34,7 @@ from nbv_prob_cnn.basics.camera import dataset_defaults
 from nbv_prob_cnn.basics.geometry import GridGeometry
 from nbv_prob_cnn.perception.bags import BagError, bag_pose_source, read_frames
 from nbv_prob_cnn.perception.realized_gain import Fusion, recording_box
-from nbv_prob_cnn.planners.registry import ros_method_names
+from nbv_prob_cnn.planners.registry import DEFAULT_METHOD, ros_method_names
 from nbv_prob_cnn.ros.graph import NodeGraph, ros_environment, run_graph
 
 #: ``pose_source:=tf``: how long the integrator holds an image for its transform [s] (the node's
@@ -60,8 +60,8 @@ def main(argv=None) -> int:
     parser.add_argument("--dataset", default="3dt", choices=["3du", "3dt"], help="grid box and CNN weights")
     methods = ros_method_names()
     parser.add_argument(
-        "--method", default="cnn_prob", choices=methods, metavar="METHOD",
-        help="the planner's method (default cnn_prob): " + ", ".join(methods),
+        "--method", default=DEFAULT_METHOD, choices=methods, metavar="METHOD",
+        help=f"the planner's method (default {DEFAULT_METHOD}): " + ", ".join(methods),
     )  # fmt: skip
     parser.add_argument("--top-k", type=int, default=5)
     parser.add_argument("--rate", type=float, default=5.0, help="replay speed factor")

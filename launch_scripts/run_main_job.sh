@@ -5,7 +5,7 @@
 # sim_camera as the camera's driver: 16UC1 depth + CameraInfo in the optical frame; integrator,
 # nbv_planner planning reachable views and sending timed joint trajectories, completion_server,
 # gain_server) explores the held-out tabletop scene of seed 1000 through the Explore action with
-# the paper's method (cnn_prob), up to 10 views.
+# the surface gain (cnn_surface, the default; --method cnn_prob for the paper's method), up to 10 views.
 # Results: out/main_job/views.csv (incl. joint travel and goal), explored.png, grid.npz, graph.json, logs/.
 # Add --no-arm for the free-flying camera.
 set -euo pipefail
@@ -13,4 +13,4 @@ repo="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 bash "$repo/launch_scripts/setup.sh"
 cd "$repo"
 exec "$repo/.venv/bin/python" launch_scripts/explore_sim.py --dataset 3dt --seed 1000 --views 10 \
-  --method cnn_prob --out out/main_job "$@"
+  --method cnn_surface --out out/main_job "$@"

@@ -3,7 +3,7 @@ views over candidate origins (``/nbv/rank_views``) with the OpenCL ray-casting k
 
 The CNN methods get their probability map from the completion server (``/nbv/complete``) or,
 with ``completion:=in_process``, from the CNN loaded in this process. The default method is
-``cnn_prob``, as ``nbv_planner``'s.
+:data:`~nbv_prob_cnn.planners.registry.DEFAULT_METHOD` (``cnn_surface``), as ``nbv_planner``'s.
 
 Poses given in another frame than the grid's are transformed into it by TF (``/tf`` +
 ``/tf_static``, :class:`~nbv_prob_cnn.ros.tf_listener.TfListener`) at their stamp (0: the newest

@@ -152,14 +152,15 @@ def quat_mul_z(quat, degrees: float) -> list[float]:
     return list((Rotation.from_euler("z", degrees, degrees=True) * Rotation.from_quat(quat)).as_quat())
 
 
-def test_every_node_defaults_to_cnn_prob():
-    """Every node with a default method (a request naming none) has cnn_prob, so gain_server and
-    nbv_planner score a pose alike."""
+def test_every_node_defaults_to_the_default_method():
+    """Every node with a default method (a request naming none) has the registry's, cnn_surface since
+    issue 45, so gain_server and nbv_planner score a pose alike."""
     import dataclasses
     import importlib
     import pkgutil
 
     import nbv_prob_cnn.ros as ros_package
+    from nbv_prob_cnn.planners.registry import DEFAULT_METHOD
 
     defaults = {}
     for module_info in pkgutil.iter_modules(ros_package.__path__):
@@ -170,4 +171,4 @@ def test_every_node_defaults_to_cnn_prob():
                 if method is not None:
                     defaults[name] = method.default
     assert {"GainServerConfig", "PlannerConfig"} <= set(defaults)
-    assert set(defaults.values()) == {"cnn_prob"}, defaults
+    assert set(defaults.values()) == {DEFAULT_METHOD} == {"cnn_surface"}, defaults

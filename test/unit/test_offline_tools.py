@@ -266,4 +266,4 @@ def test_view_plan_and_the_nodes_score_with_one_default_method():
 
     commands = build_parser()._subparsers._group_actions[0].choices  # type: ignore[union-attr]
     defaults = {commands["view"].get_default("method"), commands["plan"].get_default("method")}
-    assert defaults | {PlannerConfig().method, GainServerConfig().method} == {DEFAULT_METHOD} == {"cnn_prob"}
+    assert defaults | {PlannerConfig().method, GainServerConfig().method} == {DEFAULT_METHOD} == {"cnn_surface"}
