@@ -384,10 +384,11 @@ def search_views(
 
 
 def bound_block_size(dims: int, stride: int, r_max: int, surface: bool = False) -> int:
-    """Origins per axis of a bounded block of the coarse-to-fine search: two origin strides (about
-    ``2**dims`` origins per block); for rays of :data:`LONG_RAYS` cells or more, whose bound pass costs
+    """Origins per axis of a bounded block of the coarse-to-fine search (a block of ``s`` strides holds
+    about ``s**dims`` origins); for rays of :data:`LONG_RAYS` cells or more, whose bound pass costs
     more than the exact origins looser bounds let through, three strides (and at least 4 cells in 3D),
-    four for a ``surface`` blend, whose bounds by dynamic programming cost more per block.
+    four for a ``surface`` blend, whose bounds by dynamic programming cost more per block; for shorter
+    rays three strides, two for a ``surface`` blend.
     Measured (one search; seconds summed over the grids, best of 3-5):
 
     * 3DT (range 128): every cell 1.25 -> 0.53 s (b 2 -> 4), 256x256x192 30.6 -> 9.9 s (half-explored,
@@ -398,13 +399,15 @@ def bound_block_size(dims: int, stride: int, r_max: int, surface: bool = False) 
     * 2D (range 128, every cell), idle, b 2 / 3 / 4: 3 half-explored maps, the paper's gain 0.256 / 0.168
       / 0.156, the surface gain's top 20 0.350 / 0.220 / 0.185; 5 grids of a ``cnn_surface`` exploration
       0.206 / 0.164 / 0.178 and 0.256 / 0.205 / 0.212.
-    * 3DU (range 24): half-explored 0.33 -> 0.71 s (b 2 -> 4); b 2 / 3 / 4 over 12 exploration grids:
-      2 stayed best.
+    * 3DU (range 24): half-explored 0.33 -> 0.71 s (b 2 -> 4). Idle, b 2 / 3, 12 grids of ``cnn_surface``
+      explorations: the paper's gain 0.356 / 0.324 s, the surface gain's top 20 0.407 / 0.493 s; 3
+      half-explored grids 0.139 / 0.107 and 0.169 / 0.218 s: 3 strides for the paper's gain, 2 for a
+      surface blend there.
     """
     if r_max >= LONG_RAYS:
         strides = (4 if surface else 3) * stride
         return max(4, strides) if dims == 3 else strides
-    return 2 * stride
+    return (2 if surface else 3) * stride
 
 
 def _checked_mask(view_mask: ViewMask, origins: np.ndarray, n_views: int) -> np.ndarray:
