@@ -49,15 +49,6 @@ VIEW_GAIN_ORIGINS_PER_LAUNCH = 1 << 17
 BEST_VIEW_FIRST_BATCH = 2048
 #: Origins per axis of a block of ``best_view`` (one bound per block).
 BOUND_BLOCK = 2
-#: Grid dimensions whose surface-blend block bounds take the largest gain over the windows' ranges
-#: of ``p`` (``SURFACE_BOUND`` 2, a backward pass over each bound ray) rather than the window's largest
-#: ``p`` for the factor and its smallest for the visibility (1). Measured on half-explored grids
-#: (seed 1000, CPU time of one search, best of 5; a 2-core CPU shared with two evaluations):
-#: 3DT 0.380 -> 0.333 s and 3DU 0.125 -> 0.067 s with 2 (3DT: 2 126 origins evaluated exactly
-#: instead of 62 641). 2D, with bound blocks of 3 cells (:func:`~nbv_prob_cnn.planners.base.bound_block_size`),
-#: idle machine, best of 5, summed: 3 half-explored maps 0.296 s (1, blocks of 2) -> 0.220 s (2), 5 grids
-#: of a ``cnn_surface`` exploration 0.289 -> 0.205 s.
-SURFACE_BOUND_DP_DIMS = (2, 3)
 #: Most samples per ray whose window ranges the surface blend's bounds by dynamic programming keep
 #: in private arrays for the backward pass (``DP_SAMPLES``; longer rays gather them again): 2 x 16
 #: lanes x 4 bytes a sample, 33 KB a work-item at 256. 3DT block bounds (6 cells) of 4 grids of
@@ -110,19 +101,18 @@ class OpenCLRayCaster:
         variant: str,
         exact: bool = False,
         sensor: bool = False,
-        surface_bound: int = 0,
+        surface_bound: bool = False,
         lanes: int | None = None,
         dp_samples: int = 0,
     ) -> tuple:
         """``(ray_gain, view_gain)`` of the program of gain ``variant`` (built on first use), with
         the exact-traversal and ``"returns"`` options (:class:`MarchOptions`), marching
         :meth:`program_lanes` origins per work-item (``lanes``: that many instead, e.g. 1);
-        ``surface_bound``: the program of a surface blend's block bounds (``SURFACE_BOUND``: 1 the
-        window's largest ``p`` for the factor, 2 the largest gain over the windows' ranges of ``p``,
-        see :data:`SURFACE_BOUND_DP_DIMS`); ``dp_samples``: with 2, the launches' samples per ray, kept
-        per sample for the backward pass (``DP_SAMPLES``; 0: gathered again)."""
+        ``surface_bound``: the program of a surface blend's block bounds (``SURFACE_BOUND``: the largest
+        gain over the windows' ranges of ``p``); ``dp_samples``: with it, the launches' samples per ray,
+        kept per sample for the backward pass (``DP_SAMPLES``; 0: gathered again)."""
         lanes = self.program_lanes(sensor) if lanes is None else int(lanes)
-        key = (variant, bool(exact), bool(sensor), int(surface_bound), lanes, int(dp_samples))
+        key = (variant, bool(exact), bool(sensor), int(bool(surface_bound)), lanes, int(dp_samples))
         if key not in self._kernels:
             options = [f"-DLANES={lanes}"]
             if check_variant(variant) == "original":
@@ -130,7 +120,7 @@ class OpenCLRayCaster:
                             f"-DORIGINAL_NEAR_HIT={ORIGINAL_NEAR_HIT!r}f"]  # fmt: skip
             options += ["-DGAIN_EXACT=1"] if exact else []
             options += ["-DGAIN_SENSOR=1"] if sensor else []
-            options += [f"-DSURFACE_BOUND={int(surface_bound)}"] if surface_bound else []
+            options += ["-DSURFACE_BOUND=1"] if surface_bound else []
             options += [f"-DDP_SAMPLES={int(dp_samples)}"] if dp_samples else []
             program = self._runtime.build(KERNEL_SOURCE, tuple(options))
             self._kernels[key] = (self._cl.Kernel(program, "ray_gain"), self._cl.Kernel(program, "view_gain"))
@@ -270,15 +260,14 @@ class OpenCLRayCaster:
         return self._views(code_buf, padded, origin_index, offset_buf, march, membership, local_size, view_sets)
 
     def _views(self, code_buf, padded, origin_index, offset_buf, march: RayMarch, membership,
-               local_size=VIEW_GAIN_LOCAL_SIZE, view_sets=None, surface_bound=None,
-               surface_program=2) -> np.ndarray:  # fmt: skip
+               local_size=VIEW_GAIN_LOCAL_SIZE, view_sets=None, surface_bound=None) -> np.ndarray:  # fmt: skip
         """``view_gain`` on a device grid ``code_buf`` (host copy ``padded``) at linear origins.
 
         ``view_sets``: None (every view exact) or per origin the views wanted exactly, ``(N, V)``
         booleans: a work-group sums the union of its origins' views and marches only their rays;
         other views get 0 (a lower bound of their gains). ``surface_bound``: the device grid of
-        :func:`~nbv_prob_cnn.gain.search_bounds.surface_bound_grid` (block bounds of a surface blend),
-        ``surface_program`` its ``SURFACE_BOUND`` (:meth:`kernels`)."""
+        :func:`~nbv_prob_cnn.gain.search_bounds.surface_bound_grid` (block bounds of a surface blend,
+        the ``SURFACE_BOUND`` program of :meth:`kernels`)."""
         cl, mf = self._cl, self._cl.mem_flags
         n, r, v = origin_index.shape[0], march.offsets.shape[0], membership.shape[1]
         out = np.empty((n, v), dtype=np.float32)
@@ -303,9 +292,9 @@ class OpenCLRayCaster:
         if view_sets is None:
             cl.enqueue_copy(self.queue, set_buf, every)
         out_buf = cl.Buffer(self.context, mf.WRITE_ONLY, block * v * 4)
-        program = 0 if surface_bound is None else surface_program
-        kept = r_samples if program == 2 and (r_samples := march.offsets.shape[1]) <= DP_KEPT_SAMPLES else 0
-        kernel = self.kernels(*march.program, surface_bound=program, dp_samples=kept)[1]
+        bounds = surface_bound is not None
+        kept = r_samples if bounds and (r_samples := march.offsets.shape[1]) <= DP_KEPT_SAMPLES else 0
+        kernel = self.kernels(*march.program, surface_bound=bounds, dp_samples=kept)[1]
         extra = self._option_args(march.options, padded.shape) + ([] if surface_bound is None else [surface_bound])
         for begin in range(0, n, block):
             count = min(block, n - begin)
@@ -351,13 +340,17 @@ class OpenCLRayCaster:
         # prob_free bounds itself: the least p of a window is below every cell's p (1 - p is above)
         bound_march = dataclasses.replace(march, mode="prob_free" if march.mode == "prob_free" else "prob", eps=0.0,
                                           min_range=0.0)  # fmt: skip
-        surface_buf = None  # a surface blend's factor (1 - beta) + beta p: at most that of the window's largest p
+        # a surface blend: the largest gain over the windows' ranges of p, by dynamic programming. Taking
+        # the window's largest p for the factor and its smallest for the visibility apart let 62 641 of
+        # 111 765 origins of a half-explored 3DT grid through (this: 2 126; CPU time of one search 0.380 ->
+        # 0.333 s; 3DU 0.125 -> 0.067 s); on 2D, with blocks of 3 cells, 3 half-explored maps 0.296 s (the
+        # former with blocks of 2) -> 0.220 s and 5 exploration grids 0.289 -> 0.205 s
+        surface_buf = None
         if march.surface:
             most = surface_bound_grid(padded, dims, size)
             surface_buf = self._cl.Buffer(self.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=most)
         view_bound = self._views(bound_buf, bound, corner_index, self._offsets(march.offsets, bound.shape),
-                                 bound_march, membership, surface_bound=surface_buf,
-                                 surface_program=2 if dims in SURFACE_BOUND_DP_DIMS else 1)  # fmt: skip
+                                 bound_march, membership, surface_bound=surface_buf)  # fmt: skip
         return block_of, view_bound
 
     def best_view(

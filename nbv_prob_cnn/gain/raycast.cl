@@ -53,11 +53,12 @@
 // the ray's return lands. With GAIN_SENSOR the surface term is sum_t u_t w_t q_t (the return
 // measured at t) and the blend mixes it with the sensor model's gain. beta = 0 multiplies by exactly
 // 1 (resp. adds exactly 0): the paper's gains, bit for bit.
-// SURFACE_BOUND = 1 or 2 (a build option, the coarse-to-fine bounds of a blend): the code holds the
-// smallest p of each window and the grid `surface_bound` (opencl.py: search_bounds) the largest p
-// of its unknown cells. 1: an unknown sample's factor reads the largest p and its visibility the
-// smallest. 2: the ray's largest gain over every p in that range, found backwards after the
-// march (see the end of march_rays); tighter, for a second pass.
+// SURFACE_BOUND = 1 (a build option, the coarse-to-fine bounds of a blend; the paper's variant
+// without the sensor model): the code holds the smallest p of each window and the grid
+// `surface_bound` (opencl.py: search_bounds) the largest p of its unknown cells; the bound is the
+// ray's largest gain over every p in that range, found backwards after the march (see the end of
+// march_rays). Taking the largest p for the factor and the smallest for the visibility apart is a
+// bound too, but a loose one (docs/method.md#surface-gain).
 #pragma OPENCL FP_CONTRACT OFF
 
 #define MODE_PROBABILISTIC 0
@@ -89,14 +90,15 @@
 #ifndef SURFACE_BOUND
 #define SURFACE_BOUND 0
 #endif
-// DP_SAMPLES > 0 (with SURFACE_BOUND 2): the samples per ray of the launch; the march keeps each
+// DP_SAMPLES > 0 (with SURFACE_BOUND): the samples per ray of the launch; the march keeps each
 // sample's window range [lo, hi] in private arrays for the backward pass, which then reads no grid
 // (0: the backward pass gathers them again).
 #ifndef DP_SAMPLES
 #define DP_SAMPLES 0
 #endif
-// the bound of a blend by dynamic programming (march_rays), in the paper's variant without the sensor model
-#define SURFACE_DP (SURFACE_BOUND == 2 && !GAIN_ORIGINAL && !GAIN_SENSOR)
+#if SURFACE_BOUND && (GAIN_ORIGINAL || GAIN_SENSOR)
+#error "SURFACE_BOUND is a bound of the paper's variant without the sensor model"
+#endif
 #if GAIN_ORIGINAL && (GAIN_EXACT || GAIN_SENSOR)
 #error "GAIN_EXACT and GAIN_SENSOR are options of the paper's variant"
 #endif
@@ -133,11 +135,10 @@
 #if SURFACE_BOUND
 #define SURFACE_KERNEL_PARAMS , __global const float *surface_bound
 #define SURFACE_ARGS , surface_bound
-#define SURFACE_P(c, cell) GATHER(surface_bound, cell)
+#define WINDOW_HI(cell) GATHER(surface_bound, cell)
 #else
 #define SURFACE_KERNEL_PARAMS
 #define SURFACE_ARGS
-#define SURFACE_P(c, cell) (c)
 #endif
 
 // Lane vectors (floatv, intv) with aligned reads and writes (p: a multiple of LANES items from
@@ -213,7 +214,7 @@ inline void march_rays(__global const float *code, __global const int *origins, 
     __global const float *normal_y = normals + n_cells;
     __global const float *normal_z = normal_y + n_cells;
 #endif
-#if SURFACE_DP
+#if SURFACE_BOUND
     intv end = (intv)(first_sample);  // per lane: one past the last sample it marched
     int marched_end = first_sample;  // the largest of them
 #if DP_SAMPLES
@@ -264,15 +265,15 @@ inline void march_rays(__global const float *code, __global const int *origins, 
             hit = (unknown & (intv)(AT_MIN_RANGE(t) ? -1 : 0)) ? (floatv)(weight) : hit;
             alive = alive & (c <= -2.0f);  // stops at the first non-empty sample
         } else {
-#if SURFACE_DP
+#if SURFACE_BOUND
             end = alive ? (intv)(t + 1) : end;
             marched_end = t + 1;
 #if DP_SAMPLES
             window_lo[t] = c;
-            window_hi[t] = SURFACE_P(c, cell);
+            window_hi[t] = WINDOW_HI(cell);
 #endif
-#else  // SURFACE_P: the sample's p, or with SURFACE_BOUND 1 the window's largest
-            hit = unknown ? hit + visible * weight * ((1.0f - surface) + surface * SURFACE_P(c, cell)) : hit;
+#else
+            hit = unknown ? hit + visible * weight * ((1.0f - surface) + surface * c) : hit;
 #endif
             visible = unknown ? visible * (1.0f - c) : visible;
             alive = alive & ((c <= -2.0f) | (unknown & (visible > eps)));  // occupied: Pr = 0 from here on
@@ -282,7 +283,7 @@ inline void march_rays(__global const float *code, __global const int *origins, 
             break;
         }
     }
-#if SURFACE_DP
+#if SURFACE_BOUND
     // The block's bound of a blend: the largest sum_t u_t w_t Pr(r_t) ((1 - beta) + beta p_t) over
     // every choice of p_t in its window's range [lo_t, hi_t] (code: the smallest p, surface_bound:
     // the largest p of an unknown cell), by dynamic programming from the last sample marched to the
@@ -301,7 +302,7 @@ inline void march_rays(__global const float *code, __global const int *origins, 
 #else
             const intv cell = inside ? origin + off[t] : origin;
             const floatv c = GATHER(code, cell);
-            const floatv hi = SURFACE_P(c, cell);
+            const floatv hi = WINDOW_HI(cell);
 #endif
             const float weight = WEIGHT(t);
             const floatv at_lo = weight * ((1.0f - surface) + surface * c) + (1.0f - c) * g;

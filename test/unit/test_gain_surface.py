@@ -171,8 +171,8 @@ def test_block_bounds_bound_every_origin_of_their_block(surface):
 @pytest.mark.parametrize("dims", [2, 3])
 def test_block_bounds_of_one_cell_blocks_are_the_exact_gains(surface, dims):
     """A block of one cell has windows of one cell (the smallest and largest p are its p): the
-    bound (3D: its dynamic programme, one choice per sample; 2D: the window's largest p for the
-    factor) must then give the exact gain of the numpy reference, view by view."""
+    bound (its dynamic programme, one choice per sample) must then give the exact gain of the numpy
+    reference, view by view, in 2D and 3D."""
     from nbv_prob_cnn.gain.march import ray_march
     from nbv_prob_cnn.gain.marched_grid import encode_grid
     from nbv_prob_cnn.gain.opencl import get_ray_caster
