@@ -106,7 +106,7 @@ def test_exploration_plan_table_sums_each_methods_best_time_per_view(monkeypatch
     """Per data set, the mean over the views of each method's best time on the grid before each view,
     and the ratios; the exploration follows cnn_surface's views and ends when it has none. A fake clock:
     each cnn_prob plan takes 0.2 s (CPU 0.4), each cnn_surface plan 0.3 s (CPU 0.5), the first repeat
-    of each 1 s longer (best of 2 drops it)."""
+    of each view 1 s longer (best of 2 drops it); one warm-up plan per method before the first view."""
     import types
 
     import nbv_prob_cnn.worlds
@@ -122,11 +122,11 @@ def test_exploration_plan_table_sums_each_methods_best_time_per_view(monkeypatch
             self.name, self.calls = name, 0
 
         def plan(self, state, context):
-            self.calls += 1
-            slow = 1.0 if self.calls % 3 == 2 else 0.0  # warm-up, then 2 repeats: the first is slow
+            self.calls += 1  # a warm-up before the first view, then 2 repeats per view
+            slow = 1.0 if self.calls > 1 and self.calls % 2 == 0 else 0.0  # each view's first repeat
             clock["wall"] += (0.2 if self.name == "cnn_prob" else 0.3) + slow
             clock["cpu"] += (0.4 if self.name == "cnn_prob" else 0.5) + slow
-            planned = self.calls // 3  # views planned so far
+            planned = (self.calls - 1) // 2  # views planned so far
             if self.name == "cnn_surface" and state.ndim == 3 and planned >= 2:
                 return None  # 3D: nothing left after the second view
             return ViewChoice(np.array([1] * state.ndim), 0, 1.0)
