@@ -329,12 +329,10 @@ def test_ray_caster_marches_a_changed_grid_again(rng, edit):
     d = ray_directions(3, 3)
     own = np.stack([d[rng.permutation(d.shape[0])[:6]] for _ in range(origins.shape[0])])
     for step in range(3):
-        for backend in BACKENDS:  # the reference, then OpenCL on the same grid twice
-            got = each_origin_ray_gains(state, prob, own, 9, origins, backend)
-            if backend == "numpy":
-                expected = got
-            np.testing.assert_allclose(got, expected, atol=1e-5, rtol=0, err_msg=f"step {step} {backend}")
-        np.testing.assert_allclose(each_origin_ray_gains(state, prob, own, 9, origins, "opencl"), expected, atol=1e-5)
+        expected = each_origin_ray_gains(state, prob, own, 9, origins, "numpy")
+        for launch in range(2):  # OpenCL on the same grid twice: the second on the kept grid
+            got = each_origin_ray_gains(state, prob, own, 9, origins, "opencl")
+            np.testing.assert_allclose(got, expected, atol=1e-5, rtol=0, err_msg=f"step {step} launch {launch}")
         unknown = np.argwhere(state == U)
         flip = unknown[rng.permutation(unknown.shape[0])[:20]]
         if edit == "new array":
