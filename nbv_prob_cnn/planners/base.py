@@ -394,8 +394,8 @@ def bound_block_size(dims: int, stride: int, r_max: int, surface: bool = False) 
     * 3DT (range 128): every cell 1.25 -> 0.53 s (b 2 -> 4), 256x256x192 30.6 -> 9.9 s (half-explored,
       a 2-core CPU shared with other jobs). Stride 2, CPU seconds over 12 grids of ``cnn_surface``
       explorations (3 worlds, after 2, 5, 10 and 20 views), b 4 / 6 / 8 / 10: the paper's gain 4.30 /
-      4.01 / 4.48 / 5.40, the surface gain's top 20 8.10 / 5.76 / 5.69 / 6.24 (its bounds by dynamic
-      programming march each bound ray twice).
+      4.01 / 4.48 / 5.40, the surface gain's top 20 8.10 / 5.76 / 5.69 / 6.24 (measured while its bounds
+      by dynamic programming still gathered each bound ray's samples twice).
     * 2D (range 128, every cell), idle, b 2 / 3 / 4: 3 half-explored maps, the paper's gain 0.256 / 0.168
       / 0.156, the surface gain's top 20 0.350 / 0.220 / 0.185; 5 grids of a ``cnn_surface`` exploration
       0.206 / 0.164 / 0.178 and 0.256 / 0.205 / 0.212.
